@@ -1,0 +1,308 @@
+"""Beam discretizations: the rungs of the fidelity ladder behind one interface.
+
+Every rung describes the transverse deflection of a beam clamped to its hub as
+``w(x) = φ(x)ᵀ η`` and the foreshortening of its neutral fibre as
+``u_f(x) = −½ ηᵀ S(x) η`` with ``S(x) = ∫₀ˣ φ′ φ′ᵀ ds`` (PHYSICS.md, floating frame).
+A rung hands the chain a :class:`BeamDiscretization`: mass points (abscissa, mass, φ, S),
+the tip quantities (φ(L), φ′(L), S(L)), the stiffness K and damping D matrices and the
+curvature basis φ″ for strain. The chain never needs to know which rung it got.
+
+| rung   | coordinates                     | source                                    |
+|--------|---------------------------------|-------------------------------------------|
+| rigid  | 1 spring angle, K = 3EI/L       | seed 000 low-fidelity model               |
+| cubic  | tip displacement, tip rotation  | seed 000 / seed 002 cubic shape functions |
+| modal  | N mode amplitudes               | seed 002 modal model (modes from FEM)     |
+| fem    | (w, θ) per node, Hermite cubic  | convergence reference                     |
+| fd     | nodal deflections y1..yn        | seed 001 finite differences               |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import scipy.linalg
+
+from .errors import SceneError
+
+#: default refinement per rung (modes / elements / FD segments)
+DEFAULT_REFINE = {"rigid": 1, "cubic": 1, "modal": 4, "fem": 8, "fd": 20}
+
+_GAUSS_POINTS = 4  # per element: integrates degree-7 polynomials exactly
+
+
+@dataclass(frozen=True)
+class BeamDiscretization:
+    """What a rung gives the chain for one beam (all arrays read-only).
+
+    Shapes: P mass points, ne elastic coordinates.
+    ``x`` (P,), ``mass`` (P,) in kg, ``phi`` (P, ne), ``S`` (P, ne, ne),
+    ``phi_tip``/``slope_tip`` (ne,), ``S_tip`` (ne, ne), ``K``/``D``/``M_e`` (ne, ne).
+    """
+    rung: str
+    refine: int
+    coord_suffixes: tuple[str, ...]
+    length: float
+    hub_radius: float
+    x: np.ndarray
+    mass: np.ndarray
+    phi: np.ndarray
+    S: np.ndarray
+    phi_tip: np.ndarray
+    slope_tip: np.ndarray
+    S_tip: np.ndarray
+    K: np.ndarray
+    D: np.ndarray
+    M_e: np.ndarray
+    curvature_fn: Callable[[np.ndarray], np.ndarray]
+    shape_fn: Callable[[np.ndarray], np.ndarray]
+
+    @property
+    def n(self) -> int:
+        return len(self.coord_suffixes)
+
+    def curvature(self, x) -> np.ndarray:
+        """φ″(x), shape (len(x), ne): strain at depth t/2 is (t/2)·φ″(x)ᵀη."""
+        return self.curvature_fn(np.atleast_1d(np.asarray(x, float)))
+
+    def deflection(self, x, eta) -> np.ndarray:
+        """w(x) for elastic coordinates ``eta`` (rigid rung: x·β, small angle)."""
+        return self.shape(x) @ np.asarray(eta)
+
+    def shape(self, x) -> np.ndarray:
+        """φ(x), shape (len(x), ne)."""
+        return self.shape_fn(np.atleast_1d(np.asarray(x, float)))
+
+
+# --------------------------------------------------------------------------------------
+# Hermite cubic elements (also the cubic rung, n = 1, and the modal rung's parent)
+# --------------------------------------------------------------------------------------
+
+def _hermite_eval(x, length, n_el):
+    """Hermite cubic shape functions of a clamped beam with ``n_el`` equal elements.
+
+    Returns φ, φ′, φ″ with shape (len(x), 2·n_el), coordinates ordered
+    [w1, θ1, w2, θ2, …, w_n, θ_n] (node 0, the clamped root, removed).
+    """
+    x = np.clip(np.asarray(x, float), 0.0, length)
+    h = length / n_el
+    e = np.minimum((x / h).astype(int), n_el - 1)
+    xi = (x - e * h) / h
+    N = np.stack([1 - 3 * xi**2 + 2 * xi**3, h * (xi - 2 * xi**2 + xi**3),
+                  3 * xi**2 - 2 * xi**3, h * (-xi**2 + xi**3)], axis=1)
+    dN = np.stack([(-6 * xi + 6 * xi**2) / h, 1 - 4 * xi + 3 * xi**2,
+                   (6 * xi - 6 * xi**2) / h, -2 * xi + 3 * xi**2], axis=1)
+    ddN = np.stack([(-6 + 12 * xi) / h**2, (-4 + 6 * xi) / h,
+                    (6 - 12 * xi) / h**2, (-2 + 6 * xi) / h], axis=1)
+    ndof = 2 * (n_el + 1)
+    out = []
+    rows = np.arange(len(x))
+    for arr in (N, dN, ddN):
+        full = np.zeros((len(x), ndof))
+        for k in range(4):
+            np.add.at(full, (rows, 2 * e + k), arr[:, k])
+        out.append(full[:, 2:])
+    return out
+
+
+def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
+                 breaks, evaluate, K=None):
+    """Mass points, S(x) and matrices of a basis that is polynomial between ``breaks``.
+
+    S(x) = ∫₀ˣ φ′φ′ᵀ ds is integrated element by element with Gauss–Legendre quadrature
+    (exact for the piecewise-cubic bases used here); the mass points are the Gauss points
+    with mass ρA·weight. K = EI ∫ φ″φ″ᵀ dx unless given (rigid rung).
+    """
+    gx, gw = np.polynomial.legendre.leggauss(_GAUSS_POINTS)
+    a, b = breaks[:-1], breaks[1:]
+    half = 0.5 * (b - a)
+    xs = (a[:, None] + half[:, None] * (gx[None, :] + 1)).ravel()
+    ws = (half[:, None] * gw[None, :]).ravel()
+    phi, dphi, ddphi = evaluate(xs)
+    ne = phi.shape[1]
+    # element integrals of φ′φ′ᵀ, cumulative at element starts
+    elem = np.einsum("p,pi,pj->pij", ws, dphi, dphi).reshape(len(a), _GAUSS_POINTS, ne, ne)
+    elem_tot = elem.sum(axis=1)
+    start = np.concatenate([np.zeros((1, ne, ne)), np.cumsum(elem_tot, axis=0)[:-1]])
+    # partial integral from element start to each Gauss point
+    S = np.empty((len(xs), ne, ne))
+    for k, xk in enumerate(xs):
+        el = k // _GAUSS_POINTS
+        lo = a[el]
+        hk = 0.5 * (xk - lo)
+        px = lo + hk * (gx + 1)
+        _, dp, _ = evaluate(px)
+        S[k] = start[el] + np.einsum("p,pi,pj->ij", hk * gw, dp, dp)
+    S_tip = start[-1] + elem_tot[-1]
+    mass = rho_a * ws
+    M_e = np.einsum("p,pi,pj->ij", mass, phi, phi)
+    if K is None:
+        K = EI * np.einsum("p,pi,pj->ij", ws, ddphi, ddphi)
+    phiL, dphiL, _ = evaluate(np.array([length]))
+    D = damping.viscous_per_length / rho_a * M_e + damping.stiffness_proportional * K
+    return BeamDiscretization(rung, refine, tuple(suffixes), length, hub_radius, xs, mass,
+                              phi, S, phiL[0], dphiL[0], S_tip, _sym(K), _sym(D), _sym(M_e),
+                              lambda x: evaluate(x)[2], lambda x: evaluate(x)[0])
+
+
+def _sym(a):
+    a = 0.5 * (a + a.T)
+    a.setflags(write=False)
+    return a
+
+
+def hermite_fem(beam, n_el, rung="fem", suffixes=None, refine=None):
+    """Hermite cubic finite elements, ``n_el`` per beam (2 coordinates per node)."""
+    L = beam.length
+    if suffixes is None:
+        suffixes = [f"{k}{i}" for i in range(1, n_el + 1) for k in ("w", "th")]
+    return _gauss_build(rung, n_el if refine is None else refine, suffixes, L, beam.hub_radius,
+                        beam.mass_per_length, beam.EI, beam.damping,
+                        np.linspace(0.0, L, n_el + 1), lambda x: _hermite_eval(x, L, n_el))
+
+
+def cubic(beam):
+    """Single cubic: tip displacement and tip rotation (seed 000 Eq. 3.25 shape functions
+    φ_d = 3x²/L² − 2x³/L³, φ_r = x³/L² − x²/L); identical to one Hermite element."""
+    return hermite_fem(beam, 1, rung="cubic", suffixes=["tip_disp", "tip_rot"], refine=1)
+
+
+def rigid_spring(beam):
+    """Rigid link on a torsional spring at the hub: w = x·β, K = 3EI/L (tip-load equivalent
+    stiffness, seed 000 low-fidelity model); foreshortening −½xβ² is the second-order
+    expansion of x(cos β − 1)."""
+    L = beam.length
+
+    def evaluate(x):
+        x = np.asarray(x, float)
+        return x[:, None], np.ones((len(x), 1)), np.zeros((len(x), 1))
+
+    K = np.array([[3.0 * beam.EI / L]])
+    return _gauss_build("rigid", 1, ["spring"], L, beam.hub_radius, beam.mass_per_length,
+                        beam.EI, beam.damping, np.array([0.0, L]), evaluate, K=K)
+
+
+def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None):
+    """The first ``n_modes`` clamped modes of the beam, from a Hermite FEM eigen-solve.
+
+    With ``with_tip`` the tip body's mass, inertia and CG offset are included in the
+    eigenproblem (modes that can carry the tip shear, PHYSICS.md); otherwise plain
+    clamped-free modes. Each mode is scaled to unit peak deflection, positive at the tip.
+    The FEM eigen-solve avoids the textbook closed form, which cancels catastrophically
+    above ~8 modes.
+    """
+    L = beam.length
+    n_fe = mesh or max(24, 3 * n_modes)
+    fe = hermite_fem(beam, n_fe)
+    K, M = np.array(fe.K), np.array(fe.M_e)
+    if with_tip and (tip.mass > 0 or tip.inertia > 0):
+        M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
+    vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
+    xs = np.linspace(0, L, 8 * n_fe + 1)
+    peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)
+    sign = np.sign(fe.phi_tip @ vecs)
+    sign[sign == 0] = 1.0
+    V = vecs * (sign / peak)[None, :]
+
+    def evaluate(x):
+        return [a @ V for a in _hermite_eval(x, L, n_fe)]
+
+    suffixes = [f"mode{i}" for i in range(1, n_modes + 1)]
+    # quadrature on the eigen-solve mesh, coarsened: the modes are smooth
+    n_q = max(8, 2 * n_modes)
+    return _gauss_build("modal", n_modes, suffixes, L, beam.hub_radius, beam.mass_per_length,
+                        beam.EI, beam.damping, np.linspace(0.0, L, n_q + 1), evaluate,
+                        K=V.T @ K @ V)
+
+
+def _tip_body_mass(phi_tip, slope_tip, tip):
+    """Linearised mass of a tip body on a clamped beam, in the beam's coordinates:
+    translation of its CG = w(L) + c_x·w′(L) (small rotation), rotation w′(L)."""
+    cx = tip.cg[0]
+    g = phi_tip + cx * slope_tip
+    return tip.mass * np.outer(g, g) + (tip.inertia + tip.mass * tip.cg[1] ** 2) * np.outer(
+        slope_tip, slope_tip)
+
+
+def finite_differences(beam, n_seg):
+    """Nodal finite differences (seed 001, Sec. 3): y1..yn at h = L/n, lumped masses.
+
+    The stiffness is the energy-consistent form of the seed's scheme: strain energy
+    ½EI Σ_i w_i h κ_i² with the central-difference curvature κ_i = (y_{i−1} − 2y_i +
+    y_{i+1})/h², the clamped root through the ghost node y_{−1} = y_1 (weight ½ at node 0)
+    and the free end's zero moment (κ_n = 0). Its interior rows are the seed's stencil
+    EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy, which
+    the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
+    by the backward difference (y_n − y_{n−1})/h, as in the seed.
+    """
+    if n_seg < 4:
+        raise SceneError(f"fidelity.refine: got {n_seg}, expected >= 4 segments for the fd "
+                         f"rung (seed 001 needs at least 4)")
+    L, n = beam.length, n_seg
+    h = L / n
+    rho_a = beam.mass_per_length
+    E = np.vstack([np.zeros(n), np.eye(n)])  # row i: node i in terms of y1..yn (y0 = 0)
+    x = np.arange(n + 1) * h
+    w_mass = np.full(n + 1, h)
+    w_mass[[0, -1]] = 0.5 * h
+    mass = rho_a * w_mass
+    d = (E[1:] - E[:-1]) / h  # backward slopes of segments 1..n
+    S = np.zeros((n + 1, n, n))
+    S[1:] = np.cumsum(h * np.einsum("ki,kj->kij", d, d), axis=0)
+    K = np.zeros((n, n))
+    kappa0 = 2.0 * E[1] / h**2
+    K += 0.5 * h * np.outer(kappa0, kappa0)
+    for i in range(1, n):
+        kap = (E[i - 1] - 2 * E[i] + E[i + 1]) / h**2
+        K += h * np.outer(kap, kap)
+    K *= beam.EI
+    M_e = np.einsum("p,pi,pj->ij", mass, E, E)
+    D = beam.damping.viscous_per_length * np.diag(w_mass[1:]) + \
+        beam.damping.stiffness_proportional * K
+
+    def curvature(xq):
+        # central-difference curvature at the nodes, linearly interpolated
+        kap = np.zeros((n + 1, n))
+        kap[0] = kappa0
+        for i in range(1, n):
+            kap[i] = (E[i - 1] - 2 * E[i] + E[i + 1]) / h**2
+        idx = np.clip(xq / h, 0, n)
+        lo = np.minimum(idx.astype(int), n - 1)
+        fr = (idx - lo)[:, None]
+        return (1 - fr) * kap[lo] + fr * kap[lo + 1]
+
+    def shape(xq):
+        idx = np.clip(np.asarray(xq, float) / h, 0, n)
+        lo = np.minimum(idx.astype(int), n - 1)
+        fr = (idx - lo)[:, None]
+        return (1 - fr) * E[lo] + fr * E[lo + 1]
+
+    return BeamDiscretization("fd", n, tuple(f"y{i}" for i in range(1, n + 1)), L,
+                              beam.hub_radius, x, mass, E.copy(), S, E[-1].copy(), d[-1].copy(),
+                              S[-1].copy(), _sym(K), _sym(D), _sym(M_e), curvature, shape)
+
+
+def discretize(beam, tip, fidelity) -> BeamDiscretization:
+    """Build the rung named in ``fidelity`` for one beam (``tip`` is its tip body)."""
+    rung = fidelity.rung
+    n = fidelity.refine or DEFAULT_REFINE[rung]
+    if rung == "rigid":
+        return rigid_spring(beam)
+    if rung == "cubic":
+        return cubic(beam)
+    if rung == "modal":
+        if n > 40:
+            raise SceneError(f"fidelity.refine: got {n}, expected <= 40 modes for the modal "
+                             f"rung (use fem for finer models)")
+        return natural_modes(beam, tip, n, with_tip=fidelity.modal_basis == "tip_loaded")
+    if rung == "fem":
+        if n > 200:
+            raise SceneError(f"fidelity.refine: got {n}, expected <= 200 elements")
+        return hermite_fem(beam, n)
+    if rung == "fd":
+        if n > 400:
+            raise SceneError(f"fidelity.refine: got {n}, expected <= 400 segments")
+        return finite_differences(beam, n)
+    raise SceneError(f"fidelity.rung: got {rung!r}, expected one of rigid, cubic, modal, "
+                     f"fem, fd")

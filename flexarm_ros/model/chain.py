@@ -1,0 +1,328 @@
+"""General planar chain of joints, rigid bodies and flexible beams (Kane's method, numeric).
+
+Coordinates q, per link in chain order: [motor angle (only with joint flexibility)],
+joint angle (link side, relative to the previous tip frame), the beam's elastic
+coordinates η. A material point of beam j at abscissa x has local position
+s = (r + x − ½ηᵀS(x)η, φ(x)ᵀη) in its hub frame and absolute position r = o + A(ψ)s.
+The tip frame sits at the beam tip and turns with the tip slope φ′(L)ᵀη; the next joint
+is at the tip frame's ``joint_offset``.
+
+For every mass point the Jacobian J = ∂r/∂q (2×n) and the velocity-product acceleration
+c (r̈ = J q̈ + c) are propagated down the chain (E = [[0, −1], [1, 0]]):
+
+    ṙ = ȯ + ψ̇ E A s + A ṡ,    r̈ = ö + ψ̈ E A s − ψ̇² A s + 2ψ̇ E A ṡ + A s̈.
+
+Equations of motion (PHYSICS.md):
+
+    M(q) q̈ = Q_input + Q_grav − h(q, q̇) − K q − D q̇,
+    M = M_drive + Σ_p m_p J_pᵀJ_p + Σ_bodies (m J_cgᵀJ_cg + I J_ψᵀJ_ψ),
+    h = Σ_p m_p J_pᵀ c_p,   Q_grav = Σ_p m_p J_pᵀ g.
+
+Because every term comes from the same point kinematics, the model is a consistent
+Lagrangian system: with no damping and no input its total energy is conserved to the
+integrator's accuracy (the check that catches an inconsistent term).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import beams
+from .programs import motion_state, torque_value
+
+E2 = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def _rot(psi):
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s], [s, c]])
+
+
+@dataclass
+class _LinkModel:
+    name: str
+    link: object
+    beam: beams.BeamDiscretization
+    i_joint: int
+    i_motor: int          # -1 without joint flexibility
+    eta: slice
+
+
+@dataclass
+class Frame:
+    """A body frame: origin o, angle ψ, their Jacobians and velocity-product terms."""
+    o: np.ndarray
+    Jo: np.ndarray
+    co: np.ndarray
+    psi: float
+    Jpsi: np.ndarray
+    psid: float
+
+
+@dataclass
+class Kinematics:
+    """Everything the chain computes at one (q, q̇): mass matrix, forces, frames, points."""
+    M: np.ndarray
+    h: np.ndarray
+    Qg: np.ndarray
+    hub_frames: list
+    tip_frames: list
+    points: list = field(default_factory=list)  # per link (r (P,2), J (P,2,n), c (P,2))
+
+
+class Chain:
+    """The planar flexible chain built from a scene at one rung of the ladder."""
+
+    def __init__(self, scene, fidelity=None):
+        self.scene = scene
+        self.fidelity = fidelity or scene.fidelity
+        self.links: list[_LinkModel] = []
+        names: list[str] = []
+        for lk in scene.links:
+            i_motor = -1
+            if lk.joint.flexibility is not None:
+                i_motor = len(names)
+                names.append(f"{lk.name}_motor")
+            i_joint = len(names)
+            names.append(f"{lk.name}_joint")
+            disc = beams.discretize(lk.beam, lk.tip, self.fidelity)
+            start = len(names)
+            names.extend(f"{lk.name}_{s}" for s in disc.coord_suffixes)
+            self.links.append(_LinkModel(lk.name, lk, disc, i_joint, i_motor,
+                                         slice(start, len(names))))
+        self.names = names
+        self.n = n = len(names)
+        self.gravity = np.asarray(scene.gravity, float)
+        self.has_gravity = bool(np.any(self.gravity != 0.0))
+        self.foreshortening = self.fidelity.foreshortening
+        # constant matrices: drive inertia, stiffness, damping
+        self.M_drive = np.zeros((n, n))
+        self.K = np.zeros((n, n))
+        self.D = np.zeros((n, n))
+        for lm in self.links:
+            jt = lm.link.joint
+            drive = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
+            self.M_drive[drive, drive] += jt.drive_inertia
+            self.D[drive, drive] += jt.drive_damping
+            if jt.flexibility is not None:
+                fx = jt.flexibility
+                self.M_drive[lm.i_motor, lm.i_motor] += fx.motor_inertia
+                idx = np.array([lm.i_motor, lm.i_joint])
+                blk = np.array([[1.0, -1.0], [-1.0, 1.0]])
+                self.K[np.ix_(idx, idx)] += fx.stiffness * blk
+                self.D[np.ix_(idx, idx)] += fx.damping * blk
+            self.K[lm.eta, lm.eta] += lm.beam.K
+            self.D[lm.eta, lm.eta] += lm.beam.D
+        # inputs: torque programs act on the drive coordinate; motions prescribe the joint
+        self.torque_inputs = []       # (coordinate index, program)
+        self.prescribed = []          # (coordinate index, program, theta0)
+        for inp in scene.inputs:
+            lm = self.links[inp.joint - 1]
+            if inp.torque is not None:
+                drive = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
+                self.torque_inputs.append((drive, inp.torque))
+            else:
+                self.prescribed.append((lm.i_joint, inp.motion, lm.link.joint.angle0))
+        presc = [p[0] for p in self.prescribed]
+        self.free = np.array([i for i in range(n) if i not in presc], dtype=int)
+        self.presc_idx = np.array(presc, dtype=int)
+
+    # ----------------------------------------------------------------------------- state
+    def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
+        """Initial (q, q̇) from the scene: joint angles and rates, beams undeformed."""
+        q = np.zeros(self.n)
+        qd = np.zeros(self.n)
+        for lm in self.links:
+            jt = lm.link.joint
+            q[lm.i_joint] = jt.angle0
+            qd[lm.i_joint] = jt.initial_rate
+            if lm.i_motor >= 0:
+                q[lm.i_motor] = jt.angle0
+                qd[lm.i_motor] = jt.initial_rate
+        return q, qd
+
+    def prescribed_state(self, t):
+        """(q_p, q̇_p, q̈_p) of the prescribed coordinates at time t."""
+        k = len(self.prescribed)
+        out = np.zeros((3, k))
+        for j, (_, prog, th0) in enumerate(self.prescribed):
+            out[:, j] = motion_state(prog, th0, t)
+        return out
+
+    def input_forces(self, t) -> np.ndarray:
+        """Generalized input forces Q_input(t) from the torque programs."""
+        Q = np.zeros(self.n)
+        for idx, prog in self.torque_inputs:
+            Q[idx] += torque_value(prog, t)
+        return Q
+
+    # ------------------------------------------------------------------------ kinematics
+    def kinematics(self, q, qd, want_points=False) -> Kinematics:
+        """Mass matrix M(q), velocity terms h(q, q̇) and gravity forces at (q, q̇)."""
+        n = self.n
+        M = self.M_drive.copy()
+        h = np.zeros(n)
+        Qg = np.zeros(n)
+        g = self.gravity
+        hubs, tips, pts = [], [], []
+        base = self.scene.base_angle
+        frame = Frame(np.zeros(2), np.zeros((2, n)), np.zeros(2), base, np.zeros(n), 0.0)
+        for k, lm in enumerate(self.links):
+            lk = lm.link
+            # joint position on the previous tip frame
+            if k > 0:
+                frame = _offset_frame(frame, np.asarray(self.scene.links[k - 1].tip.joint_offset))
+            # motor rotor inertia (joint flexibility): turns with the previous frame + motor
+            if lm.i_motor >= 0:
+                pass  # its inertia is in M_drive (reflected, about the relative coordinate)
+            Jpsi = frame.Jpsi.copy()
+            Jpsi[lm.i_joint] += 1.0
+            hub = Frame(frame.o, frame.Jo, frame.co, frame.psi + q[lm.i_joint], Jpsi,
+                        frame.psid + qd[lm.i_joint])
+            hubs.append(hub)
+            _add_body(M, h, Qg, hub, lk.hub, g)
+            # beam points
+            r, J, c, tip = self._beam(lm, hub, q, qd)
+            m = lm.beam.mass
+            M += np.einsum("p,pin,pim->nm", m, J, J)
+            h += np.einsum("p,pin,pi->n", m, J, c)
+            if self.has_gravity:
+                Qg += np.einsum("p,pin,i->n", m, J, g)
+            if want_points:
+                pts.append((r, J, c))
+            tips.append(tip)
+            _add_body(M, h, Qg, tip, lk.tip, g)
+            frame = tip
+        return Kinematics(M, h, Qg, hubs, tips, pts)
+
+    def _beam(self, lm, hub, q, qd):
+        """Beam mass points (r, J, c) and the tip frame, from the hub frame."""
+        b = lm.beam
+        eta = q[lm.eta]
+        etad = qd[lm.eta]
+        A = _rot(hub.psi)
+        # local positions and their derivatives: points (P) and the tip (last row)
+        phi = np.vstack([b.phi, b.phi_tip])
+        x = np.append(b.x, b.length)
+        P1 = len(x)
+        if self.foreshortening:
+            S = np.concatenate([b.S, b.S_tip[None]])
+            Seta = S @ eta                          # (P1, ne)
+            uf = -0.5 * Seta @ eta                  # (P1,)
+            acc_ax = -np.einsum("pij,i,j->p", S, etad, etad)
+        else:
+            Seta = np.zeros((P1, b.n))
+            uf = np.zeros(P1)
+            acc_ax = np.zeros(P1)
+        s = np.empty((P1, 2))
+        s[:, 0] = b.hub_radius + x + uf
+        s[:, 1] = phi @ eta
+        ds = np.empty((P1, 2, b.n))                 # ∂s/∂η
+        ds[:, 0, :] = -Seta
+        ds[:, 1, :] = phi
+        sd = ds @ etad                              # (P1, 2)
+        As = s @ A.T
+        EAs = As @ E2.T
+        J = np.broadcast_to(hub.Jo, (P1, 2, self.n)).copy()
+        J += EAs[:, :, None] * hub.Jpsi[None, None, :]
+        J[:, :, lm.eta] += np.einsum("ij,pjk->pik", A, ds)
+        Asd = sd @ A.T
+        c = (hub.co[None, :] - hub.psid**2 * As + 2.0 * hub.psid * (Asd @ E2.T)
+             + acc_ax[:, None] * A[:, 0][None, :])
+        r = hub.o[None, :] + As
+        Jpsi_t = hub.Jpsi.copy()
+        Jpsi_t[lm.eta] += b.slope_tip
+        tip = Frame(r[-1], J[-1], c[-1], hub.psi + b.slope_tip @ eta, Jpsi_t, Jpsi_t @ qd)
+        return r[:-1], J[:-1], c[:-1], tip
+
+    # -------------------------------------------------------------------------- dynamics
+    def accelerations(self, t, q, qd, Q_extra=None) -> np.ndarray:
+        """q̈ of all coordinates at (t, q, q̇); prescribed coordinates follow their program."""
+        kin = self.kinematics(q, qd)
+        f = self.input_forces(t) + kin.Qg - kin.h - self.K @ q - self.D @ qd
+        if Q_extra is not None:
+            f = f + Q_extra
+        qdd = np.zeros(self.n)
+        fr = self.free
+        if len(self.presc_idx):
+            pdd = self.prescribed_state(t)[2]
+            qdd[self.presc_idx] = pdd
+            f = f - kin.M[:, self.presc_idx] @ pdd
+        qdd[fr] = np.linalg.solve(kin.M[np.ix_(fr, fr)], f[fr])
+        return qdd
+
+    def full_state(self, t, x):
+        """Assemble (q, q̇) from the first-order state x = [q_free, q̇_free] at time t."""
+        nf = len(self.free)
+        q = np.empty(self.n)
+        qd = np.empty(self.n)
+        q[self.free] = x[:nf]
+        qd[self.free] = x[nf:]
+        if len(self.presc_idx):
+            p = self.prescribed_state(t)
+            q[self.presc_idx] = p[0]
+            qd[self.presc_idx] = p[1]
+        return q, qd
+
+    def rhs(self, t, x):
+        """First-order right-hand side ẋ = f(t, x), x = [q_free, q̇_free]."""
+        q, qd = self.full_state(t, x)
+        qdd = self.accelerations(t, q, qd)
+        return np.concatenate([qd[self.free], qdd[self.free]])
+
+    # --------------------------------------------------------------------------- outputs
+    def energy(self, q, qd) -> dict:
+        """Kinetic, elastic and gravitational energy (J) and their sum."""
+        kin = self.kinematics(q, qd, want_points=True)
+        T = 0.5 * qd @ kin.M @ qd
+        V = 0.5 * q @ self.K @ q
+        Vg = -self._gravity_work(q, kin) if self.has_gravity else 0.0
+        return {"kinetic": T, "elastic": V, "gravity": Vg, "total": T + V + Vg}
+
+    def _gravity_work(self, q, kin):
+        g = self.gravity
+        W = 0.0
+        for lm, (r, _, _), hub, tip in zip(self.links, kin.points, kin.hub_frames,
+                                           kin.tip_frames):
+            W += lm.beam.mass @ (r @ g)
+            for fr, body in ((hub, lm.link.hub), (tip, lm.link.tip)):
+                W += body.mass * (fr.o + _rot(fr.psi) @ np.asarray(body.cg)) @ g
+        return W
+
+    def tip_position(self, q) -> np.ndarray:
+        """Position (x, y) of the last beam's tip (m)."""
+        return self.kinematics(q, np.zeros(self.n)).tip_frames[-1].o.copy()
+
+    def tip_deflections(self, q) -> np.ndarray:
+        """Transverse tip deflection w(L) of every beam (m; rigid rung: L·β)."""
+        return np.array([lm.beam.phi_tip @ q[lm.eta] for lm in self.links])
+
+    def elastic_index(self) -> np.ndarray:
+        return np.concatenate([np.arange(self.n)[lm.eta] for lm in self.links])
+
+    def drive_index(self) -> list[int]:
+        return [lm.i_motor if lm.i_motor >= 0 else lm.i_joint for lm in self.links]
+
+
+def _offset_frame(fr: Frame, p) -> Frame:
+    """The frame translated by the constant offset p (expressed in fr)."""
+    if not np.any(p):
+        return fr
+    Ap = _rot(fr.psi) @ p
+    return Frame(fr.o + Ap, fr.Jo + np.outer(E2 @ Ap, fr.Jpsi), fr.co - fr.psid**2 * Ap,
+                 fr.psi, fr.Jpsi, fr.psid)
+
+
+def _add_body(M, h, Qg, fr: Frame, body, g):
+    """Add a rigid body (mass, inertia about CG, CG offset in ``fr``) to M, h and Q_grav."""
+    if body.mass == 0.0 and body.inertia == 0.0:
+        return
+    Ap = _rot(fr.psi) @ np.asarray(body.cg, float)
+    J = fr.Jo + np.outer(E2 @ Ap, fr.Jpsi)
+    c = fr.co - fr.psid**2 * Ap
+    M += body.mass * (J.T @ J) + body.inertia * np.outer(fr.Jpsi, fr.Jpsi)
+    h += body.mass * (J.T @ c)
+    if np.any(g):
+        Qg += body.mass * (J.T @ g)

@@ -1,0 +1,32 @@
+"""Typed errors of the physics core: failure is data with a message that says what to change."""
+
+from __future__ import annotations
+
+
+class SceneError(ValueError):
+    """A scene file or option is invalid; the message names key path, value and expectation."""
+
+
+class SimulationDiverged(RuntimeError):
+    """The integration produced a non-finite or physically invalid state.
+
+    Raised before anything is written or published. Attributes name what diverged, when,
+    the last finite value seen and the suggested change (step, integrator, rung).
+    """
+
+    def __init__(self, quantity: str, time: float, last_value: float, suggestion: str,
+                 detail: str = ""):
+        self.quantity = quantity
+        self.time = time
+        self.last_value = last_value
+        self.suggestion = suggestion
+        msg = (f"simulation diverged: {quantity} at t = {time:.6g} s "
+               f"(last finite value {last_value:.6g})")
+        if detail:
+            msg += f"; {detail}"
+        msg += f". To fix: {suggestion}"
+        super().__init__(msg)
+
+
+class StepTooLarge(SimulationDiverged):
+    """A fixed step is above the explicit method's stability limit for this model."""

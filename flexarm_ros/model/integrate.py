@@ -1,0 +1,199 @@
+"""Time integration of a chain: fixed-step RK4 and scipy ``solve_ivp`` methods.
+
+Every run returns an :class:`Integration` result (like scipy's ``OdeResult``: ``status``,
+``message``, call counters); the state is checked after every step (RK4) or every output
+sample (adaptive methods) and a non-finite or invalid state raises
+:class:`~flexarm_ros.model.errors.SimulationDiverged` naming what diverged, when, and what
+to change. Nothing non-finite is ever returned.
+
+The explicit step limit: RK4 is stable for h·|λ| below ≈ 2.78 on the negative real axis and
+2√2 ≈ 2.83 on the imaginary axis, λ the eigenvalues of the linearized system. A fixed step
+above that limit is refused up front (:class:`StepTooLarge`); the automatic step is
+1.5/|λ|max, which also keeps the phase error of the highest retained mode small.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
+
+from .errors import SceneError, SimulationDiverged, StepTooLarge
+from .linear import highest_rate
+from .programs import torque_breakpoints
+
+RK4_STABILITY = 2.78
+RK4_AUTO = 1.5
+SOLVE_IVP = {"rk45": RK45, "dop853": DOP853, "radau": Radau, "bdf": BDF, "lsoda": LSODA}
+
+
+@dataclass
+class Integration:
+    """Result of a run: samples and the counters of scipy's result object."""
+    t: np.ndarray
+    q: np.ndarray          # (N, n)
+    qd: np.ndarray         # (N, n)
+    status: int
+    message: str
+    rhs_evaluations: int
+    steps: int
+    wall_time_s: float
+    dt: float              # fixed step used (0 for adaptive methods)
+
+    @property
+    def success(self) -> bool:
+        return self.status == 0
+
+
+class _Counted:
+    def __init__(self, chain):
+        self.chain = chain
+        self.calls = 0
+
+    def __call__(self, t, x):
+        self.calls += 1
+        return self.chain.rhs(t, x)
+
+
+def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
+    """The fixed step to use (RK4) or max step (adaptive, 0 = unbounded); checks stability."""
+    if integrator != "rk4":
+        return dt
+    q, qd = chain.full_state(t0, x0)
+    rate = highest_rate(chain, q, qd)
+    limit = RK4_STABILITY / rate if rate > 0 else np.inf
+    if dt > 0:
+        if dt > limit:
+            raise StepTooLarge(
+                "fixed step", t0, dt,
+                f"use --dt <= {limit:.3g} s (auto: --dt 0), an implicit integrator "
+                f"(--integrator radau or bdf), or a coarser rung / fewer modes",
+                detail=f"dt = {dt:.3g} s exceeds the RK4 stability limit {limit:.3g} s set "
+                       f"by the highest model rate {rate / (2 * np.pi):.4g} Hz")
+        h = dt
+    else:
+        h = RK4_AUTO / rate if rate > 0 else output_dt
+    h = min(h, output_dt)
+    return output_dt / np.ceil(output_dt / h - 1e-9)
+
+
+def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
+              output_dt=1e-3, max_deflection_ratio=0.5, progress=None) -> Integration:
+    """Integrate the chain from state x0 = [q_free, q̇_free] over [0, t_end]."""
+    if integrator not in ("rk4", *SOLVE_IVP):
+        raise SceneError(f"fidelity.integrator: got {integrator!r}, expected one of rk4, "
+                         f"{', '.join(SOLVE_IVP)}")
+    n_out = int(np.floor(t_end / output_dt + 1e-9))
+    t_out = np.arange(n_out + 1) * output_dt
+    h = choose_step(chain, x0, integrator, dt, output_dt)
+    guard = _Guard(chain, max_deflection_ratio, integrator, h)
+    f = _Counted(chain)
+    xs = np.empty((len(t_out), len(x0)))
+    xs[0] = x0
+    guard.check(0.0, x0)
+    wall0 = time.perf_counter()
+    last_report = wall0
+    if integrator == "rk4":
+        per = int(round(output_dt / h))
+        x = np.array(x0, float)
+        steps = 0
+        for k in range(n_out):
+            t = t_out[k]
+            for j in range(per):
+                tj = t + j * h
+                k1 = f(tj, x)
+                k2 = f(tj + 0.5 * h, x + 0.5 * h * k1)
+                k3 = f(tj + 0.5 * h, x + 0.5 * h * k2)
+                k4 = f(tj + h, x + h * k3)
+                x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+                steps += 1
+                guard.check(tj + h, x)
+            xs[k + 1] = x
+            if progress is not None and time.perf_counter() - last_report > 1.0:
+                last_report = time.perf_counter()
+                progress(t_out[k + 1] / t_end)
+        status, message, step_used = 0, "integration reached the end time", h
+    else:
+        steps = 0
+        bps = sorted({b for _, prog in chain.torque_inputs
+                      for b in torque_breakpoints(prog, t_end)} | {t_end})
+        t_lo, x = 0.0, np.array(x0, float)
+        k_out = 1
+        for t_hi in bps:   # restart at input discontinuities
+            solver = SOLVE_IVP[integrator](f, t_lo, x, t_hi, rtol=rtol, atol=atol,
+                                           **({"max_step": dt} if dt > 0 else {}))
+            while solver.status == "running":
+                msg = solver.step()
+                if solver.status == "failed":
+                    raise SimulationDiverged(
+                        "integrator", solver.t, float(np.abs(solver.y).max()),
+                        "loosen --rtol/--atol, use --integrator radau or bdf, or a coarser "
+                        "rung", detail=str(msg))
+                steps += 1
+                guard.check(solver.t, solver.y)
+                if k_out <= n_out and t_out[k_out] <= solver.t + 1e-12:
+                    dense = solver.dense_output()
+                    while k_out <= n_out and t_out[k_out] <= solver.t + 1e-12:
+                        xs[k_out] = dense(t_out[k_out])
+                        k_out += 1
+                if progress is not None and time.perf_counter() - last_report > 1.0:
+                    last_report = time.perf_counter()
+                    progress(solver.t / t_end)
+            x = solver.y
+            t_lo = t_hi
+        xs[k_out:] = x  # t_end exactly on the grid but below rounding
+        status, message, step_used = 0, "integration reached the end time", 0.0
+    wall = time.perf_counter() - wall0
+    q = np.empty((len(t_out), chain.n))
+    qd = np.empty((len(t_out), chain.n))
+    for k, tk in enumerate(t_out):
+        q[k], qd[k] = chain.full_state(tk, xs[k])
+    return Integration(t_out, q, qd, status, message, f.calls, steps, wall, step_used)
+
+
+class _Guard:
+    """Checks a state: finite, and beams within the small-deflection model's validity."""
+
+    def __init__(self, chain, max_ratio, integrator, h):
+        self.chain = chain
+        self.max_ratio = max_ratio
+        self.integrator = integrator
+        self.h = h
+        self.last = None
+        self.lengths = np.array([lm.beam.length for lm in chain.links])
+        self.tip_rows = [(lm.beam.phi_tip, lm.eta) for lm in chain.links]
+
+    def _ratios(self, q):
+        return np.array([phi @ q[sl] for phi, sl in self.tip_rows]) / self.lengths
+
+    def _fix(self):
+        if self.integrator == "rk4":
+            return (f"reduce the step (--dt, now {self.h:.3g} s), use --integrator radau, "
+                    f"or a coarser rung / fewer modes")
+        return "tighten --rtol/--atol or use --integrator radau or bdf"
+
+    def check(self, t, x):
+        nf = len(self.chain.free)
+        if not np.all(np.isfinite(x)):
+            bad = int(np.nonzero(~np.isfinite(x))[0][0])
+            name = self.chain.names[self.chain.free[bad % nf]]
+            kind = "rate" if bad >= nf else "coordinate"
+            last = float(self.last[bad]) if self.last is not None else float("nan")
+            raise SimulationDiverged(f"{kind} {name}", t, last, self._fix(),
+                                     detail="state became non-finite")
+        q, _ = self.chain.full_state(t, x)
+        ratios = self._ratios(q)
+        worst = int(np.argmax(np.abs(ratios)))
+        if abs(ratios[worst]) > self.max_ratio:
+            lm = self.chain.links[worst]
+            raise SimulationDiverged(
+                f"tip deflection of {lm.name}", t, float(ratios[worst] * self.lengths[worst]),
+                "check the input magnitude and damping; keep foreshortening on "
+                "(fidelity.foreshortening: true) for fast rotation; or raise "
+                "fidelity.max_deflection_ratio if large deflection is intended",
+                detail=f"|w(L)|/L = {abs(ratios[worst]):.3g} exceeds "
+                       f"fidelity.max_deflection_ratio = {self.max_ratio} (the small-deflection "
+                       f"beam model is no longer valid)")
+        self.last = np.array(x, copy=True)

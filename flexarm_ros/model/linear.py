@@ -1,0 +1,96 @@
+"""Linearization of the chain about a configuration: natural frequencies and mode shapes.
+
+About a configuration q0 at rest the equations of motion linearize to
+``M(q0) δq̈ + K_t δq = 0`` with the tangent stiffness ``K_t = −∂(Q_grav − h − K q)/∂q``
+(the elastic K plus gravity's geometric stiffness, by central differences). The natural
+frequencies are ω_i² from the generalized symmetric eigenproblem K_t v = ω² M v (K_t is
+symmetrized: at a static equilibrium it is symmetric up to the differencing error).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from .errors import SceneError
+
+
+@dataclass(frozen=True)
+class Modes:
+    """Natural frequencies (Hz, ascending) and mass-normalised mode shapes."""
+    frequencies_hz: np.ndarray
+    shapes: np.ndarray          # (n_coords, n_modes)
+    coordinates: tuple[str, ...]
+    joints: str
+
+
+def reduced_coordinates(chain, joints: str) -> np.ndarray:
+    """Coordinates kept in the linear model: ``locked`` removes each drive coordinate
+    (the motor angle for a flexible joint, else the joint angle) and every prescribed one;
+    ``free`` keeps them all except prescribed motions."""
+    if joints not in ("locked", "free"):
+        raise SceneError(f"joints: got {joints!r}, expected locked or free")
+    drop = set(int(i) for i in chain.presc_idx)
+    if joints == "locked":
+        drop |= set(chain.drive_index())
+    return np.array([i for i in range(chain.n) if i not in drop], dtype=int)
+
+
+def tangent_stiffness(chain, q0, keep=None, rel_step=1e-6) -> np.ndarray:
+    """K_t = −∂f/∂q at rest, f = Q_grav − h − K q (central differences), on ``keep``."""
+    keep = np.arange(chain.n) if keep is None else keep
+    zero = np.zeros(chain.n)
+
+    def force(q):
+        kin = chain.kinematics(q, zero)
+        return kin.Qg - kin.h - chain.K @ q
+
+    Kt = np.zeros((len(keep), len(keep)))
+    for j, idx in enumerate(keep):
+        dq = rel_step * max(1.0, abs(q0[idx]))
+        qp, qm = q0.copy(), q0.copy()
+        qp[idx] += dq
+        qm[idx] -= dq
+        Kt[:, j] = -(force(qp) - force(qm))[keep] / (2 * dq)
+    return Kt
+
+
+def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
+    """Modes of the linearized chain at q0 (default: the scene's initial configuration)."""
+    if q0 is None:
+        q0 = chain.initial_q()[0]
+    keep = reduced_coordinates(chain, joints)
+    if len(keep) == 0:
+        return Modes(np.zeros(0), np.zeros((chain.n, 0)), tuple(chain.names), joints)
+    M = chain.kinematics(q0, np.zeros(chain.n)).M[np.ix_(keep, keep)]
+    if chain.has_gravity:
+        Kt = tangent_stiffness(chain, q0, keep)
+    else:
+        Kt = chain.K[np.ix_(keep, keep)]
+    Kt = 0.5 * (Kt + Kt.T)
+    w2, V = scipy.linalg.eigh(Kt, M)
+    scale = max(1.0, np.abs(w2).max())
+    w2 = np.where(np.abs(w2) < 1e-9 * scale, 0.0, w2)   # rigid-body modes at exactly 0
+    freqs = np.sign(w2) * np.sqrt(np.abs(w2)) / (2 * np.pi)
+    shapes = np.zeros((chain.n, len(keep)))
+    shapes[keep, :] = V
+    return Modes(freqs, shapes, tuple(chain.names), joints)
+
+
+def highest_rate(chain, q0, qd0) -> float:
+    """Spectral radius (1/s) of the first-order system's Jacobian about (q0, q̇0): sets the
+    stable step of explicit integrators. Computed from M, K and D, including the
+    velocity-dependent terms by central differences of q̈."""
+    free = chain.free
+    nf = len(free)
+    x0 = np.concatenate([q0[free], qd0[free]])
+    Jm = np.zeros((2 * nf, 2 * nf))
+    for j in range(2 * nf):
+        dx = 1e-6 * max(1.0, abs(x0[j]))
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += dx
+        xm[j] -= dx
+        Jm[:, j] = (chain.rhs(0.0, xp) - chain.rhs(0.0, xm)) / (2 * dx)
+    return float(np.abs(np.linalg.eigvals(Jm)).max())

@@ -29,8 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import beams
-from .programs import motion_state, torque_value
+from . import beams, kernel
+from .errors import SceneError
+from .programs import encode, eval_motion, eval_torque
 
 E2 = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -75,7 +76,14 @@ class Kinematics:
 class Chain:
     """The planar flexible chain built from a scene at one rung of the ladder."""
 
-    def __init__(self, scene, fidelity=None):
+    def __init__(self, scene, fidelity=None, backend: str = "auto"):
+        if backend not in ("auto", "numpy", "numba"):
+            raise SceneError(f"backend: got {backend!r}, expected auto, numpy or numba")
+        if backend == "numba" and not kernel.HAVE_NUMBA:
+            raise SceneError("backend: got 'numba', but numba is not installed "
+                             "(pip install -e .[fast]) or FLEXARM_NO_NUMBA is set")
+        self.backend = "numba" if backend == "auto" and kernel.HAVE_NUMBA else (
+            "numpy" if backend == "auto" else backend)
         self.scene = scene
         self.fidelity = fidelity or scene.fidelity
         self.links: list[_LinkModel] = []
@@ -128,6 +136,59 @@ class Chain:
         presc = [p[0] for p in self.prescribed]
         self.free = np.array([i for i in range(n) if i not in presc], dtype=int)
         self.presc_idx = np.array(presc, dtype=int)
+        self._torque_enc = [(idx, encode(prog)) for idx, prog in self.torque_inputs]
+        self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
+        self.kernel_args = self._pack()
+
+    def _pack(self) -> tuple:
+        """The model as flat arrays for the compiled kernel (see :mod:`kernel`)."""
+        nl = len(self.links)
+        nemax = max(lm.beam.n for lm in self.links)
+        pmax = max(len(lm.beam.x) for lm in self.links)
+        ij = np.array([lm.i_joint for lm in self.links], dtype=np.int64)
+        e0 = np.array([lm.eta.start for lm in self.links], dtype=np.int64)
+        ne = np.array([lm.beam.n for lm in self.links], dtype=np.int64)
+        npt = np.array([len(lm.beam.x) for lm in self.links], dtype=np.int64)
+        bodies = np.zeros((nl, 2, 4))
+        joff = np.zeros((nl, 2))
+        rh = np.zeros(nl)
+        X = np.zeros((nl, pmax + 1))
+        MP = np.zeros((nl, pmax + 1))
+        PHI = np.zeros((nl, pmax + 1, nemax))
+        SS = np.zeros((nl, pmax + 1, nemax, nemax))
+        SLOPE = np.zeros((nl, nemax))
+        for k, lm in enumerate(self.links):
+            b, lk = lm.beam, lm.link
+            for j, body in enumerate((lk.hub, lk.tip)):
+                bodies[k, j] = (body.mass, body.inertia, body.cg[0], body.cg[1])
+            joff[k] = lk.tip.joint_offset
+            rh[k] = b.hub_radius
+            P = len(b.x)
+            X[k, :P], X[k, P] = b.x, b.length
+            MP[k, :P] = b.mass
+            PHI[k, :P, :b.n], PHI[k, P, :b.n] = b.phi, b.phi_tip
+            SS[k, :P, :b.n, :b.n], SS[k, P, :b.n, :b.n] = b.S, b.S_tip
+            SLOPE[k, :b.n] = b.slope_tip
+        nt = len(self._torque_enc)
+        tl = max([len(e[3]) for _, e in self._torque_enc] + [1])
+        tidx = np.array([i for i, _ in self._torque_enc], dtype=np.int64)
+        tcode = np.array([e[0] for _, e in self._torque_enc], dtype=np.int64)
+        tpar = np.zeros((nt, 8))
+        ttimes = np.zeros((nt, tl))
+        tvalues = np.zeros((nt, tl))
+        tlen = np.zeros(nt, dtype=np.int64)
+        for j, (_, (_, p, tt, vv)) in enumerate(self._torque_enc):
+            tpar[j] = p
+            ttimes[j, :len(tt)] = tt
+            tvalues[j, :len(vv)] = vv
+            tlen[j] = len(tt)
+        mcode = np.array([e[0] for e in self._motion_enc], dtype=np.int64)
+        mpar = np.array([e[1] for e in self._motion_enc]).reshape(-1, 8)
+        return (self.n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE,
+                self.gravity, self.foreshortening, float(self.scene.base_angle),
+                self.M_drive, self.K, self.D, self.free.astype(np.int64),
+                self.presc_idx.astype(np.int64), mcode, mpar, tidx, tcode, tpar, ttimes,
+                tvalues, tlen)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
@@ -145,17 +206,16 @@ class Chain:
 
     def prescribed_state(self, t):
         """(q_p, q̇_p, q̈_p) of the prescribed coordinates at time t."""
-        k = len(self.prescribed)
-        out = np.zeros((3, k))
-        for j, (_, prog, th0) in enumerate(self.prescribed):
-            out[:, j] = motion_state(prog, th0, t)
+        out = np.zeros((3, len(self._motion_enc)))
+        for j, (code, p, _, _) in enumerate(self._motion_enc):
+            out[:, j] = eval_motion(code, p, t)
         return out
 
     def input_forces(self, t) -> np.ndarray:
         """Generalized input forces Q_input(t) from the torque programs."""
         Q = np.zeros(self.n)
-        for idx, prog in self.torque_inputs:
-            Q[idx] += torque_value(prog, t)
+        for idx, (code, p, times, values) in self._torque_enc:
+            Q[idx] += eval_torque(code, p, times, values, t)
         return Q
 
     # ------------------------------------------------------------------------ kinematics
@@ -267,7 +327,14 @@ class Chain:
         return q, qd
 
     def rhs(self, t, x):
-        """First-order right-hand side ẋ = f(t, x), x = [q_free, q̇_free]."""
+        """First-order right-hand side ẋ = f(t, x), x = [q_free, q̇_free] (compiled kernel
+        when the backend is numba, else the numpy reference below)."""
+        if self.backend == "numba":
+            return kernel.rhs(float(t), np.asarray(x, float), *self.kernel_args)
+        return self.rhs_numpy(t, x)
+
+    def rhs_numpy(self, t, x):
+        """The numpy reference right-hand side."""
         q, qd = self.full_state(t, x)
         qdd = self.accelerations(t, q, qd)
         return np.concatenate([qd[self.free], qdd[self.free]])

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
+from . import kernel
 from .errors import SceneError, SimulationDiverged, StepTooLarge
 from .linear import highest_rate
 from .programs import torque_breakpoints
@@ -95,7 +96,18 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     guard.check(0.0, x0)
     wall0 = time.perf_counter()
     last_report = wall0
-    if integrator == "rk4":
+    if integrator == "rk4" and chain.backend == "numba":
+        per = int(round(output_dt / h))
+        lengths = np.array([lm.beam.length for lm in chain.links])
+        code, t_fail, steps, x_last, x_bad = kernel.rk4_loop(
+            np.array(x0, float), h, per, n_out, output_dt, max_deflection_ratio, xs,
+            *chain.kernel_args, lengths)
+        f.calls += 4 * steps
+        if code != kernel.OK:
+            guard.last = x_last
+            guard.check(t_fail, x_bad)
+        status, message, step_used = 0, "integration reached the end time", h
+    elif integrator == "rk4":
         per = int(round(output_dt / h))
         x = np.array(x0, float)
         steps = 0

@@ -1,0 +1,180 @@
+"""The ``flexarm`` command: simulate, modes, study, explain.
+
+Every command that builds a model accepts the fidelity overrides ``--rung``, ``--refine``,
+``--integrator``, ``--rtol``, ``--atol``, ``--dt``. ``SCENE`` is a YAML path or the name of
+a shipped scene (``flexarm simulate link_tipmass``); without it the embedded default
+scene ``two_link_free`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_SCENE = "two_link_free"
+
+
+def _ros_env_defaults():
+    """Loopback-only DDS discovery unless the user chose otherwise (no traffic leaves)."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+def _fidelity_args(p):
+    from .model.scene import INTEGRATORS, RUNGS
+    g = p.add_argument_group("fidelity overrides (default: the scene's)")
+    g.add_argument("--rung", choices=RUNGS, help="beam discretization rung")
+    g.add_argument("--refine", type=int, help="modes / elements / FD segments")
+    g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
+    g.add_argument("--rtol", type=float, help="relative tolerance (adaptive integrators)")
+    g.add_argument("--atol", type=float, help="absolute tolerance (adaptive integrators)")
+    g.add_argument("--dt", type=float, help="fixed step (rk4) or max step, s; 0 = automatic")
+    g.add_argument("--no-foreshortening", action="store_true",
+                   help="drop the geometric-stiffening (foreshortening) terms")
+
+
+def _load(args):
+    from .model.scene import load_scene
+    scene = load_scene(args.scene or DEFAULT_SCENE)
+    over = {k: getattr(args, k, None) for k in
+            ("rung", "refine", "integrator", "rtol", "atol", "dt")}
+    if getattr(args, "no_foreshortening", False):
+        over["foreshortening"] = False
+    return scene.with_fidelity(**over)
+
+
+def _progress(quiet):
+    if quiet:
+        return None
+
+    def report(frac):
+        print(f"\r  {100 * frac:5.1f} %", end="", file=sys.stderr, flush=True)
+    return report
+
+
+def cmd_simulate(args):
+    from .model.simulate import simulate
+    from .io.tables import write_table
+    scene = _load(args)
+    res = simulate(scene, args.duration, progress=_progress(args.quiet or args.json))
+    if not (args.quiet or args.json):
+        print("\r", end="", file=sys.stderr)
+    if args.out:
+        write_table(args.out, res.columns)
+    summ = res.summary()
+    if args.out:
+        summ["out"] = str(args.out)
+    if args.json:
+        print(json.dumps(summ, indent=2))
+    else:
+        print(f"{scene.name}: {summ['message']}; {summ['sim_time_s']:.3g} s simulated in "
+              f"{summ['wall_time_s']:.3g} s (real-time factor {summ['real_time_factor']:.3g}, "
+              f"rung {summ['rung']}, {summ['integrator']}, {summ['steps']} steps, "
+              f"{summ['rhs_evaluations']} RHS evaluations)"
+              + (f" → {args.out}" if args.out else ""))
+    return 0
+
+
+def cmd_modes(args):
+    from .model.chain import Chain
+    from .model.linear import natural_modes
+    from .model.simulate import initial_state
+    scene = _load(args)
+    chain = Chain(scene)
+    q0 = initial_state(chain)[0]
+    joints = args.joints or ("locked" if scene.inputs else "free")
+    m = natural_modes(chain, q0, joints)
+    n = min(args.count, len(m.frequencies_hz))
+    out = {"scene": scene.name, "rung": scene.fidelity.rung, "joints": joints,
+           "coordinates": list(m.coordinates),
+           "frequencies_hz": [float(f) for f in m.frequencies_hz[:n]],
+           "mode_shapes": [[float(v) for v in m.shapes[:, k]] for k in range(n)]}
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        print(f"{scene.name}: rung {out['rung']}, joints {joints}")
+        for k, f in enumerate(out["frequencies_hz"], 1):
+            print(f"  mode {k:2d}: {f:12.5f} Hz")
+    return 0
+
+
+def cmd_explain(args):
+    from .model.explain import explain
+    print(explain(_load(args)))
+    return 0
+
+
+def cmd_study(args):
+    from .model.study import run_study, plot_pareto
+    scene = _load(args)
+    rows = run_study(scene, duration=args.duration, quick=args.quick,
+                     progress=None if args.json else print)
+    if args.png:
+        plot_pareto(rows, args.png, title=scene.name)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        from .model.study import format_table
+        print(format_table(rows))
+    return 0
+
+
+def build_parser():
+    p = argparse.ArgumentParser(prog="flexarm", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="batch simulation without ROS")
+    s.add_argument("scene", nargs="?", help=f"scene YAML or shipped name ({DEFAULT_SCENE})")
+    s.add_argument("--duration", type=float, help="simulated seconds (default: scene's)")
+    s.add_argument("--out", type=Path, help="output .csv or .npz")
+    s.add_argument("--json", action="store_true", help="print the run summary as JSON")
+    s.add_argument("--quiet", action="store_true", help="no progress")
+    _fidelity_args(s)
+    s.set_defaults(func=cmd_simulate)
+
+    m = sub.add_parser("modes", help="natural frequencies of the linearized chain")
+    m.add_argument("scene", nargs="?")
+    m.add_argument("--joints", choices=("locked", "free"),
+                   help="drives clamped or free (default: locked when the scene drives a "
+                        "joint, else free)")
+    m.add_argument("--count", type=int, default=10, help="number of modes to print")
+    m.add_argument("--json", action="store_true")
+    _fidelity_args(m)
+    m.set_defaults(func=cmd_modes)
+
+    e = sub.add_parser("explain", help="print the model built from the scene")
+    e.add_argument("scene", nargs="?")
+    _fidelity_args(e)
+    e.set_defaults(func=cmd_explain)
+
+    st = sub.add_parser("study", help="speed–accuracy table of the fidelity ladder")
+    st.add_argument("scene", nargs="?")
+    st.add_argument("--duration", type=float, help="simulated seconds per run")
+    st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
+    st.add_argument("--json", action="store_true")
+    st.add_argument("--png", type=Path, help="write the Pareto plot here")
+    _fidelity_args(st)
+    st.set_defaults(func=cmd_study)
+    return p
+
+
+def main(argv=None) -> int:
+    _ros_env_defaults()
+    from .model.errors import SceneError, SimulationDiverged
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except SceneError as exc:
+        print(f"flexarm: error: {exc}", file=sys.stderr)
+        return 2
+    except SimulationDiverged as exc:
+        print(f"flexarm: {exc}", file=sys.stderr)
+        return 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""File input/output: tables (CSV, NPZ); MCAP comes with the ROS twin."""

@@ -115,10 +115,10 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t = t_out[k]
             for j in range(per):
                 tj = t + j * h
-                k1 = f(tj, x)
+                k1 = f(tj + kernel.STAGE_EPS * h, x)
                 k2 = f(tj + 0.5 * h, x + 0.5 * h * k1)
                 k3 = f(tj + 0.5 * h, x + 0.5 * h * k2)
-                k4 = f(tj + h, x + h * k3)
+                k4 = f(tj + (1.0 - kernel.STAGE_EPS) * h, x + h * k3)
                 x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
                 steps += 1
                 guard.check(tj + h, x)

@@ -139,6 +139,7 @@ class Chain:
         self._torque_enc = [(idx, encode(prog)) for idx, prog in self.torque_inputs]
         self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
         self.kernel_args = self._pack()
+        self._ws = kernel.workspace(self.kernel_args)
 
     def _pack(self) -> tuple:
         """The model as flat arrays for the compiled kernel (see :mod:`kernel`)."""
@@ -182,13 +183,21 @@ class Chain:
             ttimes[j, :len(tt)] = tt
             tvalues[j, :len(vv)] = vv
             tlen[j] = len(tt)
+        # per point: leading elastic coordinates that can be non-zero in φ(x_p), S(x_p)
+        EXT = np.zeros((nl, pmax + 1), dtype=np.int64)
+        for k, lm in enumerate(self.links):
+            nz = (np.abs(PHI[k]) > 0) | np.any(np.abs(SS[k]) > 0, axis=1)
+            for p in range(len(lm.beam.x)):
+                idx = np.nonzero(nz[p])[0]
+                EXT[k, p] = idx[-1] + 1 if len(idx) else 0
+            EXT[k, len(lm.beam.x)] = lm.beam.n
         mcode = np.array([e[0] for e in self._motion_enc], dtype=np.int64)
         mpar = np.array([e[1] for e in self._motion_enc]).reshape(-1, 8)
         return (self.n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE,
                 self.gravity, self.foreshortening, float(self.scene.base_angle),
                 self.M_drive, self.K, self.D, self.free.astype(np.int64),
                 self.presc_idx.astype(np.int64), mcode, mpar, tidx, tcode, tpar, ttimes,
-                tvalues, tlen)
+                tvalues, tlen, EXT)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
@@ -330,7 +339,7 @@ class Chain:
         """First-order right-hand side ẋ = f(t, x), x = [q_free, q̇_free] (compiled kernel
         when the backend is numba, else the numpy reference below)."""
         if self.backend == "numba":
-            return kernel.rhs(float(t), np.asarray(x, float), *self.kernel_args)
+            return kernel.rhs(float(t), np.asarray(x, float), self.kernel_args, self._ws)
         return self.rhs_numpy(t, x)
 
     def rhs_numpy(self, t, x):

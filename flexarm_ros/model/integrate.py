@@ -98,10 +98,9 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     last_report = wall0
     if integrator == "rk4" and chain.backend == "numba":
         per = int(round(output_dt / h))
-        lengths = np.array([lm.beam.length for lm in chain.links])
         code, t_fail, steps, x_last, x_bad = kernel.rk4_loop(
             np.array(x0, float), h, per, n_out, output_dt, max_deflection_ratio, xs,
-            *chain.kernel_args, lengths)
+            chain.kernel_args, kernel.workspace(chain.kernel_args))
         f.calls += 4 * steps
         if code != kernel.OK:
             guard.last = x_last

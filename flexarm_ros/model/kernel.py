@@ -45,7 +45,7 @@ OK, NON_FINITE, DEFLECTION = 0, 1, 2
 
 @_jit
 def _add_body(M, h, Qg, m, inertia, cgx, cgy, ox, oy, Jo, cox, coy, psi, Jpsi, psid, g,
-              nact):
+              nact, Jx, Jy):
     if m == 0.0 and inertia == 0.0:
         return
     c = math.cos(psi)
@@ -54,8 +54,6 @@ def _add_body(M, h, Qg, m, inertia, cgx, cgy, ox, oy, Jo, cox, coy, psi, Jpsi, p
     ay = s * cgx + c * cgy
     cx = cox - psid * psid * ax
     cy = coy - psid * psid * ay
-    Jx = np.empty(nact)
-    Jy = np.empty(nact)
     for i in range(nact):
         Jx[i] = Jo[0, i] - ay * Jpsi[i]
         Jy[i] = Jo[1, i] + ax * Jpsi[i]
@@ -66,27 +64,53 @@ def _add_body(M, h, Qg, m, inertia, cgx, cgy, ox, oy, Jo, cox, coy, psi, Jpsi, p
             M[i, j] += m * (Jx[i] * Jx[j] + Jy[i] * Jy[j]) + inertia * Jpsi[i] * Jpsi[j]
 
 
+def workspace(model):
+    """Scratch arrays for :func:`chain_terms` / :func:`rhs_into` (allocated once per run)."""
+    n = model[0]
+    nemax = model[11].shape[2]
+    nf = model[20].shape[0]
+    npr = model[21].shape[0]
+    return (np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n),
+            np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
+            np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
+            np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n))
+
+
 @_jit
-def chain_terms(q, qd, M, h, Qg, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS,
-                SLOPE, g, fs, base_angle, Mdrive):
-    """Fill M (n, n), h (n,), Qg (n,) at (q, q̇) — chain.Chain.kinematics in loops."""
+def chain_terms(q, qd, model, ws):
+    """Fill ws' M (n, n), h (n,), Qg (n,) at (q, q̇): chain.Chain.kinematics in loops.
+
+    Per mass point only the leading ``EXT[k, p]`` elastic coordinates can be non-zero in
+    φ(x_p) and S(x_p) (finite elements and differences grow from the root), so the loops
+    stop there.
+    """
+    (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
+     Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
+     EXT) = model
+    M = ws[2]
+    h = ws[3]
+    Qg = ws[4]
+    Jo = ws[5]
+    Jpsi = ws[6]
+    Seta = ws[7]
+    Jx = ws[8]
+    Jy = ws[9]
+    Jtx = ws[10]
+    Jty = ws[11]
     for i in range(n):
         h[i] = 0.0
         Qg[i] = 0.0
+        Jpsi[i] = 0.0
+        Jo[0, i] = 0.0
+        Jo[1, i] = 0.0
         for j in range(n):
             M[i, j] = Mdrive[i, j] if j >= i else 0.0
     ox = 0.0
     oy = 0.0
     cox = 0.0
     coy = 0.0
-    Jo = np.zeros((2, n))
-    Jpsi = np.zeros(n)
     psi = base_angle
     psid = 0.0
-    nemax = PHI.shape[2]
-    Seta = np.empty(nemax)
-    Jx = np.empty(n)
-    Jy = np.empty(n)
     for k in range(nl):
         nk = ne[k]
         s0 = e0[k]
@@ -111,7 +135,7 @@ def chain_terms(q, qd, M, h, Qg, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP
         Jpsi[jj] += 1.0
         psid += qd[jj]
         _add_body(M, h, Qg, bodies[k, 0, 0], bodies[k, 0, 1], bodies[k, 0, 2],
-                  bodies[k, 0, 3], ox, oy, Jo, cox, coy, psi, Jpsi, psid, g, nact)
+                  bodies[k, 0, 3], ox, oy, Jo, cox, coy, psi, Jpsi, psid, g, nact, Jx, Jy)
         c = math.cos(psi)
         s = math.sin(psi)
         P = npt[k]
@@ -119,30 +143,31 @@ def chain_terms(q, qd, M, h, Qg, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP
         toy = 0.0
         tcx = 0.0
         tcy = 0.0
-        Jtx = np.empty(n)
-        Jty = np.empty(n)
+        psid2 = psid * psid
         for p in range(P + 1):
+            ext = EXT[k, p]
             uf = 0.0
             ax_acc = 0.0
             ud = 0.0
             w = 0.0
             wd = 0.0
-            for a in range(nk):
+            for a in range(ext):
                 w += PHI[k, p, a] * q[s0 + a]
                 wd += PHI[k, p, a] * qd[s0 + a]
             if fs:
-                for a in range(nk):
+                for a in range(ext):
                     acc = 0.0
                     accd = 0.0
-                    for b in range(nk):
-                        acc += SS[k, p, a, b] * q[s0 + b]
-                        accd += SS[k, p, a, b] * qd[s0 + b]
+                    for b in range(ext):
+                        sab = SS[k, p, a, b]
+                        acc += sab * q[s0 + b]
+                        accd += sab * qd[s0 + b]
                     Seta[a] = acc
                     uf -= 0.5 * acc * q[s0 + a]
                     ud -= acc * qd[s0 + a]
                     ax_acc -= accd * qd[s0 + a]
             else:
-                for a in range(nk):
+                for a in range(ext):
                     Seta[a] = 0.0
             sx = rh[k] + X[k, p] + uf
             sy = w
@@ -150,22 +175,26 @@ def chain_terms(q, qd, M, h, Qg, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP
             Asy = s * sx + c * sy
             Adx = c * ud - s * wd
             Ady = s * ud + c * wd
-            cx = cox - psid * psid * Asx - 2.0 * psid * Ady + ax_acc * c
-            cy = coy - psid * psid * Asy + 2.0 * psid * Adx + ax_acc * s
-            for i in range(nact):
+            cx = cox - psid2 * Asx - 2.0 * psid * Ady + ax_acc * c
+            cy = coy - psid2 * Asy + 2.0 * psid * Adx + ax_acc * s
+            na = s0 + ext if p < P else nact
+            for i in range(s0):
                 Jx[i] = Jo[0, i] - Asy * Jpsi[i]
                 Jy[i] = Jo[1, i] + Asx * Jpsi[i]
-            for a in range(nk):
-                Jx[s0 + a] += -c * Seta[a] - s * PHI[k, p, a]
-                Jy[s0 + a] += -s * Seta[a] + c * PHI[k, p, a]
+            for i in range(s0, nact):
+                Jx[i] = 0.0
+                Jy[i] = 0.0
+            for a in range(ext):
+                Jx[s0 + a] = -c * Seta[a] - s * PHI[k, p, a]
+                Jy[s0 + a] = -s * Seta[a] + c * PHI[k, p, a]
             if p < P:
                 m = MP[k, p]
-                for i in range(nact):
+                for i in range(na):
                     h[i] += m * (Jx[i] * cx + Jy[i] * cy)
                     Qg[i] += m * (Jx[i] * g[0] + Jy[i] * g[1])
                     mjx = m * Jx[i]
                     mjy = m * Jy[i]
-                    for j in range(i, nact):
+                    for j in range(i, na):
                         M[i, j] += mjx * Jx[j] + mjy * Jy[j]
             else:
                 tox = ox + Asx
@@ -190,147 +219,166 @@ def chain_terms(q, qd, M, h, Qg, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP
         for i in range(n):
             psid += Jpsi[i] * qd[i]
         _add_body(M, h, Qg, bodies[k, 1, 0], bodies[k, 1, 1], bodies[k, 1, 2],
-                  bodies[k, 1, 3], ox, oy, Jo, cox, coy, psi, Jpsi, psid, g, nact)
+                  bodies[k, 1, 3], ox, oy, Jo, cox, coy, psi, Jpsi, psid, g, nact, Jx, Jy)
     for i in range(n):
         for j in range(i):
             M[i, j] = M[j, i]
 
 
 @_jit
-def _cholesky_solve(A, b, nf):
-    """Solve A x = b for symmetric positive-definite A (nf × nf), in place on copies."""
-    L = np.zeros((nf, nf))
+def _cholesky_solve(A, b, nf, L, y, x):
+    """Solve A x = b for symmetric positive-definite A (nf × nf); False if A is not SPD."""
     for j in range(nf):
         d = A[j, j]
         for k in range(j):
             d -= L[j, k] * L[j, k]
         if d <= 0.0:
-            return np.full(nf, np.nan)
+            return False
         L[j, j] = math.sqrt(d)
         for i in range(j + 1, nf):
             v = A[i, j]
             for k in range(j):
                 v -= L[i, k] * L[j, k]
             L[i, j] = v / L[j, j]
-    y = np.empty(nf)
     for i in range(nf):
         v = b[i]
         for k in range(i):
             v -= L[i, k] * y[k]
         y[i] = v / L[i, i]
-    x = np.empty(nf)
     for i in range(nf - 1, -1, -1):
         v = y[i]
         for k in range(i + 1, nf):
             v -= L[k, i] * x[k]
         x[i] = v / L[i, i]
-    return x
+    return True
 
 
 @_jit
-def rhs(t, x, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs,
-        base_angle, Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes,
-        tvalues, tlen):
-    """ẋ for x = [q_free, q̇_free] (chain.Chain.rhs, compiled)."""
+def rhs_into(t, x, out, model, ws):
+    """out = ẋ for x = [q_free, q̇_free] (chain.Chain.rhs, compiled, no allocation)."""
+    (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
+     Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
+     EXT) = model
+    q = ws[0]
+    qd = ws[1]
+    M = ws[2]
+    h = ws[3]
+    Qg = ws[4]
+    Mff = ws[12]
+    ff = ws[13]
+    L = ws[14]
+    y = ws[15]
+    acc = ws[16]
+    pdd = ws[17]
+    f = ws[18]
     nf = free.shape[0]
-    q = np.empty(n)
-    qd = np.empty(n)
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
     npr = presc.shape[0]
-    pdd = np.empty(npr)
     for j in range(npr):
         th, thd, thdd = eval_motion_c(mcode[j], mpar[j], t)
         q[presc[j]] = th
         qd[presc[j]] = thd
         pdd[j] = thdd
-    M = np.empty((n, n))
-    h = np.empty(n)
-    Qg = np.empty(n)
-    chain_terms(q, qd, M, h, Qg, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS,
-                SLOPE, g, fs, base_angle, Mdrive)
-    f = Qg - h
+    chain_terms(q, qd, model, ws)
     for i in range(n):
-        acc = 0.0
+        v = Qg[i] - h[i]
         for j in range(n):
-            acc += K[i, j] * q[j] + D[i, j] * qd[j]
-        f[i] -= acc
+            v -= K[i, j] * q[j] + D[i, j] * qd[j]
+        f[i] = v
     for j in range(tidx.shape[0]):
-        L = tlen[j]
-        f[tidx[j]] += eval_torque_c(tcode[j], tpar[j], ttimes[j, :L], tvalues[j, :L], t)
+        Lj = tlen[j]
+        f[tidx[j]] += eval_torque_c(tcode[j], tpar[j], ttimes[j, :Lj], tvalues[j, :Lj], t)
     for j in range(npr):
         for i in range(n):
             f[i] -= M[i, presc[j]] * pdd[j]
-    Mff = np.empty((nf, nf))
-    ff = np.empty(nf)
     for a in range(nf):
         ff[a] = f[free[a]]
         for b in range(nf):
             Mff[a, b] = M[free[a], free[b]]
-    acc = _cholesky_solve(Mff, ff, nf)
-    out = np.empty(2 * nf)
+    if not _cholesky_solve(Mff, ff, nf, L, y, acc):
+        for a in range(nf):
+            acc[a] = np.nan
     for a in range(nf):
         out[a] = x[nf + a]
         out[nf + a] = acc[a]
+
+
+@_jit
+def rhs(t, x, model, ws):
+    """ẋ for x = [q_free, q̇_free] as a new array."""
+    out = np.empty(x.shape[0])
+    rhs_into(t, x, out, model, ws)
     return out
 
 
 @_jit
-def _deflection_ratio(x, free, n, nl, e0, ne, PHI, npt, lengths, presc, mcode, mpar, t):
+def _deflection_ratio(x, model):
     """max over beams of |w(L)|/L (elastic coordinates are never prescribed)."""
+    n = model[0]
+    nl = model[1]
+    e0 = model[3]
+    ne = model[4]
+    npt = model[8]
+    PHI = model[11]
+    free = model[20]
     nf = free.shape[0]
-    q = np.zeros(n)
-    for i in range(nf):
-        q[free[i]] = x[i]
     worst = 0.0
-    which = 0
     for k in range(nl):
         w = 0.0
-        for a in range(ne[k]):
-            w += PHI[k, npt[k], a] * q[e0[k] + a]
-        r = abs(w) / lengths[k]
+        for i in range(nf):
+            j = free[i] - e0[k]
+            if j >= 0 and j < ne[k]:
+                w += PHI[k, npt[k], j] * x[i]
+        r = abs(w) / model[9][k, npt[k]]   # X at the tip row = beam length
         if r > worst:
             worst = r
-            which = k
-    return worst, which
+    return worst
 
 
 @_jit
-def rk4_loop(x0, h, per, n_out, out_dt, max_ratio, xs, n, nl, ij, e0, ne, bodies, joff, rh,
-             npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle, Mdrive, K, D, free, presc, mcode,
-             mpar, tidx, tcode, tpar, ttimes, tvalues, tlen, lengths):
+def rk4_loop(x0, h, per, n_out, out_dt, max_ratio, xs, model, ws):
     """Fixed-step RK4 from t = 0, storing every ``per`` steps into xs[1..n_out].
 
-    Returns (status, time, steps, last good state, offending state): status OK, NON_FINITE or DEFLECTION.
+    Returns (status, time, steps, last good state, offending state): status OK,
+    NON_FINITE or DEFLECTION.
     """
+    m = x0.shape[0]
     x = x0.copy()
+    xn = np.empty(m)
+    tmp = np.empty(m)
+    k1 = np.empty(m)
+    k2 = np.empty(m)
+    k3 = np.empty(m)
+    k4 = np.empty(m)
     steps = 0
     for k in range(n_out):
         t0 = k * out_dt
         for j in range(per):
             t = t0 + j * h
-            k1 = rhs(t + STAGE_EPS * h, x, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE,
-                     g, fs, base_angle, Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode,
-                     tpar, ttimes, tvalues, tlen)
-            k2 = rhs(t + 0.5 * h, x + 0.5 * h * k1, n, nl, ij, e0, ne, bodies, joff, rh, npt,
-                     X, MP, PHI, SS, SLOPE, g, fs, base_angle, Mdrive, K, D, free, presc,
-                     mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen)
-            k3 = rhs(t + 0.5 * h, x + 0.5 * h * k2, n, nl, ij, e0, ne, bodies, joff, rh, npt,
-                     X, MP, PHI, SS, SLOPE, g, fs, base_angle, Mdrive, K, D, free, presc,
-                     mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen)
-            k4 = rhs(t + (1.0 - STAGE_EPS) * h, x + h * k3, n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI,
-                     SS, SLOPE, g, fs, base_angle, Mdrive, K, D, free, presc, mcode, mpar,
-                     tidx, tcode, tpar, ttimes, tvalues, tlen)
-            xn = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            steps += 1
-            for i in range(xn.shape[0]):
+            rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
+            for i in range(m):
+                tmp[i] = x[i] + 0.5 * h * k1[i]
+            rhs_into(t + 0.5 * h, tmp, k2, model, ws)
+            for i in range(m):
+                tmp[i] = x[i] + 0.5 * h * k2[i]
+            rhs_into(t + 0.5 * h, tmp, k3, model, ws)
+            for i in range(m):
+                tmp[i] = x[i] + h * k3[i]
+            rhs_into(t + (1.0 - STAGE_EPS) * h, tmp, k4, model, ws)
+            finite = True
+            for i in range(m):
+                xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
                 if not math.isfinite(xn[i]):
-                    return NON_FINITE, t + h, steps, x, xn
-            r, _ = _deflection_ratio(xn, free, n, nl, e0, ne, PHI, npt, lengths, presc,
-                                     mcode, mpar, t + h)
-            if r > max_ratio:
+                    finite = False
+            steps += 1
+            if not finite:
+                return NON_FINITE, t + h, steps, x, xn
+            if _deflection_ratio(xn, model) > max_ratio:
                 return DEFLECTION, t + h, steps, x, xn
-            x = xn
-        xs[k + 1] = x
+            for i in range(m):
+                x[i] = xn[i]
+        for i in range(m):
+            xs[k + 1, i] = x[i]
     return OK, n_out * out_dt, steps, x, x

@@ -1,0 +1,118 @@
+"""The flexarm command: simulate / modes / explain, outputs and errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from flexarm_ros.cli import main
+from flexarm_ros.io.tables import read_table
+
+
+def test_simulate_csv_has_header_and_named_columns(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "link_tipmass", "--duration", "0.05", "--out", str(out),
+                 "--rung", "cubic", "--quiet"]) == 0
+    cols = read_table(out)
+    for key in ("t", "link1_joint", "link1_tip_disp", "link1_tip_rot", "link1_joint_rate",
+                "link1_tip_disp_rate", "tip_x", "tip_y", "energy"):
+        assert key in cols
+    assert cols["t"][0] == 0.0 and np.isclose(cols["t"][-1], 0.05)
+    # the hub radius 0.075 m + beam 1 m: the undeformed tip is at x = 1.075
+    assert np.isclose(cols["tip_x"][0], 1.075)
+
+
+def test_simulate_npz_equals_csv(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.npz"
+    for f in (a, b):
+        assert main(["simulate", "link", "--duration", "0.02", "--out", str(f), "--quiet",
+                     "--rung", "modal", "--refine", "2"]) == 0
+    ca, cb = read_table(a), read_table(b)
+    assert list(ca) == list(cb)
+    for k in ca:
+        assert np.allclose(ca[k], cb[k], rtol=1e-9, atol=1e-12)
+
+
+def test_simulate_json_summary(capsys):
+    assert main(["simulate", "two_link_free", "--duration", "0.05", "--json"]) == 0
+    summ = json.loads(capsys.readouterr().out)
+    for key in ("status", "message", "sim_time_s", "wall_time_s", "real_time_factor",
+                "rhs_evaluations", "steps"):
+        assert key in summ
+    assert summ["status"] == 0 and np.isclose(summ["sim_time_s"], 0.05)
+    assert summ["rhs_evaluations"] == 4 * summ["steps"]     # RK4: four stages per step
+
+
+def test_fidelity_overrides_reach_the_model(capsys):
+    assert main(["simulate", "link", "--duration", "0.01", "--json", "--rung", "fem",
+                 "--refine", "3", "--integrator", "dop853", "--rtol", "1e-6",
+                 "--atol", "1e-9"]) == 0
+    summ = json.loads(capsys.readouterr().out)
+    assert summ["rung"] == "fem" and summ["integrator"] == "dop853"
+    assert len(summ["coordinates"]) == 1 + 6
+
+
+def test_modes_json_matches_closed_form(capsys):
+    from flexarm_ros.model import beam_theory
+    assert main(["modes", "link_tipmass", "--joints", "locked", "--json", "--rung", "fem",
+                 "--refine", "12"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    ref = beam_theory.tip_loaded_frequencies_hz(2000.0, 1.0, 1.0, 0.5, 0.002, 3)
+    assert np.allclose(out["frequencies_hz"][:3], ref, rtol=1e-4)
+    assert out["frequencies_hz"] == sorted(out["frequencies_hz"])
+
+
+def test_modes_free_joints_include_the_rigid_mode(capsys):
+    assert main(["modes", "link_tipmass", "--joints", "free", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frequencies_hz"][0] == 0.0 and out["frequencies_hz"][1] > 1.0
+
+
+def test_explain_names_coordinates_and_omissions(capsys):
+    assert main(["explain", "link_tipmass"]) == 0
+    text = capsys.readouterr().out
+    assert "link1_joint" in text and "left out" in text and "gravity" in text
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["simulate", "no_such_scene"], "expected an existing YAML file"),
+    (["simulate", "link", "--refine", "2", "--rung", "fd"], "expected >= 4 segments"),
+    (["simulate", "link", "--rtol", "-1"], "fidelity.rtol: got -1.0"),
+    (["simulate", "link", "--duration", "0.01", "--out", "x.txt"], "expected a .csv or .npz"),
+    (["simulate", "link", "--rung", "cubic", "--dt", "0.5", "--duration", "0.01"],
+     "RK4 stability limit"),
+])
+def test_bad_input_exits_with_a_clear_message(argv, fragment, capsys, tmp_path,
+                                              monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code = main(argv)
+    assert code in (2, 3)
+    assert fragment in capsys.readouterr().err
+    assert not (tmp_path / "x.txt").exists()
+
+
+def test_console_entry_point_runs_default_scene(tmp_path):
+    out = tmp_path / "run.csv"
+    r = subprocess.run([sys.executable, "-m", "flexarm_ros.cli", "simulate", "--duration",
+                        "0.02", "--out", str(out), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "two_link_free" in r.stdout and out.exists()
+
+
+def test_core_imports_without_rclpy():
+    code = ("import sys; sys.modules['rclpy'] = None; "
+            "import flexarm_ros.model.chain, flexarm_ros.model.simulate, flexarm_ros.cli; "
+            "print('ok')")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0 and "ok" in r.stdout, r.stderr
+
+
+def test_config_reference_is_up_to_date():
+    import pathlib
+    import runpy
+    root = pathlib.Path(__file__).resolve().parents[1]
+    mod = runpy.run_path(str(root / "tools" / "gen_config_reference.py"))
+    assert (root / "docs" / "config_reference.md").read_text() == mod["render"](), \
+        "run: python tools/gen_config_reference.py"

@@ -59,7 +59,14 @@ class _Counted:
 
 
 def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
-    """The fixed step to use (RK4) or max step (adaptive, 0 = unbounded); checks stability."""
+    """The fixed step to use (RK4, trapezoid) or max step (adaptive, 0 = unbounded).
+
+    RK4: checked against its stability limit, automatic = 1.5/|λ|max. Trapezoid: no
+    stability limit; automatic = the output period (choose --dt for accuracy).
+    """
+    if integrator == "trapezoid":
+        h = min(dt, output_dt) if dt > 0 else output_dt
+        return output_dt / np.ceil(output_dt / h - 1e-9)
     if integrator != "rk4":
         return dt
     q, qd = chain.full_state(t0, x0)
@@ -83,9 +90,9 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
 def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
               output_dt=1e-3, max_deflection_ratio=0.5, progress=None) -> Integration:
     """Integrate the chain from state x0 = [q_free, q̇_free] over [0, t_end]."""
-    if integrator not in ("rk4", *SOLVE_IVP):
+    if integrator not in ("rk4", "trapezoid", *SOLVE_IVP):
         raise SceneError(f"fidelity.integrator: got {integrator!r}, expected one of rk4, "
-                         f"{', '.join(SOLVE_IVP)}")
+                         f"trapezoid, {', '.join(SOLVE_IVP)}")
     n_out = int(np.floor(t_end / output_dt + 1e-9))
     t_out = np.arange(n_out + 1) * output_dt
     h = choose_step(chain, x0, integrator, dt, output_dt)
@@ -105,6 +112,11 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         if code != kernel.OK:
             guard.last = x_last
             guard.check(t_fail, x_bad)
+        status, message, step_used = 0, "integration reached the end time", h
+    elif integrator == "trapezoid":
+        steps, calls = _run_trapezoid(chain, x0, h, n_out, output_dt, max_deflection_ratio,
+                                      xs, guard)
+        f.calls += calls
         status, message, step_used = 0, "integration reached the end time", h
     elif integrator == "rk4":
         per = int(round(output_dt / h))
@@ -208,3 +220,67 @@ class _Guard:
                        f"fidelity.max_deflection_ratio = {self.max_ratio} (the small-deflection "
                        f"beam model is no longer valid)")
         self.last = np.array(x, copy=True)
+
+
+TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + 1e-6)
+TRAPEZOID_MAX_ITER = 8      # iterations per step before the iteration matrix is refreshed
+TRAPEZOID_REFRESHES = 200   # refreshes per run before giving up
+
+
+def iteration_matrix(chain, t, x, h) -> np.ndarray:
+    """(M + h/2·C + h²/4·K)⁻¹ on the free coordinates at state x, with K = −∂f/∂q and
+    C = −∂f/∂q̇ of the generalized forces f (central differences of the compiled forces)."""
+    model = chain.kernel_args
+    ws = kernel.workspace(model)
+    free = chain.free
+    nf = len(free)
+    q, qd = chain.full_state(t, x)
+
+    def force(qq, vv):
+        kernel.forces(float(t), qq.copy(), vv.copy(), model, ws)
+        return ws[18][free].copy()
+
+    K = np.zeros((nf, nf))
+    C = np.zeros((nf, nf))
+    for j, idx in enumerate(free):
+        for arr, out in ((q, K), (qd, C)):
+            d = 1e-7 * max(1.0, abs(arr[idx]))
+            ap, am = arr.copy(), arr.copy()
+            ap[idx] += d
+            am[idx] -= d
+            fp = force(ap, qd) if arr is q else force(q, ap)
+            fm = force(am, qd) if arr is q else force(q, am)
+            out[:, j] = -(fp - fm) / (2 * d)
+    kernel.forces(float(t), q.copy(), qd.copy(), model, ws)
+    M = ws[2][np.ix_(free, free)]
+    return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
+
+
+def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard):
+    """Drive the compiled trapezoidal loop, refreshing the iteration matrix when Newton
+    stalls (fast rotation, large deflection change the tangent)."""
+    model = chain.kernel_args
+    ws = kernel.workspace(model)
+    nf = len(chain.free)
+    per = int(round(output_dt / h))
+    x = np.array(x0, float)
+    acc = kernel.rhs(kernel.STAGE_EPS * h, x, model, ws)[nf:]
+    k, steps, calls, refreshes = 0, 0, 0, 0
+    while True:
+        Sinv = iteration_matrix(chain, k * output_dt, x, h)
+        code, k, st, it, x, acc = kernel.trapezoid_loop(
+            x, acc, h, per, k, n_out, output_dt, max_ratio, xs, model, ws, Sinv,
+            TRAPEZOID_TOL, TRAPEZOID_MAX_ITER)
+        steps += st
+        calls += it
+        if code == kernel.OK:
+            return steps, calls
+        if code == kernel.DEFLECTION:
+            guard.check((k + 1) * output_dt, x)
+        refreshes += 1
+        if refreshes > TRAPEZOID_REFRESHES or not np.all(np.isfinite(x)):
+            raise SimulationDiverged(
+                "Newton iteration of the trapezoidal rule", k * output_dt,
+                float(np.abs(x).max()),
+                f"reduce the step (--dt, now {h:.3g} s) or use --integrator rk4 / radau",
+                detail=f"no convergence after {refreshes} refreshes of the iteration matrix")

@@ -40,7 +40,7 @@ eval_motion_c = _jit(eval_motion)
 STAGE_EPS = 1e-9
 
 # status codes of the compiled loop
-OK, NON_FINITE, DEFLECTION = 0, 1, 2
+OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
 
 
 @_jit
@@ -73,7 +73,7 @@ def workspace(model):
     return (np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n),
             np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
             np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
-            np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n))
+            np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n), np.empty(2 * nf))
 
 
 @_jit
@@ -254,27 +254,17 @@ def _cholesky_solve(A, b, nf, L, y, x):
 
 
 @_jit
-def rhs_into(t, x, out, model, ws):
-    """out = ẋ for x = [q_free, q̇_free] (chain.Chain.rhs, compiled, no allocation)."""
+def forces(t, q, qd, model, ws):
+    """Fill ws' M and f = Q_input + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at (t, q, q̇), with
+    the prescribed coordinates of q, q̇ set from their programs at time t."""
     (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
      Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
      EXT) = model
-    q = ws[0]
-    qd = ws[1]
     M = ws[2]
     h = ws[3]
     Qg = ws[4]
-    Mff = ws[12]
-    ff = ws[13]
-    L = ws[14]
-    y = ws[15]
-    acc = ws[16]
     pdd = ws[17]
     f = ws[18]
-    nf = free.shape[0]
-    for i in range(nf):
-        q[free[i]] = x[i]
-        qd[free[i]] = x[nf + i]
     npr = presc.shape[0]
     for j in range(npr):
         th, thd, thdd = eval_motion_c(mcode[j], mpar[j], t)
@@ -293,6 +283,26 @@ def rhs_into(t, x, out, model, ws):
     for j in range(npr):
         for i in range(n):
             f[i] -= M[i, presc[j]] * pdd[j]
+
+
+@_jit
+def rhs_into(t, x, out, model, ws):
+    """out = ẋ for x = [q_free, q̇_free] (chain.Chain.rhs, compiled, no allocation)."""
+    free = model[20]
+    q = ws[0]
+    qd = ws[1]
+    M = ws[2]
+    Mff = ws[12]
+    ff = ws[13]
+    L = ws[14]
+    y = ws[15]
+    acc = ws[16]
+    f = ws[18]
+    nf = free.shape[0]
+    for i in range(nf):
+        q[free[i]] = x[i]
+        qd[free[i]] = x[nf + i]
+    forces(t, q, qd, model, ws)
     for a in range(nf):
         ff[a] = f[free[a]]
         for b in range(nf):
@@ -382,3 +392,114 @@ def rk4_loop(x0, h, per, n_out, out_dt, max_ratio, xs, model, ws):
         for i in range(m):
             xs[k + 1, i] = x[i]
     return OK, n_out * out_dt, steps, x, x
+
+
+@_jit
+def _torque_jumps(t, model):
+    """True when a torque program differs just before and just after time t."""
+    tidx = model[24]
+    for j in range(tidx.shape[0]):
+        Lj = model[29][j]
+        a = eval_torque_c(model[25][j], model[26][j], model[27][j, :Lj], model[28][j, :Lj],
+                          t - 1e-12)
+        b = eval_torque_c(model[25][j], model[26][j], model[27][j, :Lj], model[28][j, :Lj],
+                          t + 1e-12)
+        if a != b:
+            return True
+    return False
+
+
+@_jit
+def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws, Sinv, tol,
+                   max_iter):
+    """Implicit trapezoidal rule (Newmark average acceleration, β = 1/4, γ = 1/2) from output
+    interval k0; modified Newton on the new accelerations with the frozen iteration matrix
+    Sinv = (M + h/2·D + h²/4·K_t)⁻¹ of the free coordinates.
+
+    q₁ = q₀ + h v₀ + h²/4 (a₀ + a₁),  v₁ = v₀ + h/2 (a₀ + a₁),  M(q₁) a₁ = f(t₁, q₁, v₁).
+    Unconditionally stable, second order, no numerical damping (energy of a linear system
+    is conserved exactly). Returns (status, output interval, steps, iterations, x, a); on
+    NEWTON the state is the one at the start of that output interval, so the caller can
+    refresh Sinv there and resume.
+    """
+    free = model[20]
+    nf = free.shape[0]
+    q = ws[0]
+    qd = ws[1]
+    M = ws[2]
+    f = ws[18]
+    qf = x[:nf].copy()
+    vf = x[nf:].copy()
+    a0 = acc0.copy()
+    a1 = np.empty(nf)
+    r = np.empty(nf)
+    q1 = np.empty(nf)
+    v1 = np.empty(nf)
+    xk = np.empty(2 * nf)
+    steps = 0
+    iters = 0
+    for k in range(k0, n_out):
+        qs = qf.copy()
+        vs = vf.copy()
+        as_ = a0.copy()
+        t0 = k * out_dt
+        for j in range(per):
+            t = t0 + j * h
+            if _torque_jumps(t, model):     # right limit of the input at the step start
+                for i in range(nf):
+                    xk[i] = qf[i]
+                    xk[nf + i] = vf[i]
+                rhs_into(t + STAGE_EPS * h, xk, ws[19], model, ws)
+                for i in range(nf):
+                    a0[i] = ws[19][nf + i]
+            for i in range(nf):
+                a1[i] = a0[i]
+            converged = False
+            for it in range(max_iter):
+                for i in range(nf):
+                    q1[i] = qf[i] + h * vf[i] + 0.25 * h * h * (a0[i] + a1[i])
+                    v1[i] = vf[i] + 0.5 * h * (a0[i] + a1[i])
+                    q[free[i]] = q1[i]
+                    qd[free[i]] = v1[i]
+                forces(t + (1.0 - STAGE_EPS) * h, q, qd, model, ws)
+                for i in range(nf):
+                    v = -f[free[i]]
+                    for jj in range(nf):
+                        v += M[free[i], free[jj]] * a1[jj]
+                    r[i] = v
+                dmax = 0.0
+                amax = 0.0
+                for i in range(nf):
+                    d = 0.0
+                    for jj in range(nf):
+                        d -= Sinv[i, jj] * r[jj]
+                    a1[i] += d
+                    dmax = max(dmax, abs(d))
+                    amax = max(amax, abs(a1[i]))
+                iters += 1
+                if not math.isfinite(dmax):
+                    break
+                if dmax <= tol * (amax + 1e-6):
+                    converged = True
+                    break
+            if not converged:
+                for i in range(nf):
+                    xk[i] = qs[i]
+                    xk[nf + i] = vs[i]
+                return NEWTON, k, steps, iters, xk, as_
+            steps += 1
+            for i in range(nf):
+                qf[i] = q1[i]
+                vf[i] = v1[i]
+                a0[i] = a1[i]
+                xk[i] = q1[i]
+                xk[nf + i] = v1[i]
+            if _deflection_ratio(xk, model) > max_ratio:
+                return DEFLECTION, k, steps, iters, xk, a0
+        for i in range(nf):
+            xs[k + 1, i] = qf[i]
+            xs[k + 1, nf + i] = vf[i]
+    for i in range(nf):
+        xk[i] = qf[i]
+        xk[nf + i] = vf[i]
+    return OK, n_out, steps, iters, xk, a0

@@ -20,8 +20,8 @@ from .errors import SceneError
 from .schema import from_mapping, param
 
 RUNGS = ("rigid", "cubic", "modal", "fem", "fd")
-INTEGRATORS = ("rk4", "rk45", "dop853", "radau", "bdf", "lsoda")
-FIXED_STEP_INTEGRATORS = ("rk4",)
+INTEGRATORS = ("rk4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
+FIXED_STEP_INTEGRATORS = ("rk4", "trapezoid")
 TORQUE_PROGRAMS = ("constant", "pulse", "square", "piecewise_constant", "piecewise_linear")
 MOTION_PROGRAMS = ("spin_up", "smooth_step", "hold")
 

@@ -222,7 +222,7 @@ class _Guard:
         self.last = np.array(x, copy=True)
 
 
-TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + 1e-6)
+TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + |S⁻¹|·|f|)
 TRAPEZOID_MAX_ITER = 8      # iterations per step before the iteration matrix is refreshed
 TRAPEZOID_REFRESHES = 200   # refreshes per run before giving up
 

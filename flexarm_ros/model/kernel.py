@@ -433,6 +433,7 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
     a0 = acc0.copy()
     a1 = np.empty(nf)
     r = np.empty(nf)
+    sc = np.empty(nf)
     q1 = np.empty(nf)
     v1 = np.empty(nf)
     xk = np.empty(2 * nf)
@@ -463,23 +464,32 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
                     qd[free[i]] = v1[i]
                 forces(t + (1.0 - STAGE_EPS) * h, q, qd, model, ws)
                 for i in range(nf):
-                    v = -f[free[i]]
+                    ma = 0.0
                     for jj in range(nf):
-                        v += M[free[i], free[jj]] * a1[jj]
-                    r[i] = v
+                        ma += M[free[i], free[jj]] * a1[jj]
+                    r[i] = ma - f[free[i]]
+                    # magnitude of the terms that cancel in the residual (round-off scale)
+                    sc[i] = (abs(ma) + abs(f[free[i]]) + abs(ws[3][free[i]])
+                             + abs(ws[4][free[i]]))
                 dmax = 0.0
                 amax = 0.0
+                fscale = 0.0
                 for i in range(nf):
                     d = 0.0
+                    fs_i = 0.0
                     for jj in range(nf):
                         d -= Sinv[i, jj] * r[jj]
+                        fs_i += abs(Sinv[i, jj]) * sc[jj]
                     a1[i] += d
                     dmax = max(dmax, abs(d))
                     amax = max(amax, abs(a1[i]))
+                    fscale = max(fscale, fs_i)
                 iters += 1
                 if not math.isfinite(dmax):
                     break
-                if dmax <= tol * (amax + 1e-6):
+                # relative to the accelerations and to the force terms that cancel in them,
+                # with an absolute floor: a correction that moves q by < 1e-14 is round-off
+                if dmax <= tol * (amax + fscale) or 0.25 * h * h * dmax < 1e-14:
                     converged = True
                     break
             if not converged:

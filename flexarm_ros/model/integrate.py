@@ -105,17 +105,22 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     last_report = wall0
     if integrator == "rk4" and chain.backend == "numba":
         per = int(round(output_dt / h))
-        code, t_fail, steps, x_last, x_bad = kernel.rk4_loop(
-            np.array(x0, float), h, per, n_out, output_dt, max_deflection_ratio, xs,
-            chain.kernel_args, kernel.workspace(chain.kernel_args))
+        ws = kernel.workspace(chain.kernel_args)
+        x, steps = np.array(x0, float), 0
+        for k0, k1 in _chunks(n_out):
+            code, t_fail, st, x_last, x_bad = kernel.rk4_loop(
+                x, h, per, k0, k1, output_dt, max_deflection_ratio, xs, chain.kernel_args, ws)
+            steps += st
+            if code != kernel.OK:
+                guard.last = x_last
+                guard.check(t_fail, x_bad)
+            x = x_last
+            last_report = _report(progress, last_report, k1 * output_dt / t_end)
         f.calls += 4 * steps
-        if code != kernel.OK:
-            guard.last = x_last
-            guard.check(t_fail, x_bad)
         status, message, step_used = 0, "integration reached the end time", h
     elif integrator == "trapezoid":
         steps, calls = _run_trapezoid(chain, x0, h, n_out, output_dt, max_deflection_ratio,
-                                      xs, guard)
+                                      xs, guard, progress)
         f.calls += calls
         status, message, step_used = 0, "integration reached the end time", h
     elif integrator == "rk4":
@@ -224,7 +229,6 @@ class _Guard:
 
 TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + |S⁻¹|·|f|)
 TRAPEZOID_MAX_ITER = 8      # iterations per step before the iteration matrix is refreshed
-TRAPEZOID_REFRESHES = 200   # refreshes per run before giving up
 
 
 def iteration_matrix(chain, t, x, h) -> np.ndarray:
@@ -256,7 +260,7 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 
 
-def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard):
+def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progress=None):
     """Drive the compiled trapezoidal loop, refreshing the iteration matrix when Newton
     stalls (fast rotation, large deflection change the tangent)."""
     model = chain.kernel_args
@@ -265,22 +269,45 @@ def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard):
     per = int(round(output_dt / h))
     x = np.array(x0, float)
     acc = kernel.rhs(kernel.STAGE_EPS * h, x, model, ws)[nf:]
-    k, steps, calls, refreshes = 0, 0, 0, 0
+    k, steps, calls, refreshes, k_failed = 0, 0, 0, 0, -1
+    Sinv = iteration_matrix(chain, 0.0, x, h)
+    last_report = time.perf_counter()
     while True:
-        Sinv = iteration_matrix(chain, k * output_dt, x, h)
+        k_end = min(n_out, k + max(1, n_out // 100))
         code, k, st, it, x, acc = kernel.trapezoid_loop(
-            x, acc, h, per, k, n_out, output_dt, max_ratio, xs, model, ws, Sinv,
+            x, acc, h, per, k, k_end, output_dt, max_ratio, xs, model, ws, Sinv,
             TRAPEZOID_TOL, TRAPEZOID_MAX_ITER)
         steps += st
         calls += it
         if code == kernel.OK:
-            return steps, calls
+            last_report = _report(progress, last_report, k * output_dt / (n_out * output_dt))
+            if k >= n_out:
+                return steps, calls
+            continue
         if code == kernel.DEFLECTION:
             guard.check((k + 1) * output_dt, x)
-        refreshes += 1
-        if refreshes > TRAPEZOID_REFRESHES or not np.all(np.isfinite(x)):
+        # Newton stalled: refresh the iteration matrix where it stalled, once per place
+        if k == k_failed or not np.all(np.isfinite(x)):
             raise SimulationDiverged(
                 "Newton iteration of the trapezoidal rule", k * output_dt,
                 float(np.abs(x).max()),
                 f"reduce the step (--dt, now {h:.3g} s) or use --integrator rk4 / radau",
-                detail=f"no convergence after {refreshes} refreshes of the iteration matrix")
+                detail="no convergence with a fresh iteration matrix")
+        k_failed = k
+        refreshes += 1
+        Sinv = iteration_matrix(chain, k * output_dt, x, h)
+
+
+def _chunks(n_out, parts=100):
+    """Split output intervals into ~``parts`` compiled calls (progress between them)."""
+    step = max(1, n_out // parts)
+    return [(k, min(n_out, k + step)) for k in range(0, n_out, step)]
+
+
+def _report(progress, last, fraction):
+    """Call ``progress(fraction)`` at most once per wall second; returns the last report time."""
+    now = time.perf_counter()
+    if progress is not None and now - last > 1.0:
+        progress(fraction)
+        return now
+    return last

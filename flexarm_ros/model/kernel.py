@@ -348,8 +348,9 @@ def _deflection_ratio(x, model):
 
 
 @_jit
-def rk4_loop(x0, h, per, n_out, out_dt, max_ratio, xs, model, ws):
-    """Fixed-step RK4 from t = 0, storing every ``per`` steps into xs[1..n_out].
+def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
+    """Fixed-step RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt), storing
+    every ``per`` steps into xs[k + 1].
 
     Returns (status, time, steps, last good state, offending state): status OK,
     NON_FINITE or DEFLECTION.
@@ -363,7 +364,7 @@ def rk4_loop(x0, h, per, n_out, out_dt, max_ratio, xs, model, ws):
     k3 = np.empty(m)
     k4 = np.empty(m)
     steps = 0
-    for k in range(n_out):
+    for k in range(k0, n_out):
         t0 = k * out_dt
         for j in range(per):
             t = t0 + j * h

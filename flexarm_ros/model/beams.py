@@ -229,12 +229,15 @@ def finite_differences(beam, n_seg):
     """Nodal finite differences (seed 001, Sec. 3): y1..yn at h = L/n, lumped masses.
 
     The stiffness is the energy-consistent form of the seed's scheme: strain energy
-    ½EI Σ_i w_i h κ_i² with the central-difference curvature κ_i = (y_{i−1} − 2y_i +
-    y_{i+1})/h², the clamped root through the ghost node y_{−1} = y_1 (weight ½ at node 0)
-    and the free end's zero moment (κ_n = 0). Its interior rows are the seed's stencil
+    ½EI Σ_i w_i h κ_i² (trapezoidal weights) with the central-difference curvature
+    κ_i = (y_{i−1} − 2y_i + y_{i+1})/h², the clamped root through the ghost node y_{−1} = y_1
+    and, at the tip, the one-sided κ_n = (y_n − 2y_{n−1} + y_{n−2})/h². (Omitting κ_n, i.e.
+    imposing a moment-free tip, made the modes of a beam with tip inertia converge only at
+    O(h); measured.) Its interior rows are the seed's stencil
     EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy, which
     the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
-    by the backward difference (y_n − y_{n−1})/h, as in the seed.
+    by the second-order one-sided difference (the seed's backward difference is first
+    order and made chained tip paths converge at O(h)).
     """
     if n_seg < 4:
         raise SceneError(f"fidelity.refine: got {n_seg}, expected >= 4 segments for the fd "
@@ -256,6 +259,8 @@ def finite_differences(beam, n_seg):
     for i in range(1, n):
         kap = (E[i - 1] - 2 * E[i] + E[i + 1]) / h**2
         K += h * np.outer(kap, kap)
+    kappa_n = (E[n] - 2 * E[n - 1] + E[n - 2]) / h**2
+    K += 0.5 * h * np.outer(kappa_n, kappa_n)
     K *= beam.EI
     M_e = np.einsum("p,pi,pj->ij", mass, E, E)
     D = beam.damping.viscous_per_length * np.diag(w_mass[1:]) + \
@@ -267,6 +272,7 @@ def finite_differences(beam, n_seg):
         kap[0] = kappa0
         for i in range(1, n):
             kap[i] = (E[i - 1] - 2 * E[i] + E[i + 1]) / h**2
+        kap[n] = kappa_n
         idx = np.clip(xq / h, 0, n)
         lo = np.minimum(idx.astype(int), n - 1)
         fr = (idx - lo)[:, None]
@@ -278,8 +284,12 @@ def finite_differences(beam, n_seg):
         fr = (idx - lo)[:, None]
         return (1 - fr) * E[lo] + fr * E[lo + 1]
 
+    # tip slope by the second-order one-sided difference (3y_n − 4y_{n−1} + y_{n−2})/2h: the
+    # seed's first-order backward difference made the next link's frame, and so the tip
+    # path of a chain, converge only at O(h)
+    slope = (3 * E[n] - 4 * E[n - 1] + E[n - 2]) / (2 * h)
     return BeamDiscretization("fd", n, tuple(f"y{i}" for i in range(1, n + 1)), L,
-                              beam.hub_radius, x, mass, E.copy(), S, E[-1].copy(), d[-1].copy(),
+                              beam.hub_radius, x, mass, E.copy(), S, E[-1].copy(), slope,
                               S[-1].copy(), _sym(K), _sym(D), _sym(M_e), curvature, shape)
 
 

@@ -71,8 +71,10 @@ def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
         Kt = chain.K[np.ix_(keep, keep)]
     Kt = 0.5 * (Kt + Kt.T)
     w2, V = scipy.linalg.eigh(Kt, M)
-    scale = max(1.0, np.abs(w2).max())
-    w2 = np.where(np.abs(w2) < 1e-9 * scale, 0.0, w2)   # rigid-body modes at exactly 0
+    # rigid-body modes at exactly 0: K v vanishes to round-off relative to ‖K‖ (a threshold
+    # relative to the largest ω² would delete real low modes of fine meshes)
+    rigid = np.abs(w2) <= 1e-12 * np.linalg.norm(Kt, 2) * np.sum(V * V, axis=0)
+    w2 = np.where(rigid, 0.0, w2)
     freqs = np.sign(w2) * np.sqrt(np.abs(w2)) / (2 * np.pi)
     shapes = np.zeros((chain.n, len(keep)))
     shapes[keep, :] = V

@@ -12,7 +12,7 @@ Reference
     is held to a step near the stability limit ``~1.5/|λ|max`` of the highest beam mode,
     which is orders of magnitude below the period of the modes that move the tip, so
     RK4's time error of the tip path, O((ω h)⁴), is negligible, while DOP853 at rtol 1e-10
-    costs about 10× more (measured on ``link_tipmass``, 0.1 s: fem 8 RK4 vs DOP853 1e-10
+    costs about 13× more (measured on ``link_tipmass``, 0.1 s: fem 8 RK4 vs DOP853 1e-10
     tip paths differ by 1e-11 m RMS, while fem 8 and fem 16 differ by 4e-9 m). The
     reference can be replaced (``reference=`` spec) and the test suite checks an RK4
     reference against a DOP853 rtol 1e-10 one.
@@ -35,7 +35,9 @@ Columns of a row
     ``reference_first_frequency_hz``), ``energy_drift``, ``status`` (``"ok"`` or the
     error of a row that failed: a failure is data, not a crash), ``pareto`` (on the
     non-dominated front of (``wall_s_per_sim_s``, ``tip_rms_error_m``) among the ``ok``
-    rows), ``reference`` (which run the errors are measured against) and
+    rows; tip errors closer than 1 % or than the reference's estimated error count as
+    equal, so a costlier row is not on the front for an error difference the study
+    cannot resolve), ``reference`` (which run the errors are measured against) and
     ``reference_first_frequency_hz``.
 
 Energy drift
@@ -46,6 +48,11 @@ Energy drift
     Only defined for a conservative scene: no inputs (torques or prescribed motions)
     and no damping of any kind (beam, joint, drive); otherwise energy is not conserved by
     the physics and the column is null. A run in which nothing moves has drift 0.
+
+Reference accuracy
+    ``StudyRows.meta['reference_error_estimate_m']`` estimates the reference's own RMS tip
+    error (Richardson: the error of the ``fem`` row on half its mesh / 15); errors near it
+    are at the resolution of the study, not differences between the models.
 
 Duration
     ``duration=None`` takes the scene's duration, capped at 1 s (quick: 0.1 s). In the
@@ -87,6 +94,8 @@ ADAPTIVE = ("dop853", 1e-6, 1e-9)
 RIGID_MODE_HZ = 1e-6
 #: a mode is rigid when vᵀK_t v ≤ this · ‖K_t‖₂ · ‖v‖² (stiffness at round-off)
 RIGID_RAYLEIGH = 1e-12
+#: tip errors within this fraction (or within the reference's estimated error) are ties
+PARETO_REL_TIE = 0.01
 #: failures that make a row's status instead of ending the study
 ROW_ERRORS = (SimulationDiverged, SceneError, np.linalg.LinAlgError)
 
@@ -227,20 +236,27 @@ def first_frequency(chain: Chain) -> Optional[float]:
     return float(f[0]) if len(f) else None
 
 
-def pareto_front(points) -> list[bool]:
-    """Flags of the non-dominated points (minimize both coordinates); None entries are
-    never on the front. A point is dominated by another no worse in both and better in
-    one."""
+def pareto_front(points, rel_tie: float = 0.0, abs_tie: float = 0.0) -> list[bool]:
+    """Flags of the non-dominated points (minimize both cost and error); None entries are
+    never on the front. Point o dominates p when o costs no more, o's error is no larger
+    and one of the two is strictly smaller. Errors closer than ``abs_tie + rel_tie·error``
+    count as equal (a difference below the reference's own accuracy is no difference)."""
     pts = [None if p is None or any(v is None or not math.isfinite(v) for v in p)
            else (float(p[0]), float(p[1])) for p in points]
+
+    def dominates(o, p):
+        slack = abs_tie + rel_tie * max(o[1], p[1])
+        no_worse = o[0] <= p[0] and o[1] <= p[1] + slack
+        better = o[0] < p[0] or o[1] < p[1] - slack
+        return no_worse and better
+
     flags = []
     for i, p in enumerate(pts):
         if p is None:
             flags.append(False)
             continue
-        dominated = any(o is not None and o[0] <= p[0] and o[1] <= p[1]
-                        and (o[0] < p[0] or o[1] < p[1]) for j, o in enumerate(pts) if j != i)
-        flags.append(not dominated)
+        flags.append(not any(o is not None and dominates(o, p)
+                             for j, o in enumerate(pts) if j != i))
     return flags
 
 
@@ -402,11 +418,26 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
         rows.append(row)
         if progress:
             progress(f"[{k}/{len(ladder)}] {_label(s)}: " + _row_line(row))
+    meta["reference_error_estimate_m"] = _reference_error_estimate(rows, ref)
     flags = pareto_front([(r["wall_s_per_sim_s"], r["tip_rms_error_m"])
-                          if r["status"] == "ok" else None for r in rows])
+                          if r["status"] == "ok" else None for r in rows],
+                         rel_tie=PARETO_REL_TIE,
+                         abs_tie=meta["reference_error_estimate_m"] or 0.0)
     for r, f in zip(rows, flags):
         r["pareto"] = bool(f)
     return StudyRows(rows, meta)
+
+
+def _reference_error_estimate(rows, ref) -> Optional[float]:
+    """Estimated RMS tip error of the reference itself: the error of the ladder's FEM row on
+    half the reference mesh divided by 2⁴ − 1 (Richardson, Hermite cubics converge at
+    fourth order: fem 2 → 4 → 8 errors fall by 9× and 12× on link_tipmass). None when the
+    ladder has no such row."""
+    if ref["rung"] != "fem" or ref["refine"] % 2:
+        return None
+    errs = [r["tip_rms_error_m"] for r in rows if r["status"] == "ok" and r["rung"] == "fem"
+            and r["refinement"] == ref["refine"] // 2]
+    return min(errs) / 15.0 if errs else None
 
 
 def _row_line(row) -> str:
@@ -459,7 +490,10 @@ def format_table(rows) -> str:
         lines.append(f"reference: {meta['reference']}, {meta['duration_s']:.4g} s simulated, "
                      f"{_fmt(meta['reference_wall_s_per_sim_s'], '.3g')} wall s/s, f1 "
                      f"{_fmt(meta['reference_first_frequency_hz'], '.6g')} Hz "
-                     f"(joints {meta['joints']}); P = Pareto front (wall s/s, tip RMS)")
+                     f"(joints {meta['joints']}); estimated reference tip error "
+                     f"{_fmt(meta.get('reference_error_estimate_m'), '.2g')} m")
+        lines.append("P = on the Pareto front of (wall s/s, tip RMS); wall s/s = integration "
+                     "wall seconds per simulated second; RTF = its inverse")
     return "\n".join(lines)
 
 
@@ -502,6 +536,9 @@ def plot_pareto(rows, png_path, title: str = "") -> None:
                 color="0.35", lw=1.2, ls="--", zorder=2, label="Pareto front")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    if ok:
+        xs = [r["wall_s_per_sim_s"] for r in ok]
+        ax.set_xlim(min(xs) / 1.6, max(xs) * 2.5)      # room for the labels
     meta = getattr(rows, "meta", None) or {}
     if ok:
         xs = [r["wall_s_per_sim_s"] for r in ok]
@@ -514,6 +551,11 @@ def plot_pareto(rows, png_path, title: str = "") -> None:
                 ax.axvline(x, color="0.55", lw=0.8, ls=":", zorder=1)
                 ax.text(x, 0.02, f" {text}", transform=ax.get_xaxis_transform(), rotation=90,
                         fontsize=7.5, color="0.4", va="bottom", ha="right")
+    est = meta.get("reference_error_estimate_m")
+    if ok and est:
+        ax.axhline(est, color="0.55", lw=0.8, ls=":", zorder=1)
+        ax.text(0.5, est, "estimated error of the reference itself", fontsize=7.5,
+                color="0.4", va="bottom", ha="center", transform=ax.get_yaxis_transform())
     ax.set_xlabel("wall seconds per simulated second (integration only)")
     ax.set_ylabel("RMS tip-path error against the reference (m)")
     ax.grid(True, which="major", color="0.85", lw=0.6)

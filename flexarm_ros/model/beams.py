@@ -193,7 +193,7 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     above ~8 modes.
     """
     L = beam.length
-    n_fe = mesh or max(24, 3 * n_modes)
+    n_fe = mesh or max(48, 12 * n_modes)   # eigen-solve error < 1e-6 up to 12 modes
     fe = hermite_fem(beam, n_fe)
     K, M = np.array(fe.K), np.array(fe.M_e)
     if with_tip and (tip.mass > 0 or tip.inertia > 0):
@@ -209,8 +209,10 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
         return [a @ V for a in _hermite_eval(x, L, n_fe)]
 
     suffixes = [f"mode{i}" for i in range(1, n_modes + 1)]
-    # quadrature on segments coarser than the eigen-solve mesh: the modes are smooth
-    n_q = n_segments or max(3, n_modes)   # f error < 3e-6 vs 8 segments, half the cost
+    # quadrature on 2N segments (4 Gauss points each), coarser than the eigen-solve mesh:
+    # measured frequency error < 1e-6 against the closed forms for N = 2…12, both bases
+    # (N segments: up to 2e-4 for clamped-free modes)
+    n_q = n_segments or max(4, 2 * n_modes)
     return _gauss_build("modal", n_modes, suffixes, L, beam.hub_radius, beam.mass_per_length,
                         beam.EI, beam.damping, np.linspace(0.0, L, n_q + 1), evaluate,
                         K=V.T @ K @ V)

@@ -322,6 +322,21 @@ class Chain:
         qdd[fr] = np.linalg.solve(kin.M[np.ix_(fr, fr)], f[fr])
         return qdd
 
+    def check_mass_matrix(self, q) -> None:
+        """Raise SceneError when M(q) of the free coordinates is not positive definite
+        (a coordinate without inertia), naming the coordinate and what to give it."""
+        M = self.kinematics(q, np.zeros(self.n)).M[np.ix_(self.free, self.free)]
+        w, V = np.linalg.eigh(M)
+        if w[0] > 1e-12 * max(w[-1], 1e-300):
+            return
+        worst = self.names[self.free[int(np.argmax(np.abs(V[:, 0])))]]
+        link = worst.rsplit("_", 1)[0]
+        raise SceneError(
+            f"mass matrix: coordinate {worst} has no inertia (smallest eigenvalue "
+            f"{w[0]:.3g} of M); expected a positive-definite mass matrix: give "
+            f"{link}'s hub inertia or joint drive_inertia a value > 0, or use a flexible rung "
+            f"(the rigid rung's spring angle and the joint angle turn the same body)")
+
     def full_state(self, t, x):
         """Assemble (q, q̇) from the first-order state x = [q_free, q̇_free] at time t."""
         nf = len(self.free)

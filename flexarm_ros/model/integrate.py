@@ -95,6 +95,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                          f"trapezoid, {', '.join(SOLVE_IVP)}")
     n_out = int(np.floor(t_end / output_dt + 1e-9))
     t_out = np.arange(n_out + 1) * output_dt
+    chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     h = choose_step(chain, x0, integrator, dt, output_dt)
     guard = _Guard(chain, max_deflection_ratio, integrator, h)
     f = _Counted(chain)

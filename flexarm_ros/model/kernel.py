@@ -24,7 +24,8 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
         raise ImportError("disabled by FLEXARM_NO_NUMBA")
     import numba
     HAVE_NUMBA = True
-    _jit = numba.njit(cache=True)
+    # fast-math without 'nnan'/'ninf': the divergence checks must still see NaN and inf
+    _jit = numba.njit(cache=True, fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
 except ImportError:
     HAVE_NUMBA = False
 

@@ -128,7 +128,7 @@ def test_fine_mesh_keeps_the_fundamental_mode(rung, refine, tip):
     f = _freqs(rung, refine, tip=tip)
     truth = CF if tip is None else _tip_truth(tip)
     assert np.all(f > 0.0), f[:3]
-    tol = 1e-6 if rung == "fem" else 2e-2
+    tol = 1e-6 if rung == "fem" else 2e-3        # fd 64 with the heavy tip: 9.3e-4
     assert np.all(_rel(f, truth) < tol), (f[:3], truth)
 
 
@@ -156,23 +156,19 @@ def test_tip_loaded_modal_basis_matches_the_closed_form(mu, eps, n_modes):
     assert np.all(err < 1e-5), err
 
 
-@pytest.mark.parametrize("mu", [0.5, 2.0, 10.0])
-def test_tip_loaded_fd_converges(mu):
-    """FD with a tip body converges, but only at first order once the tip has rotary
-    inertia: the tip slope that carries J_t is the backward difference (y_n − y_{n−1})/h
-    (O(h)) and the free end keeps κ_n = 0 although the tip moment is J_t·ω²·w′(L) ≠ 0.
-    Measured ratios per doubling for f2, f3: 1.8..2.0 (mu 2, 10); mu 0.5 is pre-asymptotic
-    (the O(h²) and O(h) errors have opposite signs). Without rotary inertia it is O(h²)
-    (next test)."""
-    tip = _tip(mu)
+@pytest.mark.parametrize("mu, eps", [(0.5, 0.0), (2.0, 0.0), (10.0, 0.0), (10.0, 0.05)])
+def test_tip_loaded_fd_converges_at_second_order(mu, eps):
+    """FD with a tip body with rotary inertia and CG offset converges at its known order,
+    O(h²). History: with the seed's backward-difference tip slope and κ_n = 0 at the free
+    end it was only O(h) (ratios 1.7..2.0 per doubling for f2, f3; 2.7 % off at fd 64);
+    with the one-sided second-order tip slope and tip curvature (commit 1deabc6) it is
+    O(h²): measured ratios 3.5..4.0, worst error at fd 64 9.4e-4."""
+    tip = _tip(mu, eps)
     truth = _tip_truth(tip)
     errs = np.array([_rel(_freqs("fd", n, tip=tip), truth) for n in (16, 32, 64)])
-    worst = errs.max(axis=1)
-    assert np.all(np.diff(worst) < 0), worst          # converging
-    assert worst[-1] < 0.02, worst
-    if mu >= 2.0:
-        ratios = errs[-2] / errs[-1]
-        assert np.all(ratios > 1.6), ratios           # at least first order
+    ratios = errs[:-1] / errs[1:]
+    assert np.all((ratios[-1] > 3.3) & (ratios[-1] < 4.5)), ratios
+    assert np.all(errs[-1] < 2e-3), errs[-1]
 
 
 @pytest.mark.parametrize("mu", [0.5, 2.0, 10.0])
@@ -218,8 +214,10 @@ def _hub_case(h_ratio, rung, refine, tip=None, basis="tip_loaded", via="hub"):
 
 
 def _one_rigid_mode(f):
-    assert np.count_nonzero(f == 0.0) == 1, f[:3]
-    assert f[0] == 0.0 and np.all(f[1:] > 0.0), f[:3]
+    # exactly one rigid-body (0 Hz, up to round-off) mode, then only flexible ones
+    zero = np.abs(f) <= 1e-6 * f[1]
+    assert np.count_nonzero(zero) == 1, f[:3]
+    assert zero[0] and np.all(f[1:] > 0.0), f[:3]
 
 
 @pytest.mark.parametrize("h_ratio", HUB_RATIOS)

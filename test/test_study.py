@@ -66,6 +66,8 @@ def test_rows_have_the_keys_and_are_json(quick):
     json.loads(json.dumps(rows))                  # plain JSON
     assert len(lines) >= len(rows)                 # progress: one line per row at least
     assert rows.meta["reference"].startswith("fem 8")
+    est = rows.meta["reference_error_estimate_m"]      # fem 4 error / 15
+    assert est == pytest.approx(_row(rows, "fem", 4)["tip_rms_error_m"] / 15)
 
 
 def test_reference_against_itself_has_zero_error():
@@ -115,12 +117,23 @@ def test_first_frequency_skips_rigid_modes_and_keeps_low_ones():
 def test_pareto_flags_are_the_non_dominated_rows(quick):
     rows, _ = quick
     pts = [(r["wall_s_per_sim_s"], r["tip_rms_error_m"]) for r in rows]
-    for r, (c, e) in zip(rows, pts):
-        dominated = any(c2 <= c and e2 <= e and (c2 < c or e2 < e) for c2, e2 in pts)
+    tie = rows.meta["reference_error_estimate_m"]
+    for i, (r, (c, e)) in enumerate(zip(rows, pts)):
+        dominated = False
+        for j, (c2, e2) in enumerate(pts):
+            slack = tie + 0.01 * max(e, e2)      # errors this close are ties
+            if j != i and c2 <= c and e2 <= e + slack and (c2 < c or e2 < e - slack):
+                dominated = True
         assert r["pareto"] == (not dominated)
     assert any(r["pareto"] for r in rows)
+    # the cheapest row is always on the front, the most accurate too
+    assert rows[int(np.argmin([c for c, _ in pts]))]["pareto"]
+    assert rows[int(np.argmin([e for _, e in pts]))]["pareto"]
     assert study.pareto_front([(1, 1), (2, 0.5), (2, 2), (0.5, 3), None, (1, 1)]) == \
         [True, True, False, True, False, True]
+    # ties: a costlier point whose error is only 0.5 % lower is dominated
+    assert study.pareto_front([(1, 1.0), (2, 0.995)], rel_tie=0.01) == [True, False]
+    assert study.pareto_front([(1, 1.0), (2, 0.995)]) == [True, True]
 
 
 def test_plot_and_table(quick, tmp_path):

@@ -29,4 +29,11 @@ class SimulationDiverged(RuntimeError):
 
 
 class StepTooLarge(SimulationDiverged):
-    """A fixed step is above the explicit method's stability limit for this model."""
+    """A fixed step is above the explicit method's stability limit for this model; raised
+    before integrating (nothing diverged yet)."""
+
+    def __init__(self, quantity: str, time: float, last_value: float, suggestion: str,
+                 detail: str = ""):
+        RuntimeError.__init__(self, f"step refused: {detail}. To fix: {suggestion}")
+        self.quantity, self.time, self.last_value = quantity, time, last_value
+        self.suggestion = suggestion

@@ -50,10 +50,24 @@ def static_equilibrium(chain: Chain, q0: np.ndarray, tol=1e-10, max_iter=50) -> 
         dq = np.linalg.solve(Kt, res)
         q[keep] += dq
         if np.max(np.abs(dq)) < tol * max(1.0, np.max(np.abs(q[keep]))):
+            _check_stable(chain, q, keep)
             return q
     raise SceneError(f"initial.static_equilibrium: Newton did not converge in {max_iter} "
                      f"iterations (last correction {np.max(np.abs(dq)):.3g}); the arm may be "
                      f"too flexible for the small-deflection model under this load")
+
+
+def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:
+    """An equilibrium the arm cannot rest in (beyond buckling) is not a valid start."""
+    Kt = tangent_stiffness(chain, q, keep)
+    w, V = np.linalg.eigh(0.5 * (Kt + Kt.T))
+    if w[0] <= 0.0:
+        worst = chain.names[keep[int(np.argmax(np.abs(V[:, 0])))]]
+        raise SceneError(
+            f"initial.static_equilibrium: got an unstable equilibrium (tangent stiffness "
+            f"eigenvalue {w[0]:.3g} along {worst}: the load exceeds the buckling load of the "
+            f"small-deflection model), expected a stable one; stiffen the beam (EI), lighten "
+            f"the load, or start from another joint angle")
 
 
 def initial_state(chain: Chain):

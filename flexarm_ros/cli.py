@@ -62,7 +62,7 @@ def cmd_simulate(args):
     scene = _load(args)
     res = simulate(scene, args.duration, progress=_progress(args.quiet or args.json))
     if not (args.quiet or args.json):
-        print("\r", end="", file=sys.stderr)
+        print("\r" + " " * 12 + "\r", end="", file=sys.stderr, flush=True)
     if args.out:
         write_table(args.out, res.columns)
     summ = res.summary()

@@ -515,3 +515,18 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
         xk[i] = qf[i]
         xk[nf + i] = vf[i]
     return OK, n_out, steps, iters, xk, a0
+
+
+def warm_up(integrator, model, x0, xs):
+    """Compile (or load from cache) the loop of ``integrator`` with zero steps, so that
+    wall-time measurements count integration only."""
+    ws = workspace(model)
+    x = np.array(x0, float)
+    if integrator == "rk4":
+        rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
+    elif integrator == "trapezoid":
+        nf = model[20].shape[0]
+        trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,
+                       np.eye(nf), 1e-10, 1)
+    else:
+        rhs(0.0, x, model, ws)

@@ -260,14 +260,18 @@ def load_scene(path) -> Scene:
 
 def config_dir() -> Path:
     """The shipped ``config/`` folder (source tree, or ``share/flexarm_ros/config``)."""
+    import os
     import sys
-    here = Path(__file__).resolve().parents[2] / "config"
-    candidates = [here, Path(sys.prefix) / "share" / "flexarm_ros" / "config"]
-    try:
-        from ament_index_python.packages import get_package_share_directory  # noqa
-        candidates.append(Path(get_package_share_directory("flexarm_ros")) / "config")
-    except Exception:  # not on a ROS distribution, or package not in the index
-        pass
+    here = Path(__file__).resolve()
+    share = Path("share") / "flexarm_ros" / "config"
+    candidates = [here.parents[2] / "config",              # source tree / editable install
+                  Path(sys.prefix) / share]                 # pip install (data_files)
+    # colcon / ament: <prefix>/share/flexarm_ros/config, prefixes from AMENT_PREFIX_PATH,
+    # and the install prefix above lib/pythonX.Y/site-packages/flexarm_ros/model/
+    candidates += [Path(p) / share for p in os.environ.get("AMENT_PREFIX_PATH", "").split(
+        os.pathsep) if p]
+    if len(here.parents) > 5:
+        candidates.append(here.parents[5] / share)
     for c in candidates:
         if c.is_dir():
             return c

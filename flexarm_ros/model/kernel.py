@@ -112,6 +112,7 @@ def chain_terms(q, qd, model, ws):
     coy = 0.0
     psi = base_angle
     psid = 0.0
+    has_g = g[0] != 0.0 or g[1] != 0.0
     for k in range(nl):
         nk = ne[k]
         s0 = e0[k]
@@ -158,15 +159,17 @@ def chain_terms(q, qd, model, ws):
             if fs:
                 for a in range(ext):
                     acc = 0.0
-                    accd = 0.0
                     for b in range(ext):
-                        sab = SS[k, p, a, b]
-                        acc += sab * q[s0 + b]
-                        accd += sab * qd[s0 + b]
+                        acc += SS[k, p, a, b] * q[s0 + b]
                     Seta[a] = acc
                     uf -= 0.5 * acc * q[s0 + a]
                     ud -= acc * qd[s0 + a]
-                    ax_acc -= accd * qd[s0 + a]
+                    # −η̇ᵀSη̇ over the upper triangle (S is symmetric)
+                    va = qd[s0 + a]
+                    accd = 0.5 * SS[k, p, a, a] * va
+                    for b in range(a + 1, ext):
+                        accd += SS[k, p, a, b] * qd[s0 + b]
+                    ax_acc -= 2.0 * accd * va
             else:
                 for a in range(ext):
                     Seta[a] = 0.0
@@ -190,9 +193,11 @@ def chain_terms(q, qd, model, ws):
                 Jy[s0 + a] = -s * Seta[a] + c * PHI[k, p, a]
             if p < P:
                 m = MP[k, p]
+                if has_g:
+                    for i in range(na):
+                        Qg[i] += m * (Jx[i] * g[0] + Jy[i] * g[1])
                 for i in range(na):
                     h[i] += m * (Jx[i] * cx + Jy[i] * cy)
-                    Qg[i] += m * (Jx[i] * g[0] + Jy[i] * g[1])
                     mjx = m * Jx[i]
                     mjy = m * Jy[i]
                     for j in range(i, na):

@@ -3,7 +3,8 @@
 For each case: a reference run of the same rung with DOP853 at rtol 1e-11 (tight
 tolerance), then fixed-step RK4 from just under its stability limit and the implicit
 trapezoidal rule from the output period, each step shrunk by 0.8 until the tip path
-(sampled at 100 Hz) is within 1e-6 m of the reference; the faster of the two is reported: real-time factor (simulated s per wall s,
+(sampled at 100 Hz) is within 1e-6 m of the reference; the faster of the two is reported
+(best of 3 timed runs): real-time factor (simulated s per wall s,
 integration only), the step, the tip error, and the numpy/numba cost ratio of one
 right-hand side measured in the same run.
 
@@ -32,6 +33,7 @@ CASES = [  # (label, scene, overrides, duration s, target real-time factor)
     ("seed 001 link, FEM 8 elements", "link_tipmass", {"rung": "fem", "refine": 8}, 1.0, 1),
 ]
 TIP_TOL = 1e-6
+REPEATS = 3       # timing: best of this many runs
 OUTPUT_DT = 0.01  # s: output sampling (100 Hz; the RK4 step may not exceed it)
 
 
@@ -55,10 +57,13 @@ def run_case(label, scene_name, over, duration, target):
             if err <= TIP_TOL:
                 break
             dt = 0.8 * res.run.dt
-        best[integ] = (res.summary()["real_time_factor"], err, res)
+        # timing: best of REPEATS runs at the chosen step (shared machines are noisy)
+        rtf = max([res.summary()["real_time_factor"]] + [
+            simulate(base.with_fidelity(integrator=integ, dt=res.run.dt), duration,
+                     chain=chain).summary()["real_time_factor"] for _ in range(REPEATS - 1)])
+        best[integ] = (rtf, err, res)
     integ = max(best, key=lambda k: best[k][0] if best[k][1] <= TIP_TOL else -1)
     rtf, err, res = best[integ]
-    s = res.summary()
     # one right-hand side, numpy vs compiled, same state
     x = np.concatenate([res.run.q[-1][chain.free], res.run.qd[-1][chain.free]])
     times = {}
@@ -72,9 +77,9 @@ def run_case(label, scene_name, over, duration, target):
     return {"case": label, "scene": scene_name, "rung": base.fidelity.rung,
             "integrator": integ, "rtf_rk4": best["rk4"][0], "rtf_trapezoid": best["trapezoid"][0],
             "refine": chain.links[0].beam.refine, "coordinates": chain.n,
-            "backend": chain.backend, "dt": s["dt"], "tip_error_m": err,
-            "real_time_factor": s["real_time_factor"], "target": target,
-            "meets_target": bool(s["real_time_factor"] >= target and err <= TIP_TOL),
+            "backend": chain.backend, "dt": res.run.dt, "tip_error_m": err,
+            "real_time_factor": rtf, "target": target,
+            "meets_target": bool(rtf >= target and err <= TIP_TOL),
             "rhs_us_numpy": 1e6 * times["numpy"], "rhs_us_numba": 1e6 * times["numba"],
             "numpy_over_numba": times["numpy"] / times["numba"]}
 

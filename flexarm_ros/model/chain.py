@@ -365,12 +365,14 @@ class Chain:
 
     # --------------------------------------------------------------------------- outputs
     def energy(self, q, qd) -> dict:
-        """Kinetic, elastic and gravitational energy (J) and their sum."""
-        kin = self.kinematics(q, qd, want_points=True)
+        """Kinetic, elastic and gravitational energy (J), their sum, and the tip position
+        (m), from one kinematics pass."""
+        kin = self.kinematics(q, qd, want_points=self.has_gravity)
         T = 0.5 * qd @ kin.M @ qd
         V = 0.5 * q @ self.K @ q
         Vg = -self._gravity_work(q, kin) if self.has_gravity else 0.0
-        return {"kinetic": T, "elastic": V, "gravity": Vg, "total": T + V + Vg}
+        return {"kinetic": T, "elastic": V, "gravity": Vg, "total": T + V + Vg,
+                "tip": kin.tip_frames[-1].o.copy()}
 
     def _gravity_work(self, q, kin):
         g = self.gravity

@@ -108,7 +108,7 @@ def output_columns(chain: Chain, run: Integration) -> dict:
     for k in range(N):
         e = chain.energy(run.q[k], run.qd[k])
         energy[k] = e["total"]
-        tip[k] = chain.tip_position(run.q[k])
+        tip[k] = e["tip"]
     cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
     defl = np.array([chain.tip_deflections(q) for q in run.q])
     for j, lm in enumerate(chain.links):

@@ -243,9 +243,7 @@ class Chain:
             # joint position on the previous tip frame
             if k > 0:
                 frame = _offset_frame(frame, np.asarray(self.scene.links[k - 1].tip.joint_offset))
-            # motor rotor inertia (joint flexibility): turns with the previous frame + motor
-            if lm.i_motor >= 0:
-                pass  # its inertia is in M_drive (reflected, about the relative coordinate)
+            # a flexible joint's motor inertia sits in M_drive on its relative coordinate
             Jpsi = frame.Jpsi.copy()
             Jpsi[lm.i_joint] += 1.0
             hub = Frame(frame.o, frame.Jo, frame.co, frame.psi + q[lm.i_joint], Jpsi,
@@ -391,9 +389,6 @@ class Chain:
     def tip_deflections(self, q) -> np.ndarray:
         """Transverse tip deflection w(L) of every beam (m; rigid rung: L·β)."""
         return np.array([lm.beam.phi_tip @ q[lm.eta] for lm in self.links])
-
-    def elastic_index(self) -> np.ndarray:
-        return np.concatenate([np.arange(self.n)[lm.eta] for lm in self.links])
 
     def drive_index(self) -> list[int]:
         return [lm.i_motor if lm.i_motor >= 0 else lm.i_joint for lm in self.links]

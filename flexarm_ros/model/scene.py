@@ -21,7 +21,6 @@ from .schema import from_mapping, param
 
 RUNGS = ("rigid", "cubic", "modal", "fem", "fd")
 INTEGRATORS = ("rk4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
-FIXED_STEP_INTEGRATORS = ("rk4", "trapezoid")
 TORQUE_PROGRAMS = ("constant", "pulse", "square", "piecewise_constant", "piecewise_linear")
 MOTION_PROGRAMS = ("spin_up", "smooth_step", "hold")
 

@@ -25,7 +25,8 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     import numba
     HAVE_NUMBA = True
     # fast-math without 'nnan'/'ninf': the divergence checks must still see NaN and inf
-    _jit = numba.njit(cache=True, fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
+    _jit = numba.njit(cache=True, error_model="numpy",
+                      fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
 except ImportError:
     HAVE_NUMBA = False
 

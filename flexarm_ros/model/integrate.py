@@ -245,7 +245,7 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
 
     def force(qq, vv):
         kernel.forces(float(t), qq.copy(), vv.copy(), model, ws)
-        return ws[18][free].copy()
+        return ws[kernel.W_F][free].copy()
 
     K = np.zeros((nf, nf))
     C = np.zeros((nf, nf))
@@ -259,7 +259,7 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
             fm = force(am, qd) if arr is q else force(q, am)
             out[:, j] = -(fp - fm) / (2 * d)
     kernel.forces(float(t), q.copy(), qd.copy(), model, ws)
-    M = ws[2][np.ix_(free, free)]
+    M = ws[kernel.W_M][np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 
 

@@ -41,6 +41,13 @@ eval_motion_c = _jit(eval_motion)
 #: start, left limit at the end) instead of leaking an O(h) impulse into the neighbour.
 STAGE_EPS = 1e-9
 
+# Positions in the model tuple (Chain._pack) used by index, and workspace slots
+# (workspace()); numba folds these module constants at compile time.
+M_N, M_NL, M_E0, M_NE, M_NPT, M_X, M_PHI, M_FREE, M_PRESC = 0, 1, 3, 4, 8, 9, 11, 20, 21
+M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
+(W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
+ W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT) = range(20)
+
 # status codes of the compiled loop
 OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
 
@@ -68,10 +75,10 @@ def _add_body(M, h, Qg, m, inertia, cgx, cgy, ox, oy, Jo, cox, coy, psi, Jpsi, p
 
 def workspace(model):
     """Scratch arrays for :func:`chain_terms` / :func:`rhs_into` (allocated once per run)."""
-    n = model[0]
-    nemax = model[11].shape[2]
-    nf = model[20].shape[0]
-    npr = model[21].shape[0]
+    n = model[M_N]
+    nemax = model[M_PHI].shape[2]
+    nf = model[M_FREE].shape[0]
+    npr = model[M_PRESC].shape[0]
     return (np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n),
             np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
             np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
@@ -89,16 +96,16 @@ def chain_terms(q, qd, model, ws):
     (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
      Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
      EXT) = model
-    M = ws[2]
-    h = ws[3]
-    Qg = ws[4]
-    Jo = ws[5]
-    Jpsi = ws[6]
-    Seta = ws[7]
-    Jx = ws[8]
-    Jy = ws[9]
-    Jtx = ws[10]
-    Jty = ws[11]
+    M = ws[W_M]
+    h = ws[W_H]
+    Qg = ws[W_QG]
+    Jo = ws[W_JO]
+    Jpsi = ws[W_JPSI]
+    Seta = ws[W_SETA]
+    Jx = ws[W_JX]
+    Jy = ws[W_JY]
+    Jtx = ws[W_JTX]
+    Jty = ws[W_JTY]
     for i in range(n):
         h[i] = 0.0
         Qg[i] = 0.0
@@ -267,11 +274,11 @@ def forces(t, q, qd, model, ws):
     (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
      Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
      EXT) = model
-    M = ws[2]
-    h = ws[3]
-    Qg = ws[4]
-    pdd = ws[17]
-    f = ws[18]
+    M = ws[W_M]
+    h = ws[W_H]
+    Qg = ws[W_QG]
+    pdd = ws[W_PDD]
+    f = ws[W_F]
     npr = presc.shape[0]
     for j in range(npr):
         th, thd, thdd = eval_motion_c(mcode[j], mpar[j], t)
@@ -295,16 +302,16 @@ def forces(t, q, qd, model, ws):
 @_jit
 def rhs_into(t, x, out, model, ws):
     """out = ẋ for x = [q_free, q̇_free] (chain.Chain.rhs, compiled, no allocation)."""
-    free = model[20]
-    q = ws[0]
-    qd = ws[1]
-    M = ws[2]
-    Mff = ws[12]
-    ff = ws[13]
-    L = ws[14]
-    y = ws[15]
-    acc = ws[16]
-    f = ws[18]
+    free = model[M_FREE]
+    q = ws[W_Q]
+    qd = ws[W_QD]
+    M = ws[W_M]
+    Mff = ws[W_MFF]
+    ff = ws[W_FF]
+    L = ws[W_L]
+    y = ws[W_Y]
+    acc = ws[W_ACC]
+    f = ws[W_F]
     nf = free.shape[0]
     for i in range(nf):
         q[free[i]] = x[i]
@@ -333,13 +340,13 @@ def rhs(t, x, model, ws):
 @_jit
 def _deflection_ratio(x, model):
     """max over beams of |w(L)|/L (elastic coordinates are never prescribed)."""
-    n = model[0]
-    nl = model[1]
-    e0 = model[3]
-    ne = model[4]
-    npt = model[8]
-    PHI = model[11]
-    free = model[20]
+    n = model[M_N]
+    nl = model[M_NL]
+    e0 = model[M_E0]
+    ne = model[M_NE]
+    npt = model[M_NPT]
+    PHI = model[M_PHI]
+    free = model[M_FREE]
     nf = free.shape[0]
     worst = 0.0
     for k in range(nl):
@@ -348,7 +355,7 @@ def _deflection_ratio(x, model):
             j = free[i] - e0[k]
             if j >= 0 and j < ne[k]:
                 w += PHI[k, npt[k], j] * x[i]
-        r = abs(w) / model[9][k, npt[k]]   # X at the tip row = beam length
+        r = abs(w) / model[M_X][k, npt[k]]   # X at the tip row = beam length
         if r > worst:
             worst = r
     return worst
@@ -405,12 +412,12 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
 @_jit
 def _torque_jumps(t, model):
     """True when a torque program differs just before and just after time t."""
-    tidx = model[24]
+    tidx = model[M_TIDX]
     for j in range(tidx.shape[0]):
-        Lj = model[29][j]
-        a = eval_torque_c(model[25][j], model[26][j], model[27][j, :Lj], model[28][j, :Lj],
+        Lj = model[M_TLEN][j]
+        a = eval_torque_c(model[M_TCODE][j], model[M_TPAR][j], model[M_TTIMES][j, :Lj], model[M_TVALUES][j, :Lj],
                           t - 1e-12)
-        b = eval_torque_c(model[25][j], model[26][j], model[27][j, :Lj], model[28][j, :Lj],
+        b = eval_torque_c(model[M_TCODE][j], model[M_TPAR][j], model[M_TTIMES][j, :Lj], model[M_TVALUES][j, :Lj],
                           t + 1e-12)
         if a != b:
             return True
@@ -430,12 +437,12 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
     NEWTON the state is the one at the start of that output interval, so the caller can
     refresh Sinv there and resume.
     """
-    free = model[20]
+    free = model[M_FREE]
     nf = free.shape[0]
-    q = ws[0]
-    qd = ws[1]
-    M = ws[2]
-    f = ws[18]
+    q = ws[W_Q]
+    qd = ws[W_QD]
+    M = ws[W_M]
+    f = ws[W_F]
     qf = x[:nf].copy()
     vf = x[nf:].copy()
     a0 = acc0.copy()
@@ -458,9 +465,9 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
                 for i in range(nf):
                     xk[i] = qf[i]
                     xk[nf + i] = vf[i]
-                rhs_into(t + STAGE_EPS * h, xk, ws[19], model, ws)
+                rhs_into(t + STAGE_EPS * h, xk, ws[W_XDOT], model, ws)
                 for i in range(nf):
-                    a0[i] = ws[19][nf + i]
+                    a0[i] = ws[W_XDOT][nf + i]
             for i in range(nf):
                 a1[i] = a0[i]
             converged = False
@@ -477,8 +484,8 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
                         ma += M[free[i], free[jj]] * a1[jj]
                     r[i] = ma - f[free[i]]
                     # magnitude of the terms that cancel in the residual (round-off scale)
-                    sc[i] = (abs(ma) + abs(f[free[i]]) + abs(ws[3][free[i]])
-                             + abs(ws[4][free[i]]))
+                    sc[i] = (abs(ma) + abs(f[free[i]]) + abs(ws[W_H][free[i]])
+                             + abs(ws[W_QG][free[i]]))
                 dmax = 0.0
                 amax = 0.0
                 fscale = 0.0
@@ -531,7 +538,7 @@ def warm_up(integrator, model, x0, xs):
     if integrator == "rk4":
         rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
     elif integrator == "trapezoid":
-        nf = model[20].shape[0]
+        nf = model[M_FREE].shape[0]
         trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,
                        np.eye(nf), 1e-10, 1)
     else:

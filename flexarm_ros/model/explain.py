@@ -48,9 +48,11 @@ def explain(scene) -> str:
     omitted.append("drives, sensors (not part of this scene)")
     lines.append("modelled: " + "; ".join(kept))
     lines.append("left out: " + "; ".join(omitted))
-    m = natural_modes(chain, joints="locked")
+    from .simulate import initial_state
+    m = natural_modes(chain, initial_state(chain)[0], joints="locked")
     f = ", ".join(f"{v:.4g}" for v in m.frequencies_hz[:4])
-    lines.append(f"first frequencies, drives locked: {f} Hz (highest "
+    where = " at the static deflection" if scene.initial.static_equilibrium else ""
+    lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
                  f"{m.frequencies_hz[-1]:.4g} Hz sets the explicit step)")
     for a in scene.assumptions:
         lines.append(f"assumption {a.key}: {a.note}")

@@ -27,11 +27,15 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     # fast-math without 'nnan'/'ninf': the divergence checks must still see NaN and inf
     _jit = numba.njit(cache=True, error_model="numpy",
                       fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
+    _jit_inline = numba.njit(cache=True, error_model="numpy", inline="always",
+                             fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
 except ImportError:
     HAVE_NUMBA = False
 
     def _jit(f):
         return f
+
+    _jit_inline = _jit
 
 eval_torque_c = _jit(eval_torque)
 eval_motion_c = _jit(eval_motion)
@@ -85,7 +89,7 @@ def workspace(model):
             np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n), np.empty(2 * nf))
 
 
-@_jit
+@_jit_inline
 def chain_terms(q, qd, model, ws):
     """Fill ws' M (n, n), h (n,), Qg (n,) at (q, q̇): chain.Chain.kinematics in loops.
 
@@ -267,7 +271,7 @@ def _cholesky_solve(A, b, nf, L, y, x):
     return True
 
 
-@_jit
+@_jit_inline
 def forces(t, q, qd, model, ws):
     """Fill ws' M and f = Q_input + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at (t, q, q̇), with
     the prescribed coordinates of q, q̇ set from their programs at time t."""

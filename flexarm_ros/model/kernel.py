@@ -48,6 +48,7 @@ STAGE_EPS = 1e-9
 # Positions in the model tuple (Chain._pack) used by index, and workspace slots
 # (workspace()); numba folds these module constants at compile time.
 M_N, M_NL, M_E0, M_NE, M_NPT, M_X, M_PHI, M_FREE, M_PRESC = 0, 1, 3, 4, 8, 9, 11, 20, 21
+M_K, M_D, M_MCODE, M_MPAR = 18, 19, 22, 23
 M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
 (W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
  W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT) = range(20)
@@ -275,9 +276,18 @@ def _cholesky_solve(A, b, nf, L, y, x):
 def forces(t, q, qd, model, ws):
     """Fill ws' M and f = Q_input + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at (t, q, q̇), with
     the prescribed coordinates of q, q̇ set from their programs at time t."""
-    (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
-     Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
-     EXT) = model
+    n = model[M_N]
+    K = model[M_K]
+    D = model[M_D]
+    presc = model[M_PRESC]
+    mcode = model[M_MCODE]
+    mpar = model[M_MPAR]
+    tidx = model[M_TIDX]
+    tcode = model[M_TCODE]
+    tpar = model[M_TPAR]
+    ttimes = model[M_TTIMES]
+    tvalues = model[M_TVALUES]
+    tlen = model[M_TLEN]
     M = ws[W_M]
     h = ws[W_H]
     Qg = ws[W_QG]

@@ -157,7 +157,9 @@ def build_parser():
     st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
     st.add_argument("--json", action="store_true")
     st.add_argument("--png", type=Path, help="write the Pareto plot here")
-    _fidelity_args(st)
+    # rung, refinement, integrator and tolerances are what the ladder varies: not options
+    st.add_argument("--no-foreshortening", action="store_true",
+                    help="drop the geometric-stiffening terms in every rung")
     st.set_defaults(func=cmd_study)
     return p
 

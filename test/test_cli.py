@@ -116,3 +116,11 @@ def test_config_reference_is_up_to_date():
     mod = runpy.run_path(str(root / "tools" / "gen_config_reference.py"))
     assert (root / "docs" / "config_reference.md").read_text() == mod["render"](), \
         "run: python tools/gen_config_reference.py"
+
+
+def test_study_refuses_the_options_its_ladder_varies(capsys):
+    """--rung etc. would be silently replaced by the ladder: they are not study options."""
+    with pytest.raises(SystemExit) as info:
+        main(["study", "link", "--rung", "fem"])
+    assert info.value.code == 2
+    assert "unrecognized arguments: --rung fem" in capsys.readouterr().err

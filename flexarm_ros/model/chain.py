@@ -305,12 +305,10 @@ class Chain:
         return r[:-1], J[:-1], c[:-1], tip
 
     # -------------------------------------------------------------------------- dynamics
-    def accelerations(self, t, q, qd, Q_extra=None) -> np.ndarray:
+    def accelerations(self, t, q, qd) -> np.ndarray:
         """q̈ of all coordinates at (t, q, q̇); prescribed coordinates follow their program."""
         kin = self.kinematics(q, qd)
         f = self.input_forces(t) + kin.Qg - kin.h - self.K @ q - self.D @ qd
-        if Q_extra is not None:
-            f = f + Q_extra
         qdd = np.zeros(self.n)
         fr = self.free
         if len(self.presc_idx):

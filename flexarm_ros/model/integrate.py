@@ -1,8 +1,9 @@
-"""Time integration of a chain: fixed-step RK4 and scipy ``solve_ivp`` methods.
+"""Time integration of a chain: fixed-step RK4, the implicit trapezoidal rule, and scipy's
+``solve_ivp`` methods.
 
 Every run returns an :class:`Integration` result (like scipy's ``OdeResult``: ``status``,
-``message``, call counters); the state is checked after every step (RK4) or every output
-sample (adaptive methods) and a non-finite or invalid state raises
+``message``, call counters); the state is checked after every step and a non-finite or
+invalid state raises
 :class:`~flexarm_ros.model.errors.SimulationDiverged` naming what diverged, when, and what
 to change. Nothing non-finite is ever returned.
 
@@ -77,7 +78,7 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
             raise StepTooLarge(
                 "fixed step", t0, dt,
                 f"use --dt <= {limit:.3g} s (auto: --dt 0), an implicit integrator "
-                f"(--integrator radau or bdf), or a coarser rung / fewer modes",
+                f"(--integrator trapezoid, radau or bdf), or a coarser rung / fewer modes",
                 detail=f"dt = {dt:.3g} s exceeds the RK4 stability limit {limit:.3g} s set "
                        f"by the highest model rate {rate / (2 * np.pi):.4g} Hz")
         h = dt
@@ -120,12 +121,10 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             x = x_last
             last_report = _report(progress, last_report, k1 * output_dt / t_end)
         f.calls += 4 * steps
-        status, message, step_used = 0, "integration reached the end time", h
     elif integrator == "trapezoid":
         steps, calls = _run_trapezoid(chain, x0, h, n_out, output_dt, max_deflection_ratio,
                                       xs, guard, progress)
         f.calls += calls
-        status, message, step_used = 0, "integration reached the end time", h
     elif integrator == "rk4":
         per = int(round(output_dt / h))
         x = np.array(x0, float)
@@ -142,10 +141,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                 steps += 1
                 guard.check(tj + h, x)
             xs[k + 1] = x
-            if progress is not None and time.perf_counter() - last_report > 1.0:
-                last_report = time.perf_counter()
-                progress(t_out[k + 1] / t_end)
-        status, message, step_used = 0, "integration reached the end time", h
+            last_report = _report(progress, last_report, t_out[k + 1] / t_end)
     else:
         steps = 0
         bps = sorted({b for _, prog in chain.torque_inputs
@@ -169,19 +165,18 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                     while k_out <= n_out and t_out[k_out] <= solver.t + 1e-12:
                         xs[k_out] = dense(t_out[k_out])
                         k_out += 1
-                if progress is not None and time.perf_counter() - last_report > 1.0:
-                    last_report = time.perf_counter()
-                    progress(solver.t / t_end)
+                last_report = _report(progress, last_report, solver.t / t_end)
             x = solver.y
             t_lo = t_hi
         xs[k_out:] = x  # t_end exactly on the grid but below rounding
-        status, message, step_used = 0, "integration reached the end time", 0.0
     wall = time.perf_counter() - wall0
     q = np.empty((len(t_out), chain.n))
     qd = np.empty((len(t_out), chain.n))
     for k, tk in enumerate(t_out):
         q[k], qd[k] = chain.full_state(tk, xs[k])
-    return Integration(t_out, q, qd, status, message, f.calls, steps, wall, step_used)
+    step_used = h if integrator in ("rk4", "trapezoid") else 0.0
+    return Integration(t_out, q, qd, 0, "integration reached the end time", f.calls, steps,
+                       wall, step_used)
 
 
 class _Guard:

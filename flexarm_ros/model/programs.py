@@ -99,18 +99,6 @@ def eval_motion(code, p, t):
     return th0, 0.0, 0.0
 
 
-def torque_value(prog, t: float) -> float:
-    """Value of a torque program at time ``t`` (see :class:`scene.Program`)."""
-    code, p, times, values = encode(prog)
-    return float(eval_torque(code, p, times, values, t))
-
-
-def motion_state(prog, theta0: float, t: float) -> tuple[float, float, float]:
-    """(θ, θ̇, θ̈) of a prescribed-motion program at time ``t``."""
-    code, p, _, _ = encode(prog, theta0)
-    return eval_motion(code, p, t)
-
-
 def torque_breakpoints(prog, t_end: float) -> list[float]:
     """Times in (0, t_end) where a torque program jumps (adaptive integrators restart there)."""
     kind = prog.type

@@ -47,7 +47,7 @@ def run_case(label, scene_name, over, duration, target):
     chain = Chain(base)
     simulate(base, 0.01, chain=chain)                      # compile / warm up
     # per integrator, the largest step that meets the tip tolerance
-    q0, qd0 = initial_state(chain)
+    q0, qd0, _ = initial_state(chain)
     best = {}
     for integ, dt in (("rk4", 0.95 * RK4_STABILITY / highest_rate(chain, q0, qd0)),
                       ("trapezoid", OUTPUT_DT)):

@@ -1,6 +1,7 @@
 """General planar chain of joints, rigid bodies and flexible beams (Kane's method, numeric).
 
-Coordinates q, per link in chain order: [motor angle (only with joint flexibility)],
+Coordinates q, per link in chain order: [motor angle (only with joint flexibility or
+backlash)],
 joint angle (link side, relative to the previous tip frame), the beam's elastic
 coordinates η. A material point of beam j at abscissa x has local position
 s = (r + x − ½ηᵀS(x)η, φ(x)ᵀη) in its hub frame and absolute position r = o + A(ψ)s.
@@ -18,6 +19,10 @@ Equations of motion (PHYSICS.md):
     M = M_drive + Σ_p m_p J_pᵀJ_p + Σ_bodies (m J_cgᵀJ_cg + I J_ψᵀJ_ψ),
     h = Σ_p m_p J_pᵀ c_p,   Q_grav = Σ_p m_p J_pᵀ g.
 
+Actuators (:mod:`drives`) add their torque to Q_input on the drive coordinate and may carry
+first-order states z (armature currents, load pressures): the first-order state is
+x = [q_free, q̇_free, z]. Backlash couplings add their dead-zone mesh torque.
+
 Because every term comes from the same point kinematics, the model is a consistent
 Lagrangian system: with no damping and no input its total energy is conserved to the
 integrator's accuracy (the check that catches an inconsistent term).
@@ -29,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import beams, kernel
+from . import beams, drives, kernel
 from .errors import SceneError
 from .programs import encode, eval_motion, eval_torque
 
@@ -47,8 +52,21 @@ class _LinkModel:
     link: object
     beam: beams.BeamDiscretization
     i_joint: int
-    i_motor: int          # -1 without joint flexibility
+    i_motor: int          # -1 without joint flexibility / backlash
     eta: slice
+
+
+@dataclass
+class Actuator:
+    """One driven joint: its program, drive model and (optional) first-order state."""
+    link: int             # 0-based link index
+    coord: int            # drive coordinate (motor angle if present, else joint angle)
+    kind: int             # drives.IDEAL / DC_QUASI_STATIC / DC_CURRENT / HYDRAULIC
+    par: np.ndarray       # drives parameter vector (mutable: the hydraulic null bias)
+    program: object       # scene.Program of the input (u in N·m, V or A)
+    enc: tuple            # programs.encode(program)
+    state: int            # index in z, -1 without a state
+    input_kind: str       # torque / voltage / current
 
 
 @dataclass
@@ -90,7 +108,7 @@ class Chain:
         names: list[str] = []
         for lk in scene.links:
             i_motor = -1
-            if lk.joint.flexibility is not None:
+            if lk.joint.flexibility is not None or lk.joint.backlash is not None:
                 i_motor = len(names)
                 names.append(f"{lk.name}_motor")
             i_joint = len(names)
@@ -123,20 +141,41 @@ class Chain:
                 self.D[np.ix_(idx, idx)] += fx.damping * blk
             self.K[lm.eta, lm.eta] += lm.beam.K
             self.D[lm.eta, lm.eta] += lm.beam.D
-        # inputs: torque programs act on the drive coordinate; motions prescribe the joint
-        self.torque_inputs = []       # (coordinate index, program)
+        # backlash couplings: (motor index, joint index, half width, k, c)
+        self.backlash = [(lm.i_motor, lm.i_joint, 0.5 * lm.link.joint.backlash.width,
+                          lm.link.joint.backlash.stiffness, lm.link.joint.backlash.damping)
+                         for lm in self.links if lm.link.joint.backlash is not None]
+        # inputs: programs through the joint's drive act on the drive coordinate; motions
+        # prescribe the joint angle
+        from .scene import Program
+        by_joint = {inp.joint: inp for inp in scene.inputs}
+        self.actuators: list[Actuator] = []
         self.prescribed = []          # (coordinate index, program, theta0)
-        for inp in scene.inputs:
-            lm = self.links[inp.joint - 1]
-            if inp.torque is not None:
-                drive = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
-                self.torque_inputs.append((drive, inp.torque))
-            else:
-                self.prescribed.append((lm.i_joint, inp.motion, lm.link.joint.angle0))
+        self.state_names: list[str] = []
+        for k, lm in enumerate(self.links):
+            jt = lm.link.joint
+            inp = by_joint.get(k + 1)
+            if inp is not None and inp.motion is not None:
+                self.prescribed.append((lm.i_joint, inp.motion, jt.angle0))
+                continue
+            if inp is None and jt.drive is None:
+                continue
+            kind, par, has_state = drives.encode(jt.drive, self.fidelity.motor_current)
+            prog = inp.program if inp is not None else Program(type="constant", value=0.0)
+            state = -1
+            if has_state:
+                state = len(self.state_names)
+                self.state_names.append(
+                    f"{lm.name}_{'pressure' if kind == drives.HYDRAULIC else 'current'}")
+            drive = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
+            ikind = {None: "torque", "dc_motor": "voltage", "hydraulic": "current"}[
+                jt.drive.type if jt.drive else None]
+            self.actuators.append(Actuator(k, drive, kind, par, prog, encode(prog), state,
+                                           ikind))
+        self.nz = len(self.state_names)
         presc = [p[0] for p in self.prescribed]
         self.free = np.array([i for i in range(n) if i not in presc], dtype=int)
         self.presc_idx = np.array(presc, dtype=int)
-        self._torque_enc = [(idx, encode(prog)) for idx, prog in self.torque_inputs]
         self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
         self.kernel_args = self._pack()
         self._ws = kernel.workspace(self.kernel_args)
@@ -170,15 +209,24 @@ class Chain:
             PHI[k, :P, :b.n], PHI[k, P, :b.n] = b.phi, b.phi_tip
             SS[k, :P, :b.n, :b.n], SS[k, P, :b.n, :b.n] = b.S, b.S_tip
             SLOPE[k, :b.n] = b.slope_tip
-        nt = len(self._torque_enc)
-        tl = max([len(e[3]) for _, e in self._torque_enc] + [1])
-        tidx = np.array([i for i, _ in self._torque_enc], dtype=np.int64)
-        tcode = np.array([e[0] for _, e in self._torque_enc], dtype=np.int64)
+        acts = self.actuators
+        nt = len(acts)
+        tl = max([len(a.enc[3]) for a in acts] + [1])
+        tidx = np.array([a.coord for a in acts], dtype=np.int64)
+        tcode = np.array([a.enc[0] for a in acts], dtype=np.int64)
         tpar = np.zeros((nt, 8))
         ttimes = np.zeros((nt, tl))
         tvalues = np.zeros((nt, tl))
         tlen = np.zeros(nt, dtype=np.int64)
-        for j, (_, (_, p, tt, vv)) in enumerate(self._torque_enc):
+        akind = np.array([a.kind for a in acts], dtype=np.int64)
+        apar = np.zeros((nt, drives.N_PAR))
+        azi = np.array([a.state for a in acts], dtype=np.int64)
+        for j, a in enumerate(acts):
+            apar[j] = a.par
+            a.par = apar[j]           # one array: a later null-bias update reaches the kernel
+        bidx = np.array([(b[0], b[1]) for b in self.backlash], dtype=np.int64).reshape(-1, 2)
+        bpar = np.array([b[2:] for b in self.backlash], float).reshape(-1, 3)
+        for j, (_, p, tt, vv) in enumerate(a.enc for a in acts):
             tpar[j] = p
             ttimes[j, :len(tt)] = tt
             tvalues[j, :len(vv)] = vv
@@ -197,7 +245,7 @@ class Chain:
                 self.gravity, self.foreshortening, float(self.scene.base_angle),
                 self.M_drive, self.K, self.D, self.free.astype(np.int64),
                 self.presc_idx.astype(np.int64), mcode, mpar, tidx, tcode, tpar, ttimes,
-                tvalues, tlen, EXT)
+                tvalues, tlen, EXT, akind, apar, azi, bidx, bpar, self.nz)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
@@ -220,11 +268,31 @@ class Chain:
             out[:, j] = eval_motion(code, p, t)
         return out
 
-    def input_forces(self, t) -> np.ndarray:
-        """Generalized input forces Q_input(t) from the torque programs."""
+    def actuator_inputs(self, t) -> np.ndarray:
+        """Program values u(t) of the actuators (N·m, V or A)."""
+        return np.array([eval_torque(a.enc[0], a.enc[1], a.enc[2], a.enc[3], t)
+                         for a in self.actuators])
+
+    def input_forces(self, t, qd, z) -> tuple[np.ndarray, np.ndarray]:
+        """Generalized actuator and backlash forces Q_input (n,) and the actuator state
+        rates ż at (t, q̇, z); backlash needs q too, see :meth:`coupling_forces`."""
         Q = np.zeros(self.n)
-        for idx, (code, p, times, values) in self._torque_enc:
-            Q[idx] += eval_torque(code, p, times, values, t)
+        zd = np.zeros(self.nz)
+        for a, u in zip(self.actuators, self.actuator_inputs(t)):
+            zj = z[a.state] if a.state >= 0 else 0.0
+            w = qd[a.coord]
+            Q[a.coord] += drives.actuator_torque(a.kind, a.par, u, w, zj)
+            if a.state >= 0:
+                zd[a.state] = drives.actuator_rate(a.kind, a.par, u, w, zj)
+        return Q, zd
+
+    def coupling_forces(self, q, qd) -> np.ndarray:
+        """Backlash mesh torques as generalized forces (motor side −τ, link side +τ)."""
+        Q = np.zeros(self.n)
+        for im, ij, b, k, c in self.backlash:
+            tau = drives.backlash_torque(b, k, c, q[im] - q[ij], qd[im] - qd[ij])
+            Q[im] -= tau
+            Q[ij] += tau
         return Q
 
     # ------------------------------------------------------------------------ kinematics
@@ -305,10 +373,18 @@ class Chain:
         return r[:-1], J[:-1], c[:-1], tip
 
     # -------------------------------------------------------------------------- dynamics
-    def accelerations(self, t, q, qd) -> np.ndarray:
-        """q̈ of all coordinates at (t, q, q̇); prescribed coordinates follow their program."""
+    def accelerations(self, t, q, qd, z=None) -> np.ndarray:
+        """q̈ of all coordinates at (t, q, q̇, z); prescribed coordinates follow their
+        program."""
+        return self.dynamics(t, q, qd, z)[0]
+
+    def dynamics(self, t, q, qd, z=None) -> tuple[np.ndarray, np.ndarray]:
+        """(q̈, ż) at (t, q, q̇, z): the equations of motion and the actuator states."""
+        z = np.zeros(self.nz) if z is None else z
         kin = self.kinematics(q, qd)
-        f = self.input_forces(t) + kin.Qg - kin.h - self.K @ q - self.D @ qd
+        Qin, zd = self.input_forces(t, qd, z)
+        f = (Qin + self.coupling_forces(q, qd) + kin.Qg - kin.h - self.K @ q
+             - self.D @ qd)
         qdd = np.zeros(self.n)
         fr = self.free
         if len(self.presc_idx):
@@ -316,7 +392,7 @@ class Chain:
             qdd[self.presc_idx] = pdd
             f = f - kin.M[:, self.presc_idx] @ pdd
         qdd[fr] = np.linalg.solve(kin.M[np.ix_(fr, fr)], f[fr])
-        return qdd
+        return qdd, zd
 
     def check_mass_matrix(self, q) -> None:
         """Raise SceneError when M(q) of the free coordinates is not positive definite
@@ -334,12 +410,12 @@ class Chain:
             f"(the rigid rung's spring angle and the joint angle turn the same body)")
 
     def full_state(self, t, x):
-        """Assemble (q, q̇) from the first-order state x = [q_free, q̇_free] at time t."""
+        """Assemble (q, q̇) from the first-order state x = [q_free, q̇_free, z] at time t."""
         nf = len(self.free)
         q = np.empty(self.n)
         qd = np.empty(self.n)
         q[self.free] = x[:nf]
-        qd[self.free] = x[nf:]
+        qd[self.free] = x[nf:2 * nf]
         if len(self.presc_idx):
             p = self.prescribed_state(t)
             q[self.presc_idx] = p[0]
@@ -356,16 +432,25 @@ class Chain:
     def rhs_numpy(self, t, x):
         """The numpy reference right-hand side."""
         q, qd = self.full_state(t, x)
-        qdd = self.accelerations(t, q, qd)
-        return np.concatenate([qd[self.free], qdd[self.free]])
+        qdd, zd = self.dynamics(t, q, qd, x[2 * len(self.free):])
+        return np.concatenate([qd[self.free], qdd[self.free], zd])
+
+    def state_labels(self) -> list[str]:
+        """Names of the first-order state x = [q_free, q̇_free, z]."""
+        fr = [self.names[i] for i in self.free]
+        return fr + [f"{nm}_rate" for nm in fr] + list(self.state_names)
 
     # --------------------------------------------------------------------------- outputs
     def energy(self, q, qd) -> dict:
-        """Kinetic, elastic and gravitational energy (J), their sum, and the tip position
-        (m), from one kinematics pass."""
+        """Kinetic, elastic (beams, joint springs, engaged backlash) and gravitational energy
+        (J), their sum, and the tip position (m), from one kinematics pass. Energy stored in
+        the actuators (½Li², oil compression) is not included."""
         kin = self.kinematics(q, qd, want_points=self.has_gravity)
         T = 0.5 * qd @ kin.M @ qd
         V = 0.5 * q @ self.K @ q
+        for im, ij, b, k, _ in self.backlash:
+            d = q[im] - q[ij]
+            V += 0.5 * k * max(abs(d) - b, 0.0) ** 2
         Vg = -self._gravity_work(q, kin) if self.has_gravity else 0.0
         return {"kinetic": T, "elastic": V, "gravity": Vg, "total": T + V + Vg,
                 "tip": kin.tip_frames[-1].o.copy()}

@@ -32,20 +32,44 @@ def explain(scene) -> str:
     (kept if fid.foreshortening else omitted).append(
         "foreshortening / geometric stiffening" + ("" if fid.foreshortening else
                                                    " (switched off: linear floating frame)"))
-    flex = [lm.name for lm in chain.links if lm.i_motor >= 0]
+    flex = [lm.name for lm in chain.links if lm.link.joint.flexibility is not None]
     (kept if flex else omitted).append(
         f"joint flexibility ({', '.join(flex)})" if flex else
-        "joint flexibility (no joint declares it: no motor-side coordinate)")
+        "joint flexibility (no joint declares it)")
+    bl = [f"{lm.name} {lm.link.joint.backlash.width:g} rad" for lm in chain.links
+          if lm.link.joint.backlash is not None]
+    (kept if bl else omitted).append(
+        f"backlash ({', '.join(bl)}; motor-side coordinate)" if bl else
+        "backlash (no joint declares it: no motor-side coordinate)")
     damped = bool(np.any(chain.D))
     (kept if damped else omitted).append("damping" if damped else "damping (none declared)")
     presc = [chain.names[i] for i in chain.presc_idx]
     if presc:
         kept.append(f"prescribed motion of {', '.join(presc)} (not integrated)")
-    if chain.torque_inputs:
-        kept.append("joint torque programs on " +
-                    ", ".join(chain.names[i] for i, _ in chain.torque_inputs))
+    for a in chain.actuators:
+        lm = chain.links[a.link]
+        drive = lm.link.joint.drive
+        if drive is None:
+            kept.append(f"torque program on {chain.names[a.coord]}")
+        elif drive.type == "dc_motor":
+            L, R = drive.inductance or 0.0, drive.resistance
+            how = (f"current integrated as a state, L/R = {L / R * 1e3:.3g} ms"
+                   if a.state >= 0 else
+                   "current quasi-static" + (f" (L/R = {L / R * 1e3:.3g} ms neglected)"
+                                             if L > 0 else " (no inductance given)"))
+            kept.append(f"DC motor on {chain.names[a.coord]} (ratio {drive.gear_ratio:g}, "
+                        f"{how}; voltage program)")
+        else:
+            kept.append(f"hydraulic servovalve + actuator on {chain.names[a.coord]} (load "
+                        f"pressure a state; valve current program)")
+    if not chain.actuators:
+        omitted.append("drives (no joint declares one)")
     omitted.append("contact (no wall in this scene)")
-    omitted.append("drives, sensors (not part of this scene)")
+    if scene.sensors:
+        kept.append("sensors: " + ", ".join(f"{s.name} ({s.kind}, {s.rate_hz:g} Hz)"
+                                             for s in scene.sensors))
+    else:
+        omitted.append("sensors (none declared)")
     lines.append("modelled: " + "; ".join(kept))
     lines.append("left out: " + "; ".join(omitted))
     from .simulate import initial_state

@@ -37,6 +37,7 @@ class Integration:
     t: np.ndarray
     q: np.ndarray          # (N, n)
     qd: np.ndarray         # (N, n)
+    z: np.ndarray          # (N, nz) actuator states (currents A, pressures Pa)
     status: int
     message: str
     rhs_evaluations: int
@@ -71,7 +72,7 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
     if integrator != "rk4":
         return dt
     q, qd = chain.full_state(t0, x0)
-    rate = highest_rate(chain, q, qd)
+    rate = highest_rate(chain, q, qd, x0[2 * len(chain.free):])
     limit = RK4_STABILITY / rate if rate > 0 else np.inf
     if dt > 0:
         if dt > limit:
@@ -90,10 +91,16 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
 
 def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
               output_dt=1e-3, max_deflection_ratio=0.5, progress=None) -> Integration:
-    """Integrate the chain from state x0 = [q_free, q̇_free] over [0, t_end]."""
+    """Integrate the chain from state x0 = [q_free, q̇_free, z] over [0, t_end]."""
     if integrator not in ("rk4", "trapezoid", *SOLVE_IVP):
         raise SceneError(f"fidelity.integrator: got {integrator!r}, expected one of rk4, "
                          f"trapezoid, {', '.join(SOLVE_IVP)}")
+    if integrator == "trapezoid" and chain.nz:
+        raise SceneError(
+            f"fidelity.integrator: got 'trapezoid', but the model has actuator states "
+            f"({', '.join(chain.state_names)}) that the Newmark trapezoidal rule does not "
+            f"carry; expected rk4, radau or bdf (or fidelity.motor_current: quasi_static "
+            f"for a DC motor)")
     n_out = int(np.floor(t_end / output_dt + 1e-9))
     t_out = np.arange(n_out + 1) * output_dt
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
@@ -144,8 +151,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             last_report = _report(progress, last_report, t_out[k + 1] / t_end)
     else:
         steps = 0
-        bps = sorted({b for _, prog in chain.torque_inputs
-                      for b in torque_breakpoints(prog, t_end)} | {t_end})
+        bps = sorted({b for a in chain.actuators
+                      for b in torque_breakpoints(a.program, t_end)} | {t_end})
         t_lo, x = 0.0, np.array(x0, float)
         k_out = 1
         for t_hi in bps:   # restart at input discontinuities
@@ -175,8 +182,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     for k, tk in enumerate(t_out):
         q[k], qd[k] = chain.full_state(tk, xs[k])
     step_used = h if integrator in ("rk4", "trapezoid") else 0.0
-    return Integration(t_out, q, qd, 0, "integration reached the end time", f.calls, steps,
-                       wall, step_used)
+    return Integration(t_out, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
+                       "integration reached the end time", f.calls, steps, wall, step_used)
 
 
 class _Guard:
@@ -204,8 +211,8 @@ class _Guard:
         nf = len(self.chain.free)
         if not np.all(np.isfinite(x)):
             bad = int(np.nonzero(~np.isfinite(x))[0][0])
-            name = self.chain.names[self.chain.free[bad % nf]]
-            kind = "rate" if bad >= nf else "coordinate"
+            name = self.chain.state_labels()[bad]
+            kind = "coordinate" if bad < nf else ("rate" if bad < 2 * nf else "actuator state")
             last = float(self.last[bad]) if self.last is not None else float("nan")
             raise SimulationDiverged(f"{kind} {name}", t, last, self._fix(),
                                      detail="state became non-finite")
@@ -239,7 +246,7 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     q, qd = chain.full_state(t, x)
 
     def force(qq, vv):
-        kernel.forces(float(t), qq.copy(), vv.copy(), model, ws)
+        kernel.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
         return ws[kernel.W_F][free].copy()
 
     K = np.zeros((nf, nf))
@@ -253,7 +260,7 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
             fp = force(ap, qd) if arr is q else force(q, ap)
             fm = force(am, qd) if arr is q else force(q, am)
             out[:, j] = -(fp - fm) / (2 * d)
-    kernel.forces(float(t), q.copy(), qd.copy(), model, ws)
+    kernel.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
     M = ws[kernel.W_M][np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 

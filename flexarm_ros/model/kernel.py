@@ -13,32 +13,19 @@ cubic arm takes ~250 µs in numpy and a few µs compiled.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
 from .programs import eval_motion, eval_torque
 
-try:  # pragma: no cover - exercised by whichever environment runs the tests
-    if os.environ.get("FLEXARM_NO_NUMBA"):
-        raise ImportError("disabled by FLEXARM_NO_NUMBA")
-    import numba
-    HAVE_NUMBA = True
-    # fast-math without 'nnan'/'ninf': the divergence checks must still see NaN and inf
-    _jit = numba.njit(cache=True, error_model="numpy",
-                      fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
-    _jit_inline = numba.njit(cache=True, error_model="numpy", inline="always",
-                             fastmath={"reassoc", "contract", "arcp", "nsz", "afn"})
-except ImportError:
-    HAVE_NUMBA = False
-
-    def _jit(f):
-        return f
-
-    _jit_inline = _jit
+from .compiled import HAVE_NUMBA, jit as _jit, jit_inline as _jit_inline  # noqa: F401
+from .drives import actuator_rate, actuator_torque, backlash_torque
 
 eval_torque_c = _jit(eval_torque)
 eval_motion_c = _jit(eval_motion)
+actuator_torque_c = actuator_torque      # compiled in drives (they call each other)
+actuator_rate_c = actuator_rate
+backlash_torque_c = backlash_torque
 
 #: RK4's first and last stages are evaluated STAGE_EPS·h inside the step, so an input that
 #: jumps exactly on a step boundary is seen with its value on that step (right limit at the
@@ -50,8 +37,9 @@ STAGE_EPS = 1e-9
 M_N, M_NL, M_E0, M_NE, M_NPT, M_X, M_PHI, M_FREE, M_PRESC = 0, 1, 3, 4, 8, 9, 11, 20, 21
 M_K, M_D, M_MCODE, M_MPAR = 18, 19, 22, 23
 M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
+M_AKIND, M_APAR, M_AZI, M_BIDX, M_BPAR, M_NZ = 31, 32, 33, 34, 35, 36
 (W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
- W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT) = range(20)
+ W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD) = range(21)
 
 # status codes of the compiled loop
 OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
@@ -87,7 +75,8 @@ def workspace(model):
     return (np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n),
             np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
             np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
-            np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n), np.empty(2 * nf))
+            np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n),
+            np.empty(2 * nf + model[M_NZ]), np.empty(max(model[M_NZ], 1)))
 
 
 @_jit_inline
@@ -98,9 +87,25 @@ def chain_terms(q, qd, model, ws):
     φ(x_p) and S(x_p) (finite elements and differences grow from the root), so the loops
     stop there.
     """
-    (n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE, g, fs, base_angle,
-     Mdrive, K, D, free, presc, mcode, mpar, tidx, tcode, tpar, ttimes, tvalues, tlen,
-     EXT) = model
+    n = model[M_N]
+    nl = model[M_NL]
+    ij = model[2]
+    e0 = model[M_E0]
+    ne = model[M_NE]
+    bodies = model[5]
+    joff = model[6]
+    rh = model[7]
+    npt = model[M_NPT]
+    X = model[M_X]
+    MP = model[10]
+    PHI = model[M_PHI]
+    SS = model[12]
+    SLOPE = model[13]
+    g = model[14]
+    fs = model[15]
+    base_angle = model[16]
+    Mdrive = model[17]
+    EXT = model[30]
     M = ws[W_M]
     h = ws[W_H]
     Qg = ws[W_QG]
@@ -273,9 +278,10 @@ def _cholesky_solve(A, b, nf, L, y, x):
 
 
 @_jit_inline
-def forces(t, q, qd, model, ws):
-    """Fill ws' M and f = Q_input + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at (t, q, q̇), with
-    the prescribed coordinates of q, q̇ set from their programs at time t."""
+def forces(t, q, qd, z, model, ws):
+    """Fill ws' M and f = Q_input + Q_coupling + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at
+    (t, q, q̇, z), with the prescribed coordinates of q, q̇ set from their programs at time t,
+    and the actuator state rates ż into ws[W_ZD]."""
     n = model[M_N]
     K = model[M_K]
     D = model[M_D]
@@ -288,11 +294,17 @@ def forces(t, q, qd, model, ws):
     ttimes = model[M_TTIMES]
     tvalues = model[M_TVALUES]
     tlen = model[M_TLEN]
+    akind = model[M_AKIND]
+    apar = model[M_APAR]
+    azi = model[M_AZI]
+    bidx = model[M_BIDX]
+    bpar = model[M_BPAR]
     M = ws[W_M]
     h = ws[W_H]
     Qg = ws[W_QG]
     pdd = ws[W_PDD]
     f = ws[W_F]
+    zd = ws[W_ZD]
     npr = presc.shape[0]
     for j in range(npr):
         th, thd, thdd = eval_motion_c(mcode[j], mpar[j], t)
@@ -307,7 +319,19 @@ def forces(t, q, qd, model, ws):
         f[i] = v
     for j in range(tidx.shape[0]):
         Lj = tlen[j]
-        f[tidx[j]] += eval_torque_c(tcode[j], tpar[j], ttimes[j, :Lj], tvalues[j, :Lj], t)
+        u = eval_torque_c(tcode[j], tpar[j], ttimes[j, :Lj], tvalues[j, :Lj], t)
+        w = qd[tidx[j]]
+        zj = z[azi[j]] if azi[j] >= 0 else 0.0
+        f[tidx[j]] += actuator_torque_c(akind[j], apar[j], u, w, zj)
+        if azi[j] >= 0:
+            zd[azi[j]] = actuator_rate_c(akind[j], apar[j], u, w, zj)
+    for j in range(bidx.shape[0]):
+        im = bidx[j, 0]
+        jl = bidx[j, 1]
+        tau = backlash_torque_c(bpar[j, 0], bpar[j, 1], bpar[j, 2], q[im] - q[jl],
+                                qd[im] - qd[jl])
+        f[im] -= tau
+        f[jl] += tau
     for j in range(npr):
         for i in range(n):
             f[i] -= M[i, presc[j]] * pdd[j]
@@ -315,7 +339,7 @@ def forces(t, q, qd, model, ws):
 
 @_jit
 def rhs_into(t, x, out, model, ws):
-    """out = ẋ for x = [q_free, q̇_free] (chain.Chain.rhs, compiled, no allocation)."""
+    """out = ẋ for x = [q_free, q̇_free, z] (chain.Chain.rhs, compiled, no allocation)."""
     free = model[M_FREE]
     q = ws[W_Q]
     qd = ws[W_QD]
@@ -327,10 +351,11 @@ def rhs_into(t, x, out, model, ws):
     acc = ws[W_ACC]
     f = ws[W_F]
     nf = free.shape[0]
+    nz = model[M_NZ]
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    forces(t, q, qd, model, ws)
+    forces(t, q, qd, x[2 * nf:], model, ws)
     for a in range(nf):
         ff[a] = f[free[a]]
         for b in range(nf):
@@ -341,11 +366,14 @@ def rhs_into(t, x, out, model, ws):
     for a in range(nf):
         out[a] = x[nf + a]
         out[nf + a] = acc[a]
+    zd = ws[W_ZD]
+    for a in range(nz):
+        out[2 * nf + a] = zd[a]
 
 
 @_jit
 def rhs(t, x, model, ws):
-    """ẋ for x = [q_free, q̇_free] as a new array."""
+    """ẋ for x = [q_free, q̇_free, z] as a new array."""
     out = np.empty(x.shape[0])
     rhs_into(t, x, out, model, ws)
     return out
@@ -491,7 +519,7 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
                     v1[i] = vf[i] + 0.5 * h * (a0[i] + a1[i])
                     q[free[i]] = q1[i]
                     qd[free[i]] = v1[i]
-                forces(t + (1.0 - STAGE_EPS) * h, q, qd, model, ws)
+                forces(t + (1.0 - STAGE_EPS) * h, q, qd, x[:0], model, ws)
                 for i in range(nf):
                     ma = 0.0
                     for jj in range(nf):

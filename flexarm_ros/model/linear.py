@@ -81,15 +81,14 @@ def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
     return Modes(freqs, shapes, tuple(chain.names), joints)
 
 
-def highest_rate(chain, q0, qd0) -> float:
+def highest_rate(chain, q0, qd0, z0=None) -> float:
     """Spectral radius (1/s) of the first-order system's Jacobian about (q0, q̇0): sets the
     stable step of explicit integrators. Computed from M, K and D, including the
     velocity-dependent terms by central differences of q̈."""
     free = chain.free
-    nf = len(free)
-    x0 = np.concatenate([q0[free], qd0[free]])
-    Jm = np.zeros((2 * nf, 2 * nf))
-    for j in range(2 * nf):
+    x0 = np.concatenate([q0[free], qd0[free], np.zeros(chain.nz) if z0 is None else z0])
+    Jm = np.zeros((len(x0), len(x0)))
+    for j in range(len(x0)):
         dx = 1e-6 * max(1.0, abs(x0[j]))
         xp, xm = x0.copy(), x0.copy()
         xp[j] += dx

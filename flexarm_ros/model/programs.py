@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-CODES = {"constant": 0, "pulse": 1, "square": 2, "piecewise_constant": 3,
+CODES = {"constant": 0, "step": 5, "pulse": 1, "square": 2, "piecewise_constant": 3,
          "piecewise_linear": 4, "hold": 10, "spin_up": 11, "smooth_step": 12}
 
 
@@ -35,11 +35,13 @@ def encode(prog, theta0: float = 0.0):
 
 
 def eval_torque(code, p, times, values, t):
-    """Torque program value at time t: constant; pulse [start, start+width); square wave
+    """Program value at time t: constant; step (offset, + amplitude from start); pulse [start, start+width); square wave
     (offset ± amplitude, phase in cycles, from start); piecewise constant (value i from
     times[i]); piecewise linear (held at the ends)."""
     if code == 0:
         return p[0]
+    if code == 5:
+        return p[6] + (p[1] if t >= p[2] else 0.0)
     if code == 1:
         return p[1] if (t >= p[2] and t < p[2] + p[3]) else 0.0
     if code == 2:
@@ -105,6 +107,8 @@ def torque_breakpoints(prog, t_end: float) -> list[float]:
     pts: list[float] = []
     if kind == "pulse":
         pts = [prog.start, prog.start + prog.width]
+    elif kind == "step":
+        pts = [prog.start]
     elif kind == "square":
         half = 0.5 / prog.frequency_hz
         ph = (prog.phase_deg / 360.0) % 1.0

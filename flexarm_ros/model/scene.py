@@ -21,8 +21,11 @@ from .schema import from_mapping, param
 
 RUNGS = ("rigid", "cubic", "modal", "fem", "fd")
 INTEGRATORS = ("rk4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
-TORQUE_PROGRAMS = ("constant", "pulse", "square", "piecewise_constant", "piecewise_linear")
+TORQUE_PROGRAMS = ("constant", "step", "pulse", "square", "piecewise_constant",
+                   "piecewise_linear")
 MOTION_PROGRAMS = ("spin_up", "smooth_step", "hold")
+INPUT_KINDS = ("torque", "voltage", "current", "motion")
+SENSOR_KINDS = ("encoder", "accelerometer", "strain", "potentiometer", "tip_position")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,6 +74,93 @@ class JointFlexibility:
                                  doc="motor-side inertia (rotor reflected through the gear)")
 
 
+DRIVE_TYPES = ("dc_motor", "hydraulic")
+_DC_FIELDS = ("gear_ratio", "torque_constant", "back_emf_constant", "resistance")
+_DC_OPTIONAL = ("inductance", "supply_voltage", "current_limit")
+_HYD_FIELDS = ("displacement", "valve_gain", "supply_pressure", "total_volume",
+               "bulk_modulus", "rated_current")
+_HYD_OPTIONAL = ("torque_efficiency", "leakage", "null_bias")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Drive:
+    """The actuator of a joint; its input is a voltage (dc_motor) or a valve current
+    (hydraulic) program, and its output torque acts at the gearbox output.
+
+    dc_motor (seed 000 Eq. 5.11, seed 001 Sec. 4): armature L di/dt + R i = V − K_b n θ̇,
+    torque n K_t i at the output; with inductance 0 the current is quasi-static,
+    i = (V − K_b n θ̇)/R. The gearbox/rotor inertia J_eq and viscous loss C_eq are the joint's
+    ``drive_inertia`` and ``drive_damping``. hydraulic (seed 002 Appendix B): servovalve
+    Q = K_v i √(P_s − sgn(i) P_L), actuator Q = D_m θ̇ + C_tm P_L + V_t/(4β_e) Ṗ_L,
+    torque η_t D_m P_L, P_L within ±P_s.
+    """
+    type: str = param(choices=DRIVE_TYPES, doc="drive model")
+    # dc_motor
+    gear_ratio: Optional[float] = param(None, unit="", gt=0.0,
+                                        doc="dc_motor: gear ratio n (motor turns per output turn)")
+    torque_constant: Optional[float] = param(None, unit="N·m/A", gt=0.0,
+                                             doc="dc_motor: motor torque constant K_t")
+    back_emf_constant: Optional[float] = param(None, unit="V·s/rad", gt=0.0,
+                                               doc="dc_motor: back-EMF constant K_b")
+    resistance: Optional[float] = param(None, unit="Ω", gt=0.0,
+                                        doc="dc_motor: armature resistance R")
+    inductance: Optional[float] = param(None, unit="H", ge=0.0,
+                                        doc="dc_motor: armature inductance L (0: current "
+                                            "quasi-static)")
+    supply_voltage: Optional[float] = param(None, unit="V", gt=0.0,
+                                            doc="dc_motor: |V| is clipped to this (amplifier "
+                                                "supply); none: no limit")
+    current_limit: Optional[float] = param(None, unit="A", gt=0.0,
+                                           doc="dc_motor: |i| is limited to this; none: no "
+                                               "limit")
+    # hydraulic
+    displacement: Optional[float] = param(None, unit="m³/rad", gt=0.0,
+                                          doc="hydraulic: actuator displacement D_m")
+    torque_efficiency: Optional[float] = param(None, unit="", gt=0.0, le=1.0,
+                                               doc="hydraulic: torque efficiency η_t "
+                                                   "(default 1)")
+    leakage: Optional[float] = param(None, unit="m³/(s·Pa)", ge=0.0,
+                                     doc="hydraulic: total leakage coefficient C_tm "
+                                         "(default 0)")
+    valve_gain: Optional[float] = param(None, unit="m³/(s·A·√Pa)", gt=0.0,
+                                        doc="hydraulic: servovalve flow gain K_v")
+    supply_pressure: Optional[float] = param(None, unit="Pa", gt=0.0,
+                                             doc="hydraulic: supply pressure P_s")
+    total_volume: Optional[float] = param(None, unit="m³", gt=0.0,
+                                          doc="hydraulic: total compressed volume V_t")
+    bulk_modulus: Optional[float] = param(None, unit="Pa", gt=0.0,
+                                          doc="hydraulic: effective bulk modulus β_e")
+    rated_current: Optional[float] = param(None, unit="A", gt=0.0,
+                                           doc="hydraulic: valve current range ±i_max "
+                                               "(programs beyond it are refused)")
+    null_bias: Optional[bool] = param(None, doc="hydraulic: add the null current that holds "
+                                                "the initial state at rest (default true)")
+
+    def validate(self, where):
+        own, optional = ((_DC_FIELDS, _DC_OPTIONAL) if self.type == "dc_motor"
+                         else (_HYD_FIELDS, _HYD_OPTIONAL))
+        for f in own:
+            if getattr(self, f) is None:
+                raise SceneError(f"{where}.{f}: missing, expected a value for a {self.type} "
+                                 f"drive")
+        for f in _DC_FIELDS + _DC_OPTIONAL + _HYD_FIELDS + _HYD_OPTIONAL:
+            if f not in own + optional and getattr(self, f) is not None:
+                raise SceneError(f"{where}.{f}: got {getattr(self, f)}, expected no {f} on a "
+                                 f"{self.type} drive (it belongs to the other drive type)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Backlash:
+    """Gear backlash: a motor-side angle (gearbox output side, inertia = the joint's
+    ``drive_inertia``) coupled to the link through a dead zone of total ``width`` and a mesh
+    contact spring/damper that only acts while the teeth touch:
+    τ = k·(δ ∓ width/2) + c·δ̇ for |δ| > width/2, else 0 (δ = motor − link angle), never
+    pulling."""
+    width: float = param(unit="rad", ge=0.0, doc="total dead-zone width at the output")
+    stiffness: float = param(unit="N·m/rad", gt=0.0, doc="mesh contact stiffness k")
+    damping: float = param(0.0, unit="N·m·s/rad", ge=0.0, doc="mesh contact damping c")
+
+
 @dataclass(frozen=True, kw_only=True)
 class Joint:
     """A revolute joint: link-side angle relative to the previous link's tip frame."""
@@ -84,8 +174,18 @@ class Joint:
     drive_damping: float = param(0.0, unit="N·m·s/rad", ge=0.0,
                                  doc="viscous drive damping C_eq (seed 000 Eq. 5.11)")
     flexibility: Optional[JointFlexibility] = param(None, doc="joint flexibility, if any")
+    backlash: Optional[Backlash] = param(None, doc="gear backlash (adds a motor-side "
+                                                   "coordinate)")
+    drive: Optional[Drive] = param(None, doc="actuator (dc_motor or hydraulic); none: the "
+                                             "joint takes torque programs directly")
 
     def validate(self, where):
+        if self.flexibility is not None and self.backlash is not None:
+            raise SceneError(f"{where}.backlash: got both flexibility and backlash, expected "
+                             f"one (backlash carries its own mesh stiffness)")
+        if self.backlash is not None and self.drive_inertia == 0.0:
+            raise SceneError(f"{where}.drive_inertia: got 0.0, expected > 0 kg·m² with "
+                             f"backlash (the motor-side coordinate needs inertia)")
         if self.initial_angle_deg is not None and self.initial_angle != 0.0:
             raise SceneError(f"{where}.initial_angle_deg: got {self.initial_angle_deg}, "
                              f"expected only one of initial_angle / initial_angle_deg")
@@ -112,7 +212,9 @@ class Link:
 class Program:
     """A time program u(t) for a joint torque (N·m) or a prescribed joint motion (rad).
 
-    Torque types: constant {value}; pulse {amplitude, start, width}; square {amplitude,
+    Input types (torque N·m, voltage V or valve current A): constant {value}; step
+    {offset, amplitude, start} (offset before start, offset + amplitude from start); pulse
+    {amplitude, start, width}; square {amplitude,
     frequency_hz, phase_deg, offset, start}; piecewise_constant {times, values} (value i
     holds from times[i]); piecewise_linear {times, values}. Motion types: spin_up
     {omega, ramp_time} (Kane, Ryan & Banerjee 1987 profile); smooth_step {amplitude, start,
@@ -144,21 +246,88 @@ class Program:
 
 @dataclass(frozen=True, kw_only=True)
 class Input:
-    """Drives one joint (1-based index) by a torque program or a prescribed motion."""
+    """Drives one joint (1-based index): a torque program (joint without a drive), a voltage
+    program (dc_motor drive), a valve-current program (hydraulic drive) or a prescribed
+    motion."""
     joint: int = param(unit="", ge=1, doc="joint number, 1-based")
     torque: Optional[Program] = param(None, doc="joint torque program (N·m)")
+    voltage: Optional[Program] = param(None, doc="motor voltage program (V), dc_motor drive")
+    current: Optional[Program] = param(None, doc="servovalve current program (A), hydraulic "
+                                                 "drive")
     motion: Optional[Program] = param(None, doc="prescribed joint motion (rad)")
 
+    @property
+    def kind(self) -> str:
+        return next(k for k in INPUT_KINDS if getattr(self, k) is not None)
+
+    @property
+    def program(self) -> Program:
+        return getattr(self, self.kind)
+
     def validate(self, where):
-        if (self.torque is None) == (self.motion is None):
-            raise SceneError(f"{where}: got {'both' if self.torque else 'neither'} of "
-                             f"torque/motion, expected exactly one")
-        if self.torque is not None and self.torque.type not in TORQUE_PROGRAMS:
-            raise SceneError(f"{where}.torque.type: got {self.torque.type!r}, expected one of "
-                             f"{', '.join(TORQUE_PROGRAMS)}")
-        if self.motion is not None and self.motion.type not in MOTION_PROGRAMS:
-            raise SceneError(f"{where}.motion.type: got {self.motion.type!r}, expected one of "
-                             f"{', '.join(MOTION_PROGRAMS)}")
+        given = [k for k in INPUT_KINDS if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise SceneError(f"{where}: got {', '.join(given) if given else 'none'} of "
+                             f"{'/'.join(INPUT_KINDS)}, expected exactly one")
+        kind = given[0]
+        allowed = MOTION_PROGRAMS if kind == "motion" else TORQUE_PROGRAMS
+        if self.program.type not in allowed:
+            raise SceneError(f"{where}.{kind}.type: got {self.program.type!r}, expected one "
+                             f"of {', '.join(allowed)}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sensor:
+    """A sensor read from the model at its own sample rate (PHYSICS.md "sensors").
+
+    encoder: counts = ⌊n·(θ − θ₀)·lines·quadrature/2π⌋ of the drive coordinate θ (gearbox
+    output side; n the drive's gear ratio when ``on_motor_shaft``), integer.
+    accelerometer: specific force (r̈ − g)·ê along ``axis`` (in the frame of the body at
+    ``position``, rotating with the beam slope on a beam), m/s², and volts via
+    ``sensitivity``. strain: (t/2)·w″(x) at the gauge (beam ``thickness`` t), –.
+    potentiometer: link-side joint angle, rad. tip_position: x, y of the last beam tip, m.
+    Optional noise (Gaussian, std in output units, explicit seed) and ADC (range, bits)
+    apply to the published value (volts when ``sensitivity`` is given).
+    """
+    name: str = param(doc="sensor name (column / channel name)")
+    kind: str = param(choices=SENSOR_KINDS, doc="what it measures")
+    rate_hz: float = param(unit="Hz", gt=0.0, doc="sample rate")
+    joint: int = param(0, ge=0, doc="encoder / potentiometer: joint number, 1-based")
+    link: str = param("", doc="accelerometer / strain: link name")
+    body: str = param("beam", choices=("hub", "beam", "tip"),
+                      doc="accelerometer: body carrying it")
+    position: tuple[float, float] = param((0.0, 0.0), unit="m",
+                                          doc="beam: (abscissa x from the beam root, 0); "
+                                              "hub/tip: point in the body frame")
+    axis: tuple[float, float] = param((0.0, 1.0), doc="accelerometer: sensing axis in the "
+                                      "body frame (default transverse, b2)")
+    frame_id: str = param("", doc="frame id on the wire (default: the sensor name)")
+    sensitivity: Optional[float] = param(None, doc="output volts per SI unit (V/(m/s²), "
+                                                   "V/strain, V/rad); none: SI output")
+    lines_per_rev: int = param(500, ge=1, doc="encoder: lines per revolution")
+    quadrature: int = param(4, ge=1, le=4, doc="encoder: counts per line (4: ×4 decoding)")
+    on_motor_shaft: bool = param(True, doc="encoder: on the motor shaft (× gear ratio)")
+    noise_std: float = param(0.0, ge=0.0, doc="Gaussian noise std in output units")
+    seed: int = param(0, ge=0, doc="noise random seed")
+    adc_range: Optional[tuple[float, float]] = param(None, doc="ADC input range (lo, hi) in "
+                                                              "output units; clipped")
+    adc_bits: Optional[int] = param(None, ge=1, le=32, doc="ADC resolution (needs adc_range)")
+
+    def validate(self, where):
+        if self.kind in ("encoder", "potentiometer") and self.joint == 0:
+            raise SceneError(f"{where}.joint: missing, expected the joint number for a "
+                             f"{self.kind}")
+        if self.kind in ("accelerometer", "strain") and not self.link:
+            raise SceneError(f"{where}.link: missing, expected the link name for a "
+                             f"{self.kind}")
+        if self.adc_bits is not None and self.adc_range is None:
+            raise SceneError(f"{where}.adc_bits: got {self.adc_bits} without adc_range, "
+                             f"expected adc_range (lo, hi) too")
+        if self.adc_range is not None and not self.adc_range[1] > self.adc_range[0]:
+            raise SceneError(f"{where}.adc_range: got {list(self.adc_range)}, expected lo < hi")
+        if self.kind == "accelerometer" and self.axis[0] ** 2 + self.axis[1] ** 2 == 0.0:
+            raise SceneError(f"{where}.axis: got {list(self.axis)}, expected a non-zero "
+                             f"direction")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -175,6 +344,9 @@ class Fidelity:
     rtol: float = param(1e-8, gt=0.0, lt=1.0, doc="relative tolerance (adaptive)")
     atol: float = param(1e-10, gt=0.0, doc="absolute tolerance (adaptive)")
     output_dt: float = param(1e-3, unit="s", gt=0.0, doc="sample period of the output")
+    motor_current: str = param("dynamic", choices=("dynamic", "quasi_static"),
+                               doc="dc_motor with inductance: integrate the current as a "
+                                   "state, or take it quasi-static (L/R far below the step)")
     max_deflection_ratio: float = param(0.5, gt=0.0, doc="stop when |w_tip|/L exceeds this "
                                         "(small-deflection model no longer valid)")
 
@@ -203,7 +375,9 @@ class Scene:
     gravity: tuple[float, float] = param((0.0, 0.0), unit="m/s²",
                                          doc="gravity vector in the plane (0,0: none)")
     base_angle: float = param(0.0, unit="rad", doc="angle of the base frame")
-    inputs: tuple[Input, ...] = param((), doc="joint torque / motion programs")
+    inputs: tuple[Input, ...] = param((), doc="joint torque / voltage / current / motion "
+                                              "programs")
+    sensors: tuple[Sensor, ...] = param((), doc="sensors read from the model")
     fidelity: Fidelity = param(default_factory=Fidelity, doc="model and integrator")
     initial: Initial = param(default_factory=Initial, doc="initial condition")
     duration: float = param(1.0, unit="s", gt=0.0, doc="default simulated duration")
@@ -224,9 +398,50 @@ class Scene:
                 raise SceneError(f"inputs[{k}].joint: got {inp.joint}, expected one input "
                                  f"per joint")
             seen.add(inp.joint)
-            if inp.motion is not None and self.links[inp.joint - 1].joint.flexibility:
+            jt = self.links[inp.joint - 1].joint
+            if inp.motion is not None and (jt.flexibility or jt.backlash):
                 raise SceneError(f"inputs[{k}].motion: got a prescribed motion on flexible "
                                  f"joint {inp.joint}, expected a torque program")
+            want = {None: ("torque", "motion"), "dc_motor": ("voltage", "motion"),
+                    "hydraulic": ("current", "motion")}[jt.drive.type if jt.drive else None]
+            if inp.kind not in want:
+                raise SceneError(f"inputs[{k}].{inp.kind}: joint {inp.joint} has "
+                                 f"{'a ' + jt.drive.type if jt.drive else 'no'} drive, "
+                                 f"expected {' or '.join(want)}")
+            if inp.kind == "current":
+                lo, hi = program_range(inp.current)
+                imax = jt.drive.rated_current
+                if max(abs(lo), abs(hi)) > imax * (1 + 1e-12):
+                    raise SceneError(f"inputs[{k}].current: got a program reaching "
+                                     f"{max(abs(lo), abs(hi)):.6g} A, expected within the "
+                                     f"valve's rated current ±{imax:.6g} A")
+        names = [lk.name for lk in self.links]
+        sensor_names = set()
+        for k, sn in enumerate(self.sensors):
+            where = f"sensors[{k}]"
+            if sn.name in sensor_names:
+                raise SceneError(f"{where}.name: got {sn.name!r} twice, expected unique names")
+            sensor_names.add(sn.name)
+            if sn.kind in ("encoder", "potentiometer") and sn.joint > len(self.links):
+                raise SceneError(f"{where}.joint: got {sn.joint}, expected 1..{len(self.links)}")
+            if sn.kind in ("accelerometer", "strain"):
+                if sn.link not in names:
+                    raise SceneError(f"{where}.link: got {sn.link!r}, expected one of "
+                                     f"{', '.join(names)}")
+                beam = self.links[names.index(sn.link)].beam
+                if (sn.kind == "strain" or sn.body == "beam") and not (
+                        0.0 <= sn.position[0] <= beam.length and sn.position[1] == 0.0):
+                    raise SceneError(f"{where}.position: got {list(sn.position)}, expected "
+                                     f"(x, 0) with 0 <= x <= {beam.length} m on the beam")
+                if sn.kind == "strain" and beam.thickness is None:
+                    raise SceneError(f"links[{names.index(sn.link)}].beam.thickness: missing, "
+                                     f"expected the section depth for strain sensor "
+                                     f"{sn.name!r}")
+            if (sn.kind == "encoder" and sn.on_motor_shaft
+                    and self.links[sn.joint - 1].joint.drive is None):
+                raise SceneError(f"{where}.on_motor_shaft: got true on joint {sn.joint} "
+                                 f"without a dc_motor drive (no gear ratio), expected false "
+                                 f"or a drive")
 
     def with_fidelity(self, **overrides) -> "Scene":
         """A copy with fidelity fields replaced (None values are ignored), validated."""
@@ -237,6 +452,22 @@ class Scene:
         data.update(changes)
         fid = from_mapping(Fidelity, data, "fidelity")
         return dataclasses.replace(self, fidelity=fid)
+
+
+def program_range(prog: Program) -> tuple[float, float]:
+    """(min, max) a torque/voltage/current program can take."""
+    kind = prog.type
+    if kind == "constant":
+        vals = [prog.value]
+    elif kind == "step":
+        vals = [prog.offset, prog.offset + prog.amplitude]
+    elif kind == "pulse":
+        vals = [0.0, prog.amplitude]
+    elif kind == "square":
+        vals = [0.0, prog.offset + prog.amplitude, prog.offset - prog.amplitude]
+    else:
+        vals = list(prog.values) + ([0.0] if kind == "piecewise_constant" else [])
+    return min(vals), max(vals)
 
 
 def load_scene_dict(data) -> Scene:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import drives
 from .chain import Chain
 from .errors import SceneError
 from .integrate import Integration, integrate
@@ -71,14 +72,42 @@ def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:
 
 
 def initial_state(chain: Chain):
-    """(q0, q̇0) from the scene, optionally at static equilibrium."""
+    """(q0, q̇0, z0) from the scene, optionally at static equilibrium.
+
+    Actuator states start at zero current; a hydraulic actuator starts at the load pressure
+    that holds the initial configuration, and (with ``null_bias``, the default) its valve
+    gets the null current that feeds the leakage at that pressure, so the arm rests until
+    the program moves it.
+    """
     q0, qd0 = chain.initial_q()
     if len(chain.presc_idx):
         p = chain.prescribed_state(0.0)
         q0[chain.presc_idx], qd0[chain.presc_idx] = p[0], p[1]
     if chain.scene.initial.static_equilibrium:
         q0 = static_equilibrium(chain, q0)
-    return q0, qd0
+    z0 = np.zeros(chain.nz)
+    hyd = [a for a in chain.actuators if a.kind == drives.HYDRAULIC]
+    if hyd:
+        kin = chain.kinematics(q0, np.zeros(chain.n))
+        f = kin.Qg - kin.h - chain.K @ q0 + chain.coupling_forces(q0, np.zeros(chain.n))
+        for a in hyd:
+            p_hold, i_bias = drives.hydraulic_hold(a.par, -f[a.coord])
+            if not np.isfinite(i_bias):
+                lk = chain.scene.links[a.link]
+                raise SceneError(
+                    f"links[{a.link}].joint.drive.supply_pressure: got "
+                    f"{a.par[4]:.6g} Pa, expected more than the {abs(p_hold):.6g} Pa needed "
+                    f"to hold {lk.name} at its initial angle")
+            z0[a.state] = p_hold
+            drive = chain.scene.links[a.link].joint.drive
+            a.par[7] = i_bias if drive.null_bias in (None, True) else 0.0
+    return q0, qd0, z0
+
+
+def initial_x(chain: Chain) -> np.ndarray:
+    """The first-order initial state x0 = [q_free, q̇_free, z] (see :func:`initial_state`)."""
+    q0, qd0, z0 = initial_state(chain)
+    return np.concatenate([q0[chain.free], qd0[chain.free], z0])
 
 
 def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
@@ -88,8 +117,7 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     T = scene.duration if duration is None else duration
     if not T > 0:
         raise SceneError(f"duration: got {T}, expected > 0 s")
-    q0, qd0 = initial_state(chain)
-    x0 = np.concatenate([q0[chain.free], qd0[chain.free]])
+    x0 = initial_x(chain)
     run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, fid.output_dt,
                     fid.max_deflection_ratio, progress)
     return SimResult(scene.name, chain, run, output_columns(chain, run))
@@ -114,4 +142,31 @@ def output_columns(chain: Chain, run: Integration) -> dict:
     for j, lm in enumerate(chain.links):
         cols[f"{lm.name}_tip_deflection"] = defl[:, j]
     cols["energy"] = energy
+    cols.update(actuator_columns(chain, run))
+    return cols
+
+
+def actuator_columns(chain: Chain, run: Integration) -> dict:
+    """Per actuator: the program input (``<link>_torque_cmd`` N·m, ``<link>_voltage`` V or
+    ``<link>_valve_current`` A, after saturation/bias as applied), the output torque
+    ``<link>_drive_torque`` (N·m) and the state (``<link>_current`` A / ``<link>_pressure``
+    Pa; a quasi-static motor's current is reported too)."""
+    cols = {}
+    u = np.array([chain.actuator_inputs(t) for t in run.t]).reshape(len(run.t), -1)
+    for j, a in enumerate(chain.actuators):
+        name = chain.links[a.link].name
+        w = run.qd[:, a.coord]
+        z = run.z[:, a.state] if a.state >= 0 else np.zeros(len(run.t))
+        uj = u[:, j]
+        if a.kind == drives.IDEAL:
+            cols[f"{name}_torque_cmd"] = uj
+        elif a.kind == drives.HYDRAULIC:
+            cols[f"{name}_valve_current"] = uj + a.par[7]
+            cols[f"{name}_pressure"] = z
+        else:
+            cols[f"{name}_voltage"] = np.clip(uj, -a.par[5], a.par[5])
+            cols[f"{name}_current"] = np.array(
+                [drives.motor_current(a.kind, a.par, ui, wi, zi) for ui, wi, zi in zip(uj, w, z)])
+        cols[f"{name}_drive_torque"] = np.array(
+            [drives.actuator_torque(a.kind, a.par, ui, wi, zi) for ui, wi, zi in zip(uj, w, z)])
     return cols

@@ -75,7 +75,7 @@ from .chain import Chain
 from .errors import SceneError, SimulationDiverged
 from .integrate import choose_step, integrate
 from .linear import natural_modes, reduced_coordinates, tangent_stiffness
-from .simulate import initial_state, simulate
+from .simulate import initial_state, initial_x, simulate
 
 #: duration cap of the study window when none is given, s
 DEFAULT_DURATION_S = 1.0
@@ -283,8 +283,7 @@ def _reference_run(scene, ref: dict, T: float):
     chain = Chain(sc)
     f1 = first_frequency(chain)
     if ref["integrator"] == "rk4" and not ref.get("dt") and f1:
-        q0, qd0 = initial_state(chain)
-        x0 = np.concatenate([q0[chain.free], qd0[chain.free]])
+        x0 = initial_x(chain)
         h = choose_step(chain, x0, "rk4", 0.0, sc.fidelity.output_dt)
         if 2 * math.pi * f1 * h > REFERENCE_PHASE_STEP:
             sc = sc.with_fidelity(dt=REFERENCE_PHASE_STEP / (2 * math.pi * f1))
@@ -335,8 +334,7 @@ def _repeat_timing(chain, sc, T, wall):
     if wall >= MIN_TIMING_S:
         return best, runs
     fid = sc.fidelity
-    q0, qd0 = initial_state(chain)
-    x0 = np.concatenate([q0[chain.free], qd0[chain.free]])
+    x0 = initial_x(chain)
     while spent < MIN_TIMING_S and runs < MAX_TIMING_RUNS:
         w = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, fid.output_dt,
                       fid.max_deflection_ratio).wall_time_s

@@ -63,11 +63,15 @@ def cmd_simulate(args):
     res = simulate(scene, args.duration, progress=_progress(args.quiet or args.json))
     if not (args.quiet or args.json):
         print("\r" + " " * 12 + "\r", end="", file=sys.stderr, flush=True)
-    if args.out:
-        write_table(args.out, res.columns)
     summ = res.summary()
     if args.out:
+        write_table(args.out, res.columns)
         summ["out"] = str(args.out)
+        summ["sensor_tables"] = {}
+        for rate, table in (res.sensor_tables or {}).items():
+            path = sensor_table_path(args.out, rate)
+            write_table(path, table)
+            summ["sensor_tables"][f"{rate:g}"] = str(path)
     if args.json:
         print(json.dumps(summ, indent=2))
     else:
@@ -76,7 +80,15 @@ def cmd_simulate(args):
               f"rung {summ['rung']}, {summ['integrator']}, {summ['steps']} steps, "
               f"{summ['rhs_evaluations']} RHS evaluations)"
               + (f" → {args.out}" if args.out else ""))
+        for rate, path in summ.get("sensor_tables", {}).items():
+            print(f"  sensors at {rate} Hz → {path}")
     return 0
+
+
+def sensor_table_path(out, rate_hz) -> Path:
+    """``run.csv`` → ``run.sensors_4000hz.csv``: one table per sensor sample rate."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.sensors_{rate_hz:g}hz{out.suffix}")
 
 
 def cmd_modes(args):

@@ -57,6 +57,7 @@ class BeamDiscretization:
     M_e: np.ndarray
     curvature_fn: Callable[[np.ndarray], np.ndarray]
     shape_fn: Callable[[np.ndarray], np.ndarray]
+    point_fn: Callable[[float], tuple] = None
 
     @property
     def n(self) -> int:
@@ -73,6 +74,11 @@ class BeamDiscretization:
     def shape(self, x) -> np.ndarray:
         """φ(x), shape (len(x), ne)."""
         return self.shape_fn(np.atleast_1d(np.asarray(x, float)))
+
+    def point(self, x: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(φ(x), φ′(x), S(x)) at one abscissa 0 <= x <= L, consistent with the mass points
+        (same basis, S(x) = ∫₀ˣ φ′φ′ᵀ by the same quadrature): a sensor's kinematics."""
+        return self.point_fn(float(x))
 
 
 # --------------------------------------------------------------------------------------
@@ -141,9 +147,19 @@ def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
         K = EI * np.einsum("p,pi,pj->ij", ws, ddphi, ddphi)
     phiL, dphiL, _ = evaluate(np.array([length]))
     D = damping.viscous_per_length / rho_a * M_e + damping.stiffness_proportional * K
+
+    def point(x):
+        x = min(max(x, 0.0), length)
+        el = min(int(np.searchsorted(breaks, x, side="right")) - 1, len(a) - 1)
+        hk = 0.5 * (x - a[el])
+        _, dp, _ = evaluate(a[el] + hk * (gx + 1))
+        Sx = start[el] + np.einsum("p,pi,pj->ij", hk * gw, dp, dp)
+        ph, dph, _ = evaluate(np.array([x]))
+        return ph[0], dph[0], Sx
+
     return BeamDiscretization(rung, refine, tuple(suffixes), length, hub_radius, xs, mass,
                               phi, S, phiL[0], dphiL[0], S_tip, _sym(K), _sym(D), _sym(M_e),
-                              lambda x: evaluate(x)[2], lambda x: evaluate(x)[0])
+                              lambda x: evaluate(x)[2], lambda x: evaluate(x)[0], point)
 
 
 def _sym(a):
@@ -290,9 +306,19 @@ def finite_differences(beam, n_seg):
     # seed's first-order backward difference made the next link's frame, and so the tip
     # path of a chain, converge only at O(h)
     slope = (3 * E[n] - 4 * E[n - 1] + E[n - 2]) / (2 * h)
+
+    def point(xq):
+        # the FD fibre is piecewise straight between nodes: slope of the segment, S linear
+        xq = min(max(xq, 0.0), L)
+        seg = min(int(xq / h), n - 1)
+        fr = xq / h - seg
+        return ((1 - fr) * E[seg] + fr * E[seg + 1], d[seg].copy(),
+                (1 - fr) * S[seg] + fr * S[seg + 1])
+
     return BeamDiscretization("fd", n, tuple(f"y{i}" for i in range(1, n + 1)), L,
                               beam.hub_radius, x, mass, E.copy(), S, E[-1].copy(), slope,
-                              S[-1].copy(), _sym(K), _sym(D), _sym(M_e), curvature, shape)
+                              S[-1].copy(), _sym(K), _sym(D), _sym(M_e), curvature, shape,
+                              point)
 
 
 def discretize(beam, tip, fidelity) -> BeamDiscretization:

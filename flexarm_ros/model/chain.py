@@ -372,6 +372,35 @@ class Chain:
         tip = Frame(r[-1], J[-1], c[-1], hub.psi + b.slope_tip @ eta, Jpsi_t, Jpsi_t @ qd)
         return r[:-1], J[:-1], c[:-1], tip
 
+    def point_kinematics(self, q, qd, link: int, body: str, position) -> tuple:
+        """(r, J, c, ψ) of a material point: position (2,), Jacobian ∂r/∂q (2, n),
+        velocity-product acceleration c (r̈ = J q̈ + c) and the angle of the local frame.
+
+        ``body`` hub / tip: ``position`` (x, y) in that body's frame; beam: abscissa
+        x = position[0] from the beam root, the frame turning with the slope φ′(x)ᵀη.
+        """
+        kin = self.kinematics(q, qd)
+        lm = self.links[link]
+        p = np.asarray(position, float)
+        if body in ("hub", "tip"):
+            fr = _offset_frame((kin.hub_frames if body == "hub" else kin.tip_frames)[link], p)
+            return fr.o, fr.Jo, fr.co, fr.psi
+        hub = kin.hub_frames[link]
+        b = lm.beam
+        phi, slope, S = b.point(p[0])
+        eta, etad = q[lm.eta], qd[lm.eta]
+        A = _rot(hub.psi)
+        Seta = S @ eta if self.foreshortening else np.zeros(b.n)
+        acc_ax = -etad @ S @ etad if self.foreshortening else 0.0
+        s_loc = np.array([b.hub_radius + p[0] - 0.5 * Seta @ eta, phi @ eta])
+        ds = np.vstack([-Seta, phi])                # ∂s/∂η (2, ne)
+        sd = ds @ etad
+        As = A @ s_loc
+        J = hub.Jo + np.outer(E2 @ As, hub.Jpsi)
+        J[:, lm.eta] += A @ ds
+        c = hub.co - hub.psid**2 * As + 2.0 * hub.psid * (E2 @ (A @ sd)) + acc_ax * A[:, 0]
+        return hub.o + As, J, c, hub.psi + slope @ eta
+
     # -------------------------------------------------------------------------- dynamics
     def accelerations(self, t, q, qd, z=None) -> np.ndarray:
         """q̈ of all coordinates at (t, q, q̇, z); prescribed coordinates follow their
@@ -434,6 +463,16 @@ class Chain:
         q, qd = self.full_state(t, x)
         qdd, zd = self.dynamics(t, q, qd, x[2 * len(self.free):])
         return np.concatenate([qd[self.free], qdd[self.free], zd])
+
+    def full_qdd(self, t, x) -> np.ndarray:
+        """q̈ of all coordinates (n,) at state x: the free ones from the right-hand side
+        (compiled when available), the prescribed ones from their programs."""
+        nf = len(self.free)
+        qdd = np.empty(self.n)
+        qdd[self.free] = self.rhs(t, x)[nf:2 * nf]
+        if len(self.presc_idx):
+            qdd[self.presc_idx] = self.prescribed_state(t)[2]
+        return qdd
 
     def state_labels(self) -> list[str]:
         """Names of the first-order state x = [q_free, q̇_free, z]."""

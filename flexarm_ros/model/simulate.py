@@ -3,6 +3,7 @@ and return named output columns plus a run summary (like scipy's result object).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,6 +13,7 @@ from .chain import Chain
 from .errors import SceneError
 from .integrate import Integration, integrate
 from .linear import reduced_coordinates, tangent_stiffness
+from .sensors import build_sensors, sample_grid_ns, sensor_tables
 
 
 @dataclass
@@ -21,6 +23,7 @@ class SimResult:
     chain: Chain
     run: Integration
     columns: dict           # name -> (N,) array, 't' first
+    sensor_tables: dict = None   # rate (Hz) -> {'t': …, sensor columns} (declared sensors)
 
     def summary(self) -> dict:
         r = self.run
@@ -117,10 +120,30 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     T = scene.duration if duration is None else duration
     if not T > 0:
         raise SceneError(f"duration: got {T}, expected > 0 s")
+    q_init = initial_state(chain)[0]
     x0 = initial_x(chain)
-    run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, fid.output_dt,
+    sensors = build_sensors(chain)
+    out_dt = fid.output_dt
+    if sensors:
+        grid_ns = sample_grid_ns([fid.output_dt] + [1.0 / s.spec.rate_hz for s in sensors])
+        if grid_ns < 1000:
+            raise SceneError(
+                f"sensors: the sample periods and fidelity.output_dt share no common grid "
+                f"coarser than 1 µs (got {grid_ns} ns), expected rates whose periods are "
+                f"multiples of a common step (e.g. 4000, 1000 and 250 Hz)")
+        out_dt = grid_ns * 1e-9
+    run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, out_dt,
                     fid.max_deflection_ratio, progress)
-    return SimResult(scene.name, chain, run, output_columns(chain, run))
+    tables = sensor_tables(chain, run, sensors, q_init) if sensors else {}
+    if out_dt != fid.output_dt:
+        run = _decimate(run, int(round(fid.output_dt / out_dt)))
+    return SimResult(scene.name, chain, run, output_columns(chain, run), tables)
+
+
+def _decimate(run: Integration, every: int) -> Integration:
+    """The run's samples at every ``every``-th output time."""
+    return dataclasses.replace(run, t=run.t[::every], q=run.q[::every], qd=run.qd[::every],
+                               z=run.z[::every])
 
 
 def output_columns(chain: Chain, run: Integration) -> dict:

@@ -1,0 +1,159 @@
+"""Sensors read from the model, exactly (PHYSICS.md "sensors"; seed 000 Sec. 5 test bed,
+seed 002 Sec. 4 instrumentation).
+
+Every value comes from the state and the accelerations q̈ solved at that instant — never
+from finite differences of sampled positions:
+
+* accelerometer: specific force f = r̈ − g projected on the sensing axis ê of the body frame
+  at the sensor (on a beam the frame turns with the local slope φ′(x)ᵀη), with
+  r̈ = J q̈ + c from :meth:`Chain.point_kinematics`. At rest in gravity it reads −g·ê (an
+  accelerometer pointing up reads +9.81 m/s²). Volts = sensitivity × f (seed 000: PCB 352B68
+  100 mV/g, 309A 5 mV/g).
+* strain: ε = (t/2)·w″(x) at the gauge, t the beam thickness (seed 002 mid-length gauges).
+* encoder: counts = ⌊n·(θ − θ₀)·lines·quadrature/2π⌋ of the drive coordinate θ (gearbox
+  output side), n the gear ratio when the encoder is on the motor shaft (seed 000: HEDS
+  5540/5500, 500 lines, ×4 decoding, base ratio 156, middle 236). Integer.
+* potentiometer: the link-side joint angle (rad; volts via sensitivity).
+* tip_position: (x, y) of the last beam tip (m).
+
+The measured value adds Gaussian noise (std in output units, a generator seeded by the
+sensor's ``seed``) and an ADC (clip to the range, quantize to ``adc_bits``); the true SI
+value is kept beside it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SceneError
+
+#: sample times are integer multiples of this grid (ns) so every rate falls on it
+TIME_QUANTUM_NS = 1
+
+
+@dataclass
+class SensorModel:
+    """One declared sensor bound to a chain."""
+    spec: object              # scene.Sensor
+    link: int                 # 0-based link (accelerometer / strain) or joint index
+    coord: int                # coordinate read by encoder / potentiometer
+    gain: float               # encoder: counts per rad of the coordinate
+    axis: np.ndarray          # accelerometer unit axis in its frame
+    curvature: np.ndarray     # strain: (t/2)·φ″(x) row
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def columns(self) -> list[str]:
+        """Output column names: measured value(s), then the true SI value(s)."""
+        if self.spec.kind == "tip_position":
+            return [f"{self.name}_x", f"{self.name}_y"]
+        return [self.name, f"{self.name}_true"]
+
+
+def build_sensors(chain) -> list[SensorModel]:
+    """SensorModels for the scene's sensors (validated against the built chain)."""
+    names = [lm.name for lm in chain.links]
+    out = []
+    for sn in chain.scene.sensors:
+        link = names.index(sn.link) if sn.link else sn.joint - 1
+        lm = chain.links[link]
+        coord, gain = -1, 0.0
+        axis = np.asarray(sn.axis, float)
+        axis = axis / np.linalg.norm(axis) if np.any(axis) else axis
+        curv = np.zeros(0)
+        if sn.kind == "encoder":
+            coord = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
+            ratio = lm.link.joint.drive.gear_ratio if sn.on_motor_shaft else 1.0
+            if sn.on_motor_shaft and ratio is None:
+                raise SceneError(f"sensors: encoder {sn.name!r} on_motor_shaft needs a "
+                                 f"dc_motor drive with gear_ratio on joint {sn.joint}")
+            gain = ratio * sn.lines_per_rev * sn.quadrature / (2.0 * math.pi)
+        elif sn.kind == "potentiometer":
+            coord = lm.i_joint
+        elif sn.kind == "strain":
+            curv = 0.5 * lm.link.beam.thickness * lm.beam.curvature([sn.position[0]])[0]
+        out.append(SensorModel(sn, link, coord, gain, axis, curv))
+    return out
+
+
+def true_value(sm: SensorModel, chain, q, qd, qdd, q_initial):
+    """The noise-free SI value (tuple of 2 for tip_position) at one instant."""
+    sn = sm.spec
+    if sn.kind == "encoder":
+        return float(np.floor(sm.gain * (q[sm.coord] - q_initial[sm.coord]) + 1e-9))
+    if sn.kind == "potentiometer":
+        return float(q[sm.coord])
+    if sn.kind == "strain":
+        return float(sm.curvature @ q[chain.links[sm.link].eta])
+    if sn.kind == "tip_position":
+        return tuple(chain.tip_position(q))
+    r, J, c, psi = chain.point_kinematics(q, qd, sm.link, sn.body, sn.position)
+    f = J @ qdd + c - chain.gravity
+    cs, sn_ = math.cos(psi), math.sin(psi)
+    e = np.array([cs * sm.axis[0] - sn_ * sm.axis[1], sn_ * sm.axis[0] + cs * sm.axis[1]])
+    return float(f @ e)
+
+
+def measure(sm: SensorModel, values: np.ndarray) -> np.ndarray:
+    """Instrument output from true SI values: × sensitivity, + noise, ADC (clip, quantize).
+    Encoder counts stay integers (noise and ADC do not apply)."""
+    sn = sm.spec
+    v = np.asarray(values, float).copy()
+    if sn.kind in ("encoder", "tip_position"):
+        return v
+    if sn.sensitivity is not None:
+        v = v * sn.sensitivity
+    if sn.noise_std > 0:
+        v = v + np.random.default_rng(sn.seed).normal(0.0, sn.noise_std, v.shape)
+    if sn.adc_range is not None:
+        lo, hi = sn.adc_range
+        v = np.clip(v, lo, hi)
+        if sn.adc_bits is not None:
+            lsb = (hi - lo) / (2 ** sn.adc_bits - 1)
+            v = lo + np.round((v - lo) / lsb) * lsb
+    return v
+
+
+def sample_grid_ns(periods_s) -> int:
+    """The common sample grid (ns): the gcd of all periods, each rounded to 1 ns."""
+    g = 0
+    for p in periods_s:
+        g = math.gcd(g, int(round(p * 1e9)))
+    return g
+
+
+def sensor_tables(chain, run, sensors: list[SensorModel], q_initial) -> dict:
+    """Per sample rate: a table {'t': …, column: …} of every sensor at that rate, from the
+    run's samples (the run's grid must contain every sensor's sample times)."""
+    t_ns = np.round(run.t * 1e9).astype(np.int64)
+    by_rate: dict = {}
+    for sm in sensors:
+        by_rate.setdefault(sm.spec.rate_hz, []).append(sm)
+    tables = {}
+    for rate, group in sorted(by_rate.items()):
+        period_ns = int(round(1e9 / rate))
+        idx = np.nonzero(t_ns % period_ns == 0)[0]
+        table = {"t": run.t[idx]}
+        need_acc = any(sm.spec.kind == "accelerometer" for sm in group)
+        qdd = {}
+        if need_acc:
+            for k in idx:
+                x = np.concatenate([run.q[k, chain.free], run.qd[k, chain.free], run.z[k]])
+                qdd[k] = chain.full_qdd(float(run.t[k]), x)
+        for sm in group:
+            vals = [true_value(sm, chain, run.q[k], run.qd[k], qdd.get(k), q_initial)
+                    for k in idx]
+            if sm.spec.kind == "tip_position":
+                arr = np.array(vals).reshape(-1, 2)
+                table[f"{sm.name}_x"], table[f"{sm.name}_y"] = arr[:, 0], arr[:, 1]
+                continue
+            true = np.array(vals, float)
+            table[sm.name] = measure(sm, true)
+            table[f"{sm.name}_true"] = true
+        tables[rate] = table
+    return tables

@@ -296,8 +296,9 @@ class Chain:
         return Q
 
     # ------------------------------------------------------------------------ kinematics
-    def kinematics(self, q, qd, want_points=False) -> Kinematics:
-        """Mass matrix M(q), velocity terms h(q, q̇) and gravity forces at (q, q̇)."""
+    def kinematics(self, q, qd, want_points=False, frames_only=False) -> Kinematics:
+        """Mass matrix M(q), velocity terms h(q, q̇) and gravity forces at (q, q̇)
+        (``frames_only``: only the hub/tip frames, M, h, Q_grav left empty)."""
         n = self.n
         M = self.M_drive.copy()
         h = np.zeros(n)
@@ -317,18 +318,21 @@ class Chain:
             hub = Frame(frame.o, frame.Jo, frame.co, frame.psi + q[lm.i_joint], Jpsi,
                         frame.psid + qd[lm.i_joint])
             hubs.append(hub)
-            _add_body(M, h, Qg, hub, lk.hub, g)
+            if not frames_only:
+                _add_body(M, h, Qg, hub, lk.hub, g)
             # beam points
             r, J, c, tip = self._beam(lm, hub, q, qd)
             m = lm.beam.mass
-            M += np.einsum("p,pin,pim->nm", m, J, J)
-            h += np.einsum("p,pin,pi->n", m, J, c)
-            if self.has_gravity:
+            if not frames_only:
+                M += np.einsum("p,pin,pim->nm", m, J, J)
+                h += np.einsum("p,pin,pi->n", m, J, c)
+            if self.has_gravity and not frames_only:
                 Qg += np.einsum("p,pin,i->n", m, J, g)
             if want_points:
                 pts.append((r, J, c))
             tips.append(tip)
-            _add_body(M, h, Qg, tip, lk.tip, g)
+            if not frames_only:
+                _add_body(M, h, Qg, tip, lk.tip, g)
             frame = tip
         return Kinematics(M, h, Qg, hubs, tips, pts)
 
@@ -372,14 +376,17 @@ class Chain:
         tip = Frame(r[-1], J[-1], c[-1], hub.psi + b.slope_tip @ eta, Jpsi_t, Jpsi_t @ qd)
         return r[:-1], J[:-1], c[:-1], tip
 
-    def point_kinematics(self, q, qd, link: int, body: str, position) -> tuple:
+    def point_kinematics(self, q, qd, link: int, body: str, position, kin=None,
+                         basis=None) -> tuple:
         """(r, J, c, ψ) of a material point: position (2,), Jacobian ∂r/∂q (2, n),
         velocity-product acceleration c (r̈ = J q̈ + c) and the angle of the local frame.
 
         ``body`` hub / tip: ``position`` (x, y) in that body's frame; beam: abscissa
         x = position[0] from the beam root, the frame turning with the slope φ′(x)ᵀη.
+        ``kin`` (frames at (q, q̇)) and ``basis`` (the beam's ``point(x)``) may be passed in
+        when many points are read at one instant.
         """
-        kin = self.kinematics(q, qd)
+        kin = kin or self.kinematics(q, qd, frames_only=True)
         lm = self.links[link]
         p = np.asarray(position, float)
         if body in ("hub", "tip"):
@@ -387,7 +394,7 @@ class Chain:
             return fr.o, fr.Jo, fr.co, fr.psi
         hub = kin.hub_frames[link]
         b = lm.beam
-        phi, slope, S = b.point(p[0])
+        phi, slope, S = basis if basis is not None else b.point(p[0])
         eta, etad = q[lm.eta], qd[lm.eta]
         A = _rot(hub.psi)
         Seta = S @ eta if self.foreshortening else np.zeros(b.n)

@@ -43,6 +43,7 @@ class SensorModel:
     gain: float               # encoder: counts per rad of the coordinate
     axis: np.ndarray          # accelerometer unit axis in its frame
     curvature: np.ndarray     # strain: (t/2)·φ″(x) row
+    basis: tuple = None       # accelerometer on a beam: (φ(x), φ′(x), S(x))
 
     @property
     def name(self) -> str:
@@ -77,12 +78,15 @@ def build_sensors(chain) -> list[SensorModel]:
             coord = lm.i_joint
         elif sn.kind == "strain":
             curv = 0.5 * lm.link.beam.thickness * lm.beam.curvature([sn.position[0]])[0]
-        out.append(SensorModel(sn, link, coord, gain, axis, curv))
+        basis = (lm.beam.point(sn.position[0])
+                 if sn.kind == "accelerometer" and sn.body == "beam" else None)
+        out.append(SensorModel(sn, link, coord, gain, axis, curv, basis))
     return out
 
 
-def true_value(sm: SensorModel, chain, q, qd, qdd, q_initial):
-    """The noise-free SI value (tuple of 2 for tip_position) at one instant."""
+def true_value(sm: SensorModel, chain, q, qd, qdd, q_initial, kin=None):
+    """The noise-free SI value (tuple of 2 for tip_position) at one instant (``kin``: the
+    chain's frames at (q, q̇), shared by the sensors read at that instant)."""
     sn = sm.spec
     if sn.kind == "encoder":
         return float(np.floor(sm.gain * (q[sm.coord] - q_initial[sm.coord]) + 1e-9))
@@ -92,7 +96,8 @@ def true_value(sm: SensorModel, chain, q, qd, qdd, q_initial):
         return float(sm.curvature @ q[chain.links[sm.link].eta])
     if sn.kind == "tip_position":
         return tuple(chain.tip_position(q))
-    r, J, c, psi = chain.point_kinematics(q, qd, sm.link, sn.body, sn.position)
+    r, J, c, psi = chain.point_kinematics(q, qd, sm.link, sn.body, sn.position, kin,
+                                          sm.basis)
     f = J @ qdd + c - chain.gravity
     cs, sn_ = math.cos(psi), math.sin(psi)
     e = np.array([cs * sm.axis[0] - sn_ * sm.axis[1], sn_ * sm.axis[0] + cs * sm.axis[1]])
@@ -139,15 +144,21 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial) -> dict:
         period_ns = int(round(1e9 / rate))
         idx = np.nonzero(t_ns % period_ns == 0)[0]
         table = {"t": run.t[idx]}
-        need_acc = any(sm.spec.kind == "accelerometer" for sm in group)
-        qdd = {}
-        if need_acc:
-            for k in idx:
-                x = np.concatenate([run.q[k, chain.free], run.qd[k, chain.free], run.z[k]])
-                qdd[k] = chain.full_qdd(float(run.t[k]), x)
+        acc = [sm for sm in group if sm.spec.kind == "accelerometer"]
+        acc_vals = {sm.name: np.empty(len(idx)) for sm in acc}
+        for j, k in enumerate(idx if acc else ()):
+            x = np.concatenate([run.q[k, chain.free], run.qd[k, chain.free], run.z[k]])
+            qdd = chain.full_qdd(float(run.t[k]), x)
+            kin = chain.kinematics(run.q[k], run.qd[k], frames_only=True)
+            for sm in acc:
+                acc_vals[sm.name][j] = true_value(sm, chain, run.q[k], run.qd[k], qdd,
+                                                  q_initial, kin)
         for sm in group:
-            vals = [true_value(sm, chain, run.q[k], run.qd[k], qdd.get(k), q_initial)
-                    for k in idx]
+            if sm.spec.kind == "accelerometer":
+                vals = acc_vals[sm.name]
+            else:
+                vals = [true_value(sm, chain, run.q[k], run.qd[k], None, q_initial)
+                        for k in idx]
             if sm.spec.kind == "tip_position":
                 arr = np.array(vals).reshape(-1, 2)
                 table[f"{sm.name}_x"], table[f"{sm.name}_y"] = arr[:, 0], arr[:, 1]

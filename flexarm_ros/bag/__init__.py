@@ -1,0 +1,28 @@
+"""rosbag2-compatible MCAP bags without ROS: write with :class:`BagWriter`, read with
+:func:`read_bag` / :func:`iter_messages`, build messages with :mod:`.messages`.
+
+The module needs only numpy, PyYAML, ``mcap`` and ``mcap-ros2-support`` (no rclpy).
+See :mod:`.writer` for what "rosbag2-compatible" means and what a killed writer loses,
+:mod:`.reader` for how damaged files are read, :mod:`.msgdefs` for the message types.
+"""
+
+from . import messages, msgdefs
+from .msgdefs import KNOWN_TYPES
+from .reader import Bag, BagError, BagMessage, TruncatedBagWarning, iter_messages, read_bag, to_dict
+from .writer import INFO_METADATA_NAME, ROSBAG2_METADATA_NAME, BagWriter
+
+__all__ = [
+    "Bag",
+    "BagError",
+    "BagMessage",
+    "BagWriter",
+    "INFO_METADATA_NAME",
+    "KNOWN_TYPES",
+    "ROSBAG2_METADATA_NAME",
+    "TruncatedBagWarning",
+    "iter_messages",
+    "messages",
+    "msgdefs",
+    "read_bag",
+    "to_dict",
+]

@@ -1,4 +1,4 @@
-"""The ``flexarm`` command: simulate, modes, study, explain.
+"""The ``flexarm`` command: simulate, modes, linearize, study, explain.
 
 Every command that builds a model accepts the fidelity overrides ``--rung``, ``--refine``,
 ``--integrator``, ``--rtol``, ``--atol``, ``--dt``. ``SCENE`` is a YAML path or the name of
@@ -114,6 +114,32 @@ def cmd_modes(args):
     return 0
 
 
+def cmd_linearize(args):
+    from .model.chain import Chain
+    from .model.statespace import linearize
+    scene = _load(args)
+    ss = linearize(Chain(scene))
+    if args.out:
+        out = Path(args.out)
+        if out.suffix != ".npz":
+            from .model.errors import SceneError
+            raise SceneError(f"--out: got {str(out)!r}, expected a .npz file")
+        np.savez(out, A=ss.A, B=ss.B, C=ss.C, D=ss.D, x0=ss.x0,
+                 states=np.array(ss.states), inputs=np.array(ss.inputs),
+                 outputs=np.array(ss.outputs))
+    if args.json:
+        print(json.dumps(ss.as_dict(), indent=1))
+    else:
+        eig = np.linalg.eigvals(ss.A)
+        osc = np.sort(np.abs(eig[eig.imag > 0].imag)) / (2 * np.pi)
+        print(f"{scene.name}: {len(ss.states)} states, {len(ss.inputs)} inputs "
+              f"({', '.join(ss.inputs) or 'none'}), {len(ss.outputs)} outputs "
+              f"({', '.join(ss.outputs)})" + (f" → {args.out}" if args.out else ""))
+        print("  states: " + ", ".join(ss.states))
+        print("  oscillatory eigenvalues (Hz): " + ", ".join(f"{f:.4g}" for f in osc[:10]))
+    return 0
+
+
 def cmd_explain(args):
     from .model.explain import explain
     print(explain(_load(args)))
@@ -157,6 +183,15 @@ def build_parser():
     m.add_argument("--json", action="store_true")
     _fidelity_args(m)
     m.set_defaults(func=cmd_modes)
+
+    li = sub.add_parser("linearize", help="state-space model (A, B, C, D) about the initial "
+                                          "state")
+    li.add_argument("scene", nargs="?")
+    li.add_argument("--out", type=Path, help="write A, B, C, D, names to this .npz")
+    li.add_argument("--json", action="store_true",
+                    help="print A, B, C, D, states, inputs, outputs as JSON")
+    _fidelity_args(li)
+    li.set_defaults(func=cmd_linearize)
 
     e = sub.add_parser("explain", help="print the model built from the scene")
     e.add_argument("scene", nargs="?")

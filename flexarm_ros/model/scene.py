@@ -437,11 +437,12 @@ class Scene:
                     raise SceneError(f"links[{names.index(sn.link)}].beam.thickness: missing, "
                                      f"expected the section depth for strain sensor "
                                      f"{sn.name!r}")
+            drive = self.links[sn.joint - 1].joint.drive if sn.joint else None
             if (sn.kind == "encoder" and sn.on_motor_shaft
-                    and self.links[sn.joint - 1].joint.drive is None):
+                    and (drive is None or drive.type != "dc_motor")):
                 raise SceneError(f"{where}.on_motor_shaft: got true on joint {sn.joint} "
                                  f"without a dc_motor drive (no gear ratio), expected false "
-                                 f"or a drive")
+                                 f"or a dc_motor drive")
 
     def with_fidelity(self, **overrides) -> "Scene":
         """A copy with fidelity fields replaced (None values are ignored), validated."""

@@ -39,7 +39,7 @@ M_K, M_D, M_MCODE, M_MPAR = 18, 19, 22, 23
 M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
 M_AKIND, M_APAR, M_AZI, M_BIDX, M_BPAR, M_NZ = 31, 32, 33, 34, 35, 36
 (W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
- W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD) = range(21)
+ W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD, W_TIP) = range(22)
 
 # status codes of the compiled loop
 OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
@@ -76,12 +76,13 @@ def workspace(model):
             np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
             np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
             np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n),
-            np.empty(2 * nf + model[M_NZ]), np.empty(max(model[M_NZ], 1)))
+            np.empty(2 * nf + model[M_NZ]), np.empty(max(model[M_NZ], 1)), np.empty(6))
 
 
 @_jit_inline
 def chain_terms(q, qd, model, ws):
-    """Fill ws' M (n, n), h (n,), Qg (n,) at (q, q̇): chain.Chain.kinematics in loops.
+    """Fill ws' M (n, n), h (n,), Qg (n,) at (q, q̇): chain.Chain.kinematics in loops; the
+    last tip frame's (o, c_o, ψ, ψ̇) go to ws[W_TIP], its Jacobians stay in ws[W_JO]/[W_JPSI].
 
     Per mass point only the leading ``EXT[k, p]`` elastic coordinates can be non-zero in
     φ(x_p) and S(x_p) (finite elements and differences grow from the root), so the loops
@@ -247,6 +248,14 @@ def chain_terms(q, qd, model, ws):
     for i in range(n):
         for j in range(i):
             M[i, j] = M[j, i]
+    # the last tip frame (its Jacobians stay in ws[W_JO], ws[W_JPSI]): the tool's frame
+    tip = ws[W_TIP]
+    tip[0] = ox
+    tip[1] = oy
+    tip[2] = cox
+    tip[3] = coy
+    tip[4] = psi
+    tip[5] = psid
 
 
 @_jit

@@ -331,6 +331,49 @@ class Sensor:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Wall:
+    """A straight wall in the plane: the line through ``point`` with inward ``normal``
+    (pointing into the free side); the gap of the tool point is g = n·(r_tool − point).
+
+    friction/static_friction: Coulomb coefficients (seed 000: μ = 0.5 kinetic).
+    stiffness/exponent/damping/slip_velocity are used by the compliant rung only:
+    F_n = k δ^e (1 + α δ̇) for penetration δ = −g > 0 (Hunt & Crossley 1975), friction
+    −μ F_n v_t/√(v_t² + v_s²).
+    """
+    point: tuple[float, float] = param(unit="m", doc="a point on the wall line")
+    normal: tuple[float, float] = param(doc="inward normal (into the free side)")
+    friction: float = param(0.0, ge=0.0, doc="kinetic friction coefficient μ")
+    static_friction: Optional[float] = param(None, ge=0.0, doc="static friction "
+                                             "coefficient μ_s (default μ)")
+    stiffness: float = param(1e6, unit="N/m^e", gt=0.0, doc="compliant rung: contact "
+                                                          "stiffness k")
+    exponent: float = param(1.0, ge=1.0, le=2.0, doc="compliant rung: force exponent e "
+                                                    "(1 linear, 1.5 Hertz)")
+    damping: float = param(0.0, unit="s/m", ge=0.0, doc="compliant rung: Hunt–Crossley α")
+    slip_velocity: float = param(1e-3, unit="m/s", gt=0.0,
+                                 doc="compliant rung: friction regularization speed v_s")
+
+    def validate(self, where):
+        if self.normal[0] ** 2 + self.normal[1] ** 2 == 0.0:
+            raise SceneError(f"{where}.normal: got {list(self.normal)}, expected a non-zero "
+                             f"direction")
+        if self.static_friction is not None and self.static_friction < self.friction:
+            raise SceneError(f"{where}.static_friction: got {self.static_friction}, expected "
+                             f">= friction ({self.friction})")
+
+    @property
+    def mu_static(self) -> float:
+        return self.friction if self.static_friction is None else self.static_friction
+
+
+@dataclass(frozen=True, kw_only=True)
+class Tool:
+    """The tool point that touches walls, fixed in the last link's tip-body frame."""
+    position: tuple[float, float] = param((0.0, 0.0), unit="m",
+                                          doc="tool point in the last tip frame")
+
+
+@dataclass(frozen=True, kw_only=True)
 class Fidelity:
     """Model and integrator choice: the rung of the ladder and how finely it is refined."""
     rung: str = param("cubic", choices=RUNGS, doc="beam discretization")
@@ -347,6 +390,12 @@ class Fidelity:
     motor_current: str = param("dynamic", choices=("dynamic", "quasi_static"),
                                doc="dc_motor with inductance: integrate the current as a "
                                    "state, or take it quasi-static (L/R far below the step)")
+    contact: str = param("impulse", choices=("impulse", "compliant"),
+                         doc="wall contact: impulse–constraint (seed 000) or compliant "
+                             "(Hunt–Crossley penalty)")
+    contact_tolerance: float = param(1e-9, unit="m", gt=0.0,
+                                     doc="impulse rung: largest allowed drift of the tool "
+                                         "off the wall while in contact")
     max_deflection_ratio: float = param(0.5, gt=0.0, doc="stop when |w_tip|/L exceeds this "
                                         "(small-deflection model no longer valid)")
 
@@ -378,6 +427,9 @@ class Scene:
     inputs: tuple[Input, ...] = param((), doc="joint torque / voltage / current / motion "
                                               "programs")
     sensors: tuple[Sensor, ...] = param((), doc="sensors read from the model")
+    walls: tuple[Wall, ...] = param((), doc="walls the tool can touch (none: no contact "
+                                           "model)")
+    tool: Tool = param(default_factory=Tool, doc="the tool point on the last body")
     fidelity: Fidelity = param(default_factory=Fidelity, doc="model and integrator")
     initial: Initial = param(default_factory=Initial, doc="initial condition")
     duration: float = param(1.0, unit="s", gt=0.0, doc="default simulated duration")
@@ -415,6 +467,9 @@ class Scene:
                     raise SceneError(f"inputs[{k}].current: got a program reaching "
                                      f"{max(abs(lo), abs(hi)):.6g} A, expected within the "
                                      f"valve's rated current ±{imax:.6g} A")
+        if len(self.walls) > 1:
+            raise SceneError(f"walls: got {len(self.walls)} walls, expected at most one "
+                             f"(one contact constraint at a time)")
         names = [lk.name for lk in self.links]
         sensor_names = set()
         for k, sn in enumerate(self.sensors):

@@ -132,9 +132,10 @@ def sample_grid_ns(periods_s) -> int:
     return g
 
 
-def sensor_tables(chain, run, sensors: list[SensorModel], q_initial) -> dict:
+def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None) -> dict:
     """Per sample rate: a table {'t': …, column: …} of every sensor at that rate, from the
-    run's samples (the run's grid must contain every sensor's sample times)."""
+    run's samples (the run's grid must contain every sensor's sample times). ``qdd_fn(k, t,
+    x)`` gives q̈ at sample k when the dynamics are not the chain's alone (contact)."""
     t_ns = np.round(run.t * 1e9).astype(np.int64)
     by_rate: dict = {}
     for sm in sensors:
@@ -148,7 +149,8 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial) -> dict:
         acc_vals = {sm.name: np.empty(len(idx)) for sm in acc}
         for j, k in enumerate(idx if acc else ()):
             x = np.concatenate([run.q[k, chain.free], run.qd[k, chain.free], run.z[k]])
-            qdd = chain.full_qdd(float(run.t[k]), x)
+            qdd = (qdd_fn(k, float(run.t[k]), x) if qdd_fn is not None
+                   else chain.full_qdd(float(run.t[k]), x))
             kin = chain.kinematics(run.q[k], run.qd[k], frames_only=True)
             for sm in acc:
                 acc_vals[sm.name][j] = true_value(sm, chain, run.q[k], run.qd[k], qdd,

@@ -4,6 +4,7 @@ and return named output columns plus a run summary (like scipy's result object).
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,6 +13,10 @@ from . import drives
 from .chain import Chain
 from .errors import SceneError
 from .integrate import Integration, integrate
+from .contact import (PHASE_CODE, PHASES, build_contact, check_integrator, constrained_rate,
+                      contact_rate, integrate_contact)
+from .errors import StepTooLarge
+from .integrate import RK4_AUTO, RK4_STABILITY, _Guard, choose_step
 from .linear import reduced_coordinates, tangent_stiffness
 from .sensors import build_sensors, sample_grid_ns, sensor_tables
 
@@ -24,6 +29,7 @@ class SimResult:
     run: Integration
     columns: dict           # name -> (N,) array, 't' first
     sensor_tables: dict = None   # rate (Hz) -> {'t': …, sensor columns} (declared sensors)
+    contact: object = None       # contact.ContactRun of a scene with a wall
 
     def summary(self) -> dict:
         r = self.run
@@ -132,12 +138,84 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
                 f"coarser than 1 µs (got {grid_ns} ns), expected rates whose periods are "
                 f"multiples of a common step (e.g. 4000, 1000 and 250 Hz)")
         out_dt = grid_ns * 1e-9
-    run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, out_dt,
-                    fid.max_deflection_ratio, progress)
-    tables = sensor_tables(chain, run, sensors, q_init) if sensors else {}
-    if out_dt != fid.output_dt:
-        run = _decimate(run, int(round(fid.output_dt / out_dt)))
-    return SimResult(scene.name, chain, run, output_columns(chain, run), tables)
+    contact = build_contact(chain)
+    if contact is None:
+        run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, out_dt,
+                        fid.max_deflection_ratio, progress)
+        crun, qdd_fn = None, None
+    else:
+        run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress)
+
+        def qdd_fn(k, t, x):
+            qdd = np.empty(chain.n)
+            qdd[chain.free] = crun.accelerations(contact, k, t, x)
+            if len(chain.presc_idx):
+                qdd[chain.presc_idx] = chain.prescribed_state(t)[2]
+            return qdd
+    tables = sensor_tables(chain, run, sensors, q_init, qdd_fn) if sensors else {}
+    every = int(round(fid.output_dt / out_dt))
+    if every != 1:
+        run = _decimate(run, every)
+    cols = output_columns(chain, run)
+    if crun is not None:
+        cols.update(contact_columns(crun, every))
+    return SimResult(scene.name, chain, run, cols, tables, crun)
+
+
+def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
+    """Run a scene with a wall (fixed-step RK4 through the contact modes)."""
+    fid = chain.fidelity
+    check_integrator(chain)
+    tm = contact.terms(0.0, x0)
+    g0 = contact.gap(tm)
+    if g0 < 0:
+        raise SceneError(f"walls[0]: the tool starts {-g0:.6g} m inside the wall, expected "
+                         f"a start on the free side (gap >= 0)")
+    chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
+    h = choose_step(chain, x0, "rk4", fid.dt, out_dt)
+    rate = (contact_rate(contact, x0) if contact.method == "compliant"
+            else constrained_rate(contact, x0))
+    limit = RK4_STABILITY / rate
+    if fid.dt > 0 and fid.dt > limit:
+        raise StepTooLarge("fixed step", 0.0, fid.dt,
+                           f"use --dt <= {limit:.3g} s (auto: --dt 0)"
+                           + (" or a softer wall (walls[0].stiffness)"
+                              if contact.method == "compliant" else ""),
+                           detail=f"the {contact.method} contact's highest rate "
+                                  f"{rate / (2 * np.pi):.4g} Hz limits RK4")
+    if fid.dt == 0:
+        h = min(h, RK4_AUTO / rate)
+        h = out_dt / np.ceil(out_dt / h - 1e-9)
+    guard = _Guard(chain, fid.max_deflection_ratio, "rk4", h)
+    wall0 = time.perf_counter()
+    xs, crun, steps, calls = integrate_contact(chain, contact, x0, T, h, out_dt, guard,
+                                               progress)
+    wall = time.perf_counter() - wall0
+    t = np.arange(len(xs)) * out_dt
+    q = np.empty((len(t), chain.n))
+    qd = np.empty((len(t), chain.n))
+    for k, tk in enumerate(t):
+        q[k], qd[k] = chain.full_state(tk, xs[k])
+    run = Integration(t, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
+                      "integration reached the end time", calls, steps, wall, h)
+    return run, crun
+
+
+def contact_columns(crun, every: int = 1) -> dict:
+    """contact_phase (free/impact/sliding/sticking), gap (m), contact_normal_force and
+    contact_friction_force (N), tool_x/tool_y (m), tool_vx/tool_vy (m/s). A sample is
+    'impact' when an impact happened in the output interval before it."""
+    sl = slice(None, None, every)
+    ph = crun.phase.copy()
+    if every > 1:   # keep an impact visible on the decimated grid
+        hits = np.nonzero(ph == PHASE_CODE["impact"])[0]
+        ph[np.minimum(((hits + every - 1) // every) * every, len(ph) - 1)] = PHASE_CODE[
+            "impact"]
+    return {"contact_phase": np.array(PHASES, dtype=object)[ph[sl]],
+            "gap": crun.gap[sl], "contact_normal_force": crun.normal_force[sl],
+            "contact_friction_force": crun.friction_force[sl],
+            "tool_x": crun.tool[sl, 0], "tool_y": crun.tool[sl, 1],
+            "tool_vx": crun.tool_velocity[sl, 0], "tool_vy": crun.tool_velocity[sl, 1]}
 
 
 def _decimate(run: Integration, every: int) -> Integration:

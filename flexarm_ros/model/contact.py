@@ -1,0 +1,469 @@
+"""Contact of the tool with a wall: impulse–constraint (seed 000) and compliant rungs.
+
+Gap and contact Jacobians (PHYSICS.md): the tool point r (fixed in the last tip frame) has
+gap g = n·(r − p_wall) ≥ 0, normal and tangential Jacobians J_n = nᵀJ, J_t = tᵀJ
+(t = E n), velocities v_n = J_n q̇, v_t = J_t q̇, and r̈ = J q̈ + c.
+
+**Impulse–constraint rung** (seed 000 Ch. 4, Hariharesan 1998): three smooth modes and
+the events between them, located on the step by root finding:
+
+* free: M q̈ = f. Event g → 0⁻ : impact.
+* impact (instantaneous, positions fixed): generalized impulse–momentum
+  M(q̇⁺ − q̇⁻) = J_nᵀP_n + J_tᵀP_t with the tool held on the wall, J_n q̇⁺ = 0 (no
+  restitution coefficient: a flexible arm bounces because its beams rebound). The
+  friction impulse follows Coulomb's law by maximum dissipation (Moreau): the impulse in
+  the cone |P_t| ≤ μ P_n that minimizes the post-impact kinetic energy — sticking
+  (J_t q̇⁺ = 0) when |P_t| ≤ μ_s P_n suffices, else sliding at the cone's edge against the
+  slip. Energy never increases (P_t = 0 is feasible and already dissipative), which avoids
+  Kane's frictional-impact paradox of a fixed-direction sliding impulse.
+* sliding: M q̈ = f + (J_n − μ s J_t)ᵀ λ, J_n q̈ = −c_n; λ ≥ 0 the normal force,
+  friction −μ λ s (s = sign v_t). Events: λ → 0⁻ (separation), v_t → 0 (stick or keep
+  slipping).
+* sticking: M q̈ = f + J_nᵀλ + J_tᵀλ_t, J_n q̈ = −c_n, J_t q̈ = −c_t. Events: λ → 0⁻,
+  |λ_t| → μ_s λ (slip starts against λ_t).
+
+While in contact the state is projected back onto g = 0, v_n = 0 (and v_t = 0 when
+sticking) after every step (M-orthogonal projection), so the drift stays below
+``fidelity.contact_tolerance``. A re-impact within ``MIN_FLIGHT`` of a separation keeps
+the contact (a burst of impacts goes to sliding instead of stalling the integrator).
+
+**Compliant rung**: no events; a penalty force F_n = k δ^e (1 + α δ̇) ≥ 0 for penetration
+δ = −g > 0 (Hunt & Crossley, J. Appl. Mech. 42, 1975) and regularized Coulomb friction
+−μ F_n v_t/√(v_t² + v_s²) enter the equations of motion as J_nᵀF_n + J_tᵀF_t. Stiff and
+cheap per step; its step is set by the contact frequency √(k_eff·G_nn) (automatic).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from . import kernel
+from .errors import SceneError, SimulationDiverged
+
+FREE, SLIDING, STICKING = 0, 1, 2
+PHASES = ("free", "sliding", "sticking", "impact")
+PHASE_CODE = {name: k for k, name in enumerate(PHASES)}
+MIN_FLIGHT = 1e-6          # s: a re-impact sooner than this after separation keeps contact
+_E = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+@dataclass
+class Terms:
+    """Everything one model evaluation gives at (t, x): free-coordinate mass matrix and
+    forces, actuator rates, and the tool's kinematics (J, c on the free coordinates)."""
+    M: np.ndarray
+    f: np.ndarray
+    zd: np.ndarray
+    r: np.ndarray
+    J: np.ndarray
+    c: np.ndarray
+    v: np.ndarray
+
+
+@dataclass
+class ImpactRecord:
+    """One impact: time, impulses (N·s), approach speed, kinetic energy before/after."""
+    time: float
+    normal_impulse: float
+    friction_impulse: float
+    approach_speed: float
+    kinetic_before: float
+    kinetic_after: float
+    outcome: str            # sticking / sliding / bounce
+
+
+class WallContact:
+    """The tool–wall contact of a chain (one wall)."""
+
+    def __init__(self, chain, wall, tool, method: str):
+        self.chain = chain
+        self.wall = wall
+        self.method = method
+        n = np.asarray(wall.normal, float)
+        self.n = n / np.linalg.norm(n)
+        self.t = _E @ self.n
+        self.d = float(self.n @ np.asarray(wall.point, float))
+        self.mu = wall.friction
+        self.mus = wall.mu_static
+        self.p = np.asarray(tool.position, float)
+        self.model = chain.kernel_args
+        self.ws = kernel.workspace(self.model)
+        self.free = chain.free
+        self.nf = len(chain.free)
+
+    # --------------------------------------------------------------------- evaluation
+    def terms(self, t, x) -> Terms:
+        """One compiled force evaluation plus the tool kinematics from the last tip frame."""
+        ch, ws, nf = self.chain, self.ws, self.nf
+        q, qd = ch.full_state(t, x)
+        kernel.forces(float(t), q, qd, x[2 * nf:], self.model, ws)
+        fr = self.free
+        M = ws[kernel.W_M][np.ix_(fr, fr)]
+        f = ws[kernel.W_F][fr].copy()
+        zd = ws[kernel.W_ZD][:ch.nz].copy()
+        o = ws[kernel.W_TIP][0:2]
+        co = ws[kernel.W_TIP][2:4]
+        psi, psid = ws[kernel.W_TIP][4], ws[kernel.W_TIP][5]
+        cs, sn = math.cos(psi), math.sin(psi)
+        ap = np.array([cs * self.p[0] - sn * self.p[1], sn * self.p[0] + cs * self.p[1]])
+        Jfull = ws[kernel.W_JO] + np.outer(_E @ ap, ws[kernel.W_JPSI])
+        c = co - psid * psid * ap
+        if len(ch.presc_idx):
+            c = c + Jfull[:, ch.presc_idx] @ ws[kernel.W_PDD][:len(ch.presc_idx)]
+        return Terms(M, f, zd, o + ap, Jfull[:, fr].copy(), c, Jfull @ qd)
+
+    def gap(self, tm: Terms) -> float:
+        return float(self.n @ tm.r - self.d)
+
+    # ------------------------------------------------------------------- accelerations
+    def accelerations(self, tm: Terms, mode: int, s: float = 0.0):
+        """(q̈_free, λ_n, λ_t) in a mode: λ_n the normal force (N), λ_t the tangential
+        force (N) — friction −μλs when sliding, the holding force when sticking."""
+        M, f = tm.M, tm.f
+        if mode == FREE:
+            return np.linalg.solve(M, f), 0.0, 0.0
+        jn = self.n @ tm.J
+        cn = self.n @ tm.c
+        nf = self.nf
+        if mode == SLIDING:
+            jt = self.t @ tm.J
+            A = np.zeros((nf + 1, nf + 1))
+            A[:nf, :nf] = M
+            A[:nf, nf] = -(jn - self.mu * s * jt)
+            A[nf, :nf] = jn
+            b = np.concatenate([f, [-cn]])
+            sol = np.linalg.solve(A, b)
+            lam = sol[nf]
+            return sol[:nf], lam, -self.mu * s * lam
+        jt = self.t @ tm.J
+        ct = self.t @ tm.c
+        A = np.zeros((nf + 2, nf + 2))
+        A[:nf, :nf] = M
+        A[:nf, nf] = -jn
+        A[:nf, nf + 1] = -jt
+        A[nf, :nf] = jn
+        A[nf + 1, :nf] = jt
+        sol = np.linalg.solve(A, np.concatenate([f, [-cn, -ct]]))
+        return sol[:nf], sol[nf], sol[nf + 1]
+
+    def compliant_force(self, tm: Terms):
+        """(F_n, F_t) of the compliant rung at the tool."""
+        g = self.gap(tm)
+        if g >= 0.0:
+            return 0.0, 0.0
+        w = self.wall
+        delta = -g
+        ddelta = -(self.n @ tm.v)
+        fn = max(w.stiffness * delta ** w.exponent * (1.0 + w.damping * ddelta), 0.0)
+        vt = self.t @ tm.v
+        ft = -self.mu * fn * vt / math.sqrt(vt * vt + w.slip_velocity ** 2)
+        return fn, ft
+
+    def rhs(self, t, x, mode, s=0.0):
+        """ẋ in a mode, and the contact forces (λ_n, λ_t) at that instant."""
+        tm = self.terms(t, x)
+        nf = self.nf
+        if self.method == "compliant":
+            fn, ft = self.compliant_force(tm)
+            if fn:
+                tm.f = tm.f + (self.n @ tm.J) * fn + (self.t @ tm.J) * ft
+            a, ln, lt = np.linalg.solve(tm.M, tm.f), fn, ft
+        else:
+            a, ln, lt = self.accelerations(tm, mode, s)
+        return np.concatenate([x[nf:2 * nf], a, tm.zd]), ln, lt, tm
+
+    # -------------------------------------------------------------------------- impact
+    def impulse(self, tm: Terms, qd_free):
+        """Post-impact free rates and (P_n, P_t, sticking) — maximum-dissipation Coulomb
+        impulse with J_n q̇⁺ = 0 (see module doc)."""
+        Minv = np.linalg.inv(tm.M)
+        jn = self.n @ tm.J
+        jt = self.t @ tm.J
+        vn, vt = jn @ qd_free, jt @ qd_free
+        Gnn, Gnt, Gtt = jn @ Minv @ jn, jn @ Minv @ jt, jt @ Minv @ jt
+        det = Gnn * Gtt - Gnt * Gnt
+        if det > 1e-14 * Gnn * Gtt:
+            pn = (-vn * Gtt + vt * Gnt) / det
+            pt = (-vt * Gnn + vn * Gnt) / det
+            if pn >= 0.0 and abs(pt) <= self.mus * pn:
+                return qd_free + Minv @ (jn * pn + jt * pt), pn, pt, True
+        # Pn(Pt) = (−vn − Gnt Pt)/Gnn; optimum over Pt in |Pt| <= μ Pn(Pt)
+        pt_star = (-vt * Gnn + vn * Gnt) / det if det > 0 else 0.0
+        lo, hi = -math.inf, math.inf
+        a0 = self.mu * (-vn) / Gnn
+        for sign in (1.0, -1.0):          # sign·Pt <= μ(−vn − Gnt Pt)/Gnn
+            coef = sign + self.mu * Gnt / Gnn
+            if coef > 0:
+                if sign > 0:
+                    hi = min(hi, a0 / coef)
+                else:
+                    lo = max(lo, -a0 / coef)
+            elif coef < 0:
+                if sign > 0:
+                    lo = max(lo, a0 / coef)
+                else:
+                    hi = min(hi, -a0 / coef)
+        pt = min(max(pt_star, lo), hi) if self.mu > 0 else 0.0
+        pn = (-vn - Gnt * pt) / Gnn
+        return qd_free + Minv @ (jn * pn + jt * pt), pn, pt, False
+
+    # --------------------------------------------------------------------- projection
+    def project(self, t, x, mode):
+        """Move (q, q̇) back onto g = 0, v_n = 0 (and v_t = 0 when sticking) by the
+        M-orthogonal projection; returns the corrected state and the drift removed."""
+        nf = self.nf
+        tm = self.terms(t, x)
+        g = self.gap(tm)
+        Minv = np.linalg.inv(tm.M)
+        jn = self.n @ tm.J
+        x = x.copy()
+        x[:nf] -= Minv @ jn * (g / (jn @ Minv @ jn))
+        rows = [jn] if mode == SLIDING else [jn, self.t @ tm.J]
+        Jc = np.array(rows)
+        v = Jc @ x[nf:2 * nf]
+        x[nf:2 * nf] -= Minv @ Jc.T @ np.linalg.solve(Jc @ Minv @ Jc.T, v)
+        return x, abs(g)
+
+    def kinetic(self, tm: Terms, qd_free) -> float:
+        return 0.5 * qd_free @ tm.M @ qd_free
+
+
+@dataclass
+class ContactRun:
+    """Samples of a contact run: per output time the phase code, forces, gap, tool state."""
+    phase: np.ndarray
+    normal_force: np.ndarray
+    friction_force: np.ndarray
+    gap: np.ndarray
+    tool: np.ndarray          # (N, 2)
+    tool_velocity: np.ndarray  # (N, 2)
+    impacts: list
+    max_drift: float
+    mode: np.ndarray          # smooth mode (free/sliding/sticking) after each sample
+    slip_sign: np.ndarray
+
+    def accelerations(self, contact, k, t, x) -> np.ndarray:
+        """q̈ of the free coordinates at sample k (the mode's constrained dynamics)."""
+        return contact.rhs(t, x, int(self.mode[k]), float(self.slip_sign[k]))[0][
+            contact.nf:2 * contact.nf]
+
+
+def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
+                      progress=None):
+    """Fixed-step RK4 through the contact modes with located events (module doc).
+
+    Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
+    nf = contact.nf
+    n_out = int(np.floor(t_end / output_dt + 1e-9))
+    t_out = np.arange(n_out + 1) * output_dt
+    N = n_out + 1
+    xs = np.empty((N, len(x0)))
+    phase = np.zeros(N, dtype=np.int64)
+    fn_out = np.zeros(N)
+    ft_out = np.zeros(N)
+    gap = np.zeros(N)
+    tool = np.zeros((N, 2))
+    tvel = np.zeros((N, 2))
+    modes = np.zeros(N, dtype=np.int64)
+    signs = np.zeros(N)
+    impacts: list[ImpactRecord] = []
+    calls = 0
+    steps = 0
+    max_drift = 0.0
+    mode, s = FREE, 0.0
+    t, x = 0.0, np.array(x0, float)
+    last_sep = -math.inf
+    impact_since_out = False
+    compliant = contact.method == "compliant"
+
+    def rk4(t0, x0_, dt, md, sg):
+        nonlocal calls
+        k1 = contact.rhs(t0 + kernel.STAGE_EPS * dt, x0_, md, sg)[0]
+        k2 = contact.rhs(t0 + 0.5 * dt, x0_ + 0.5 * dt * k1, md, sg)[0]
+        k3 = contact.rhs(t0 + 0.5 * dt, x0_ + 0.5 * dt * k2, md, sg)[0]
+        k4 = contact.rhs(t0 + (1 - kernel.STAGE_EPS) * dt, x0_ + dt * k3, md, sg)[0]
+        calls += 4
+        return x0_ + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    def indicators(tt, xx, md, sg):
+        """Event functions (positive while the mode holds)."""
+        _, ln, lt, tm = contact.rhs(tt, xx, md, sg)
+        if compliant:
+            return ()
+        if md == FREE:
+            return (contact.gap(tm),)
+        if md == SLIDING:
+            return (ln, sg * (contact.t @ tm.v))
+        return (ln, contact.mus * ln - abs(lt))
+
+    def record(k, tt, xx):
+        nonlocal impact_since_out
+        xs[k] = xx
+        _, ln, lt, tm = contact.rhs(tt, xx, mode, s)
+        ph = mode
+        if compliant:
+            if ln > 0:
+                ph = STICKING if abs(contact.t @ tm.v) < contact.wall.slip_velocity else SLIDING
+            else:
+                ph = FREE
+        phase[k] = PHASE_CODE["impact"] if impact_since_out else ph
+        modes[k], signs[k] = mode, s
+        impact_since_out = False
+        fn_out[k], ft_out[k] = ln, lt
+        gap[k] = contact.gap(tm)
+        tool[k] = tm.r
+        tvel[k] = tm.v
+
+    def transition(tt, xx, which):
+        """New (x, mode, s) after event ``which`` of the current mode at time tt."""
+        nonlocal impact_since_out, last_sep
+        if mode == FREE:                                   # impact
+            tm = contact.terms(tt, xx)
+            v = xx[nf:2 * nf]
+            vn = contact.n @ tm.J @ v
+            ke0 = contact.kinetic(tm, v)
+            v1, pn, pt, stick = contact.impulse(tm, v)
+            xx = xx.copy()
+            xx[nf:2 * nf] = v1
+            new_mode = STICKING if stick else SLIDING
+            vt1 = contact.t @ tm.J @ v1
+            sg = 0.0 if stick else (math.copysign(1.0, vt1) if vt1 != 0 else
+                                    -math.copysign(1.0, pt) if pt else 1.0)
+            if new_mode == SLIDING and abs(vt1) < 1e-12:
+                new_mode, sg = _stick_or_slip(contact, tt, xx)
+            _, ln, _, _ = contact.rhs(tt, xx, new_mode, sg)
+            outcome = "sticking" if new_mode == STICKING else "sliding"
+            if ln < 0 and tt - last_sep > MIN_FLIGHT:
+                new_mode, sg, outcome = FREE, 0.0, "bounce"
+                last_sep = tt
+            impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, contact.kinetic(tm, v1),
+                                        outcome))
+            impact_since_out = True
+            return xx, new_mode, sg
+        if which == 0:                                     # normal force turned pulling
+            last_sep = tt
+            return xx, FREE, 0.0
+        if mode == SLIDING:                                # slip speed reached zero
+            md, sg = _stick_or_slip(contact, tt, xx)
+            return xx, md, sg
+        _, _, lt, _ = contact.rhs(tt, xx, STICKING)        # static friction exceeded
+        return xx, SLIDING, -math.copysign(1.0, lt)
+
+    record(0, 0.0, x)
+    wall0 = time.perf_counter()
+    last_report = wall0
+    events_here = 0
+    for k in range(n_out):
+        t_next = t_out[k + 1]
+        while t < t_next - 1e-15:
+            dt = min(h, t_next - t)
+            x1 = rk4(t, x, dt, mode, s)
+            steps += 1
+            if not np.all(np.isfinite(x1)):
+                guard.check(t + dt, x1)
+            ind0 = indicators(t, x, mode, s)
+            ind1 = indicators(t + dt, x1, mode, s)
+            hit = [j for j, (a, b) in enumerate(zip(ind0, ind1)) if a >= 0.0 > b]
+            if hit:
+                # earliest crossing among the mode's event functions
+                best_tau, best_j = dt, hit[0]
+                for j in hit:
+                    def fun(tau, j=j):
+                        return indicators(t + tau, rk4(t, x, tau, mode, s), mode, s)[j]
+                    tau = brentq(fun, 0.0, dt, xtol=1e-14, rtol=1e-12) if fun(0.0) > 0 else 0.0
+                    if tau < best_tau:
+                        best_tau, best_j = tau, j
+                xe = rk4(t, x, best_tau, mode, s) if best_tau > 0 else x
+                t += best_tau
+                x, mode_new, s_new = transition(t, xe, best_j)
+                events_here = events_here + 1 if best_tau <= 1e-12 else 0
+                if events_here > 50:
+                    raise SimulationDiverged(
+                        "contact events", t, float(contact.gap(contact.terms(t, x))),
+                        "use fidelity.contact: compliant, or a finer --dt",
+                        detail="more than 50 contact events at one instant (Zeno)")
+                mode, s = mode_new, s_new
+                continue
+            x, t = x1, t + dt
+            if mode != FREE and not compliant:
+                x, drift = contact.project(t, x, mode)
+                max_drift = max(max_drift, drift)
+                if drift > chain.fidelity.contact_tolerance:
+                    raise SimulationDiverged(
+                        "tool drift off the wall", t, drift,
+                        f"reduce the step (--dt, now {h:.3g} s)",
+                        detail=f"drift {drift:.3g} m in one step exceeds "
+                               f"fidelity.contact_tolerance = "
+                               f"{chain.fidelity.contact_tolerance:.3g} m")
+            guard.check(t, x)
+        t = t_next
+        record(k + 1, t, x)
+        now = time.perf_counter()
+        if progress is not None and now - last_report > 1.0:
+            progress(t / t_end)
+            last_report = now
+    return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, impacts, max_drift, modes,
+                          signs), steps, calls
+
+
+def _stick_or_slip(contact, t, x):
+    """At zero slip speed: stick if static friction holds, else slip against λ_t."""
+    _, ln, lt, _ = contact.rhs(t, x, STICKING)
+    if abs(lt) <= contact.mus * ln:
+        return STICKING, 0.0
+    return SLIDING, -math.copysign(1.0, lt)
+
+
+def constrained_rate(contact: WallContact, x0) -> float:
+    """Largest |λ| of the Jacobian of the sliding and sticking dynamics at x0 (the tool held
+    on a wall through its current position): holding the tool raises the arm's highest
+    frequency, and the RK4 step must be stable in every mode."""
+    nf = contact.nf
+    d0 = contact.d
+    contact.d = float(contact.n @ contact.terms(0.0, x0).r)    # wall through the tool
+    try:
+        worst = 0.0
+        for mode in (SLIDING, STICKING):
+            m = len(x0)
+            J = np.zeros((m, m))
+            for j in range(m):
+                dx = 1e-6 * max(1.0, abs(x0[j]))
+                xp, xm = x0.copy(), x0.copy()
+                xp[j] += dx
+                xm[j] -= dx
+                J[:, j] = (contact.rhs(0.0, xp, mode, 1.0)[0]
+                           - contact.rhs(0.0, xm, mode, 1.0)[0]) / (2 * dx)
+            worst = max(worst, float(np.abs(np.linalg.eigvals(J)).max()))
+    finally:
+        contact.d = d0
+    return worst
+
+
+def contact_rate(contact: WallContact, x0) -> float:
+    """Compliant rung: contact angular frequency √(k_eff G_nn) at x0 (1/s)."""
+    tm = contact.terms(0.0, x0)
+    jn = contact.n @ tm.J
+    Gnn = jn @ np.linalg.solve(tm.M, jn)
+    w = contact.wall
+    k_eff = w.exponent * w.stiffness * 1e-3 ** (w.exponent - 1.0)
+    return math.sqrt(k_eff * Gnn)
+
+
+def build_contact(chain):
+    """The scene's wall contact, or None (no wall: no contact machinery)."""
+    sc = chain.scene
+    if not sc.walls:
+        return None
+    return WallContact(chain, sc.walls[0], sc.tool, chain.fidelity.contact)
+
+
+def check_integrator(chain):
+    if chain.scene.walls and chain.fidelity.integrator != "rk4":
+        raise SceneError(f"fidelity.integrator: got {chain.fidelity.integrator!r} with a "
+                         f"wall, expected rk4 (the contact integrator locates events on "
+                         f"fixed RK4 steps)")

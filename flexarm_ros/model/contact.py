@@ -196,18 +196,12 @@ class WallContact:
         pt_star = (-vt * Gnn + vn * Gnt) / det if det > 0 else 0.0
         lo, hi = -math.inf, math.inf
         a0 = self.mu * (-vn) / Gnn
-        for sign in (1.0, -1.0):          # sign·Pt <= μ(−vn − Gnt Pt)/Gnn
+        for sign in (1.0, -1.0):          # sign·Pt <= μ Pn(Pt) = a0 − μ(Gnt/Gnn)·Pt
             coef = sign + self.mu * Gnt / Gnn
             if coef > 0:
-                if sign > 0:
-                    hi = min(hi, a0 / coef)
-                else:
-                    lo = max(lo, -a0 / coef)
+                hi = min(hi, a0 / coef)
             elif coef < 0:
-                if sign > 0:
-                    lo = max(lo, a0 / coef)
-                else:
-                    hi = min(hi, -a0 / coef)
+                lo = max(lo, a0 / coef)
         pt = min(max(pt_star, lo), hi) if self.mu > 0 else 0.0
         pn = (-vn - Gnt * pt) / Gnn
         return qd_free + Minv @ (jn * pn + jt * pt), pn, pt, False

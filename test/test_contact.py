@@ -1,0 +1,294 @@
+"""Wall contact against independent truths (issue: contact and impact).
+
+* impulse algebra vs hand-written closed forms on an independently derived rigid
+  two-link arm (frictionless: q̇⁺ = q̇⁻ − M⁻¹J_nᵀ(J_nM⁻¹J_nᵀ)⁻¹J_nq̇⁻; sliding:
+  P_n = −v_n / (J_n M⁻¹(J_n − μ s J_t)ᵀ));
+* an impact never adds energy and leaves zero normal speed — property over random
+  states (fixed seed);
+* whole runs: the event is located on the wall, the impulse balances momentum, sliding
+  friction is μN opposing the slip, it reverses with the drive, sticks when the push is
+  below μN, separation happens exactly when the normal force crosses zero, drift stays
+  below the tolerance, grazing and chattering complete, the compliant rung converges to
+  the impulse rung as the wall stiffens.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.model.contact import (FREE, SLIDING, STICKING, Terms, WallContact,
+                                       build_contact)
+from flexarm_ros.model.errors import SceneError
+from flexarm_ros.model.scene import load_scene_dict
+from flexarm_ros.model.simulate import initial_x, simulate
+
+L1, L2 = 0.7, 0.6
+
+
+def _arm(torques=(0.0, 0.0), wall_x=None, mu=0.5, mus=None, rung="cubic", q0=(90.0, -90.0),
+         EI=50.0, duration=1.0, method="impulse", stiffness=1e6, damping=0.0, rates=(0, 0),
+         programs=None, dt=0.0, exponent=1.0, beam_damping=0.0):
+    """A horizontal two-link arm; the tool at the second tip, a wall x = wall_x with normal
+    +x (free side x > wall_x)."""
+    links = []
+    for k, (L, ang, rate) in enumerate(zip((L1, L2), q0, rates)):
+        links.append({"name": f"l{k + 1}",
+                      "beam": {"length": L, "EI": EI, "mass_per_length": 0.5,
+                               "damping": {"stiffness_proportional": beam_damping}},
+                      "hub": {"mass": 0.1, "inertia": 1e-3},
+                      "tip": {"mass": 1.0 if k == 0 else 0.5, "inertia": 2e-3},
+                      "joint": {"initial_angle_deg": ang, "initial_rate": rate,
+                                "drive_inertia": 0.05}})
+    inputs = programs or [{"joint": j + 1, "torque": {"type": "constant", "value": tq}}
+                          for j, tq in enumerate(torques)]
+    sc = {"name": "arm", "links": links, "inputs": inputs, "duration": duration,
+          "fidelity": {"rung": rung, "contact": method, "output_dt": 1e-3, "dt": dt}}
+    if wall_x is not None:
+        w = {"point": [wall_x, 0.0], "normal": [1.0, 0.0], "friction": mu,
+             "stiffness": stiffness, "damping": damping, "exponent": exponent}
+        if mus is not None:
+            w["static_friction"] = mus
+        sc["walls"] = [w]
+    return load_scene_dict(sc)
+
+
+# --------------------------------------------------------------------------- algebra
+def _rigid_two_link(q, m1=1.0, m2=0.8, l1=0.7, l2=0.6, I1=0.05, I2=0.03):
+    """Independent rigid two-link arm: uniform-ish links with CG at mid-length (Lagrange,
+    by hand) and the tip Jacobian."""
+    c2 = math.cos(q[1])
+    a1 = I1 + m1 * (l1 / 2) ** 2 + I2 + m2 * (l1**2 + (l2 / 2) ** 2 + l1 * l2 * c2)
+    a12 = I2 + m2 * ((l2 / 2) ** 2 + 0.5 * l1 * l2 * c2)
+    a2 = I2 + m2 * (l2 / 2) ** 2
+    M = np.array([[a1, a12], [a12, a2]])
+    s1, s12, c1, c12 = math.sin(q[0]), math.sin(q[0] + q[1]), math.cos(q[0]), math.cos(q[0] + q[1])
+    J = np.array([[-l1 * s1 - l2 * s12, -l2 * s12], [l1 * c1 + l2 * c12, l2 * c12]])
+    return M, J
+
+
+def _bare_contact(mu, mus=None):
+    """A WallContact with only the wall data set (for the algebra tests)."""
+    wc = WallContact.__new__(WallContact)
+    wc.n = np.array([1.0, 0.0])
+    wc.t = np.array([0.0, 1.0])
+    wc.mu = mu
+    wc.mus = mu if mus is None else mus
+    return wc
+
+
+@pytest.mark.parametrize("q", [(1.2, -1.9), (0.4, 1.1), (2.0, -0.5)])
+def test_frictionless_impulse_matches_closed_form(q):
+    M, J = _rigid_two_link(q)
+    v = np.array([0.7, -1.3])
+    jn = J[0]
+    if jn @ v > 0:
+        v = -v
+    wc = _bare_contact(0.0)
+    v1, pn, pt, stick = wc.impulse(Terms(M, None, None, None, J, None, None), v)
+    Minv = np.linalg.inv(M)
+    expect = v - Minv @ jn * (jn @ v) / (jn @ Minv @ jn)
+    np.testing.assert_allclose(v1, expect, rtol=1e-12, atol=1e-14)
+    assert pt == 0.0 and pn == pytest.approx(-(jn @ v) / (jn @ Minv @ jn))
+
+
+def test_sliding_impulse_matches_closed_form_and_sticking_when_friction_suffices():
+    q = (1.2, -1.9)
+    M, J = _rigid_two_link(q)
+    Minv = np.linalg.inv(M)
+    jn, jt = J
+    v = np.linalg.solve(J, [-0.2, 1.5])   # approaching with a large tangential speed
+    mu = 0.2
+    wc = _bare_contact(mu)
+    v1, pn, pt, stick = wc.impulse(Terms(M, None, None, None, J, None, None), v)
+    s = math.copysign(1.0, jt @ v)
+    pn_cf = -(jn @ v) / (jn @ Minv @ (jn - mu * s * jt))
+    assert not stick
+    assert pn == pytest.approx(pn_cf, rel=1e-12)
+    assert pt == pytest.approx(-mu * s * pn_cf, rel=1e-12)
+    assert (jt @ v1) * s > 0                       # still slipping the same way
+    # with enough friction the 2-DOF arm is brought to rest (both constraints hold)
+    v1, pn, pt, stick = _bare_contact(5.0).impulse(Terms(M, None, None, None, J, None, None), v)
+    assert stick and np.allclose(v1, 0.0, atol=1e-12)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(q=st.tuples(st.floats(0.2, 2.9), st.floats(-2.9, -0.2)),
+       v=st.tuples(st.floats(-3, 3), st.floats(-3, 3)), mu=st.floats(0.0, 1.5),
+       mus_extra=st.floats(0.0, 0.5))
+def test_impact_never_adds_energy_and_stops_the_normal_speed(q, v, mu, mus_extra):
+    M, J = _rigid_two_link(q)
+    v = np.array(v)
+    if J[0] @ v >= 0:
+        v = -v
+    if abs(J[0] @ v) < 1e-9:
+        return
+    wc = _bare_contact(mu, mu + mus_extra)
+    v1, pn, pt, _ = wc.impulse(Terms(M, None, None, None, J, None, None), v)
+    ke0, ke1 = 0.5 * v @ M @ v, 0.5 * v1 @ M @ v1
+    assert ke1 <= ke0 * (1 + 1e-12)
+    assert abs(J[0] @ v1) <= 1e-12 * (1 + np.abs(J @ v).max())
+    assert pn >= 0 and abs(pt) <= (mu + mus_extra) * pn * (1 + 1e-12)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(a1=st.floats(0.8, 2.2), a2=st.floats(-2.5, -0.5), seed=st.integers(0, 10_000),
+       mu=st.floats(0.0, 1.0))
+def test_flexible_arm_impact_never_adds_energy(a1, a2, seed, mu):
+    """The same property on the flexible (cubic) chain, whose mass matrix comes from the
+    model: all 6 rates random."""
+    chain = Chain(_arm(wall_x=-0.2, mu=mu, q0=(math.degrees(a1), math.degrees(a2))))
+    wc = build_contact(chain)
+    x = initial_x(chain)
+    nf = len(chain.free)
+    x[nf:2 * nf] = np.random.default_rng(seed).normal(0.0, 1.0, nf)
+    tm = wc.terms(0.0, x)
+    v = x[nf:2 * nf]
+    if wc.n @ tm.J @ v >= 0:
+        v = -v
+    v1, pn, pt, _ = wc.impulse(tm, v)
+    assert wc.kinetic(tm, v1) <= wc.kinetic(tm, v) * (1 + 1e-12)
+    assert abs(wc.n @ tm.J @ v1) <= 1e-11 * (1 + np.abs(tm.J @ v).max())
+
+
+# -------------------------------------------------------------------------- whole runs
+def test_strike_bounce_and_slide_run():
+    """The arm swings into the wall: the impact is located on the wall, momentum balances,
+    the tool's normal speed is zero after, contact never pulls, drift stays tiny."""
+    res = simulate(_arm(torques=(1.0, 0.3), wall_x=-0.15, duration=1.5))
+    crun = res.contact
+    assert crun.impacts, "no impact"
+    imp = crun.impacts[0]
+    assert imp.kinetic_after <= imp.kinetic_before
+    assert imp.normal_impulse > 0
+    ph = res.columns["contact_phase"]
+    gap = res.columns["gap"]
+    fn = res.columns["contact_normal_force"]
+    inside = np.isin(ph, ["sliding", "sticking"])
+    assert inside.any()
+    assert np.all(fn[inside] >= -1e-9)
+    assert np.max(np.abs(gap[inside])) <= 1e-9           # fidelity.contact_tolerance
+    assert np.all(gap[ph == "free"] >= -1e-12)
+    assert crun.max_drift <= 1e-9
+    slide = ph == "sliding"
+    if slide.any():    # |F_t| = μ N opposing the slip
+        ft = res.columns["contact_friction_force"][slide]
+        vt = res.columns["tool_vy"][slide]
+        np.testing.assert_allclose(np.abs(ft), 0.5 * fn[slide], rtol=1e-9, atol=1e-12)
+        moving = np.abs(vt) > 1e-6
+        assert np.all(ft[moving] * vt[moving] <= 0)
+
+
+def _pressed(torques, mu=0.5, mus=None, duration=0.6, programs=None):
+    """Arm starting with its tool on the wall (gap 0) and at rest."""
+    # tool at (L1 cos a1 + L2 cos(a1 + a2), …) with q0 = (90°, -90°) → x = L2, y = L1
+    sc = _arm(torques=torques, wall_x=L2 * 1.0, mu=mu, mus=mus, q0=(90.0, -90.0),
+              duration=duration, programs=programs, rung="cubic", EI=500.0,
+              beam_damping=2e-3)
+    return sc
+
+
+def test_push_below_static_friction_sticks_and_above_slides_with_mu_n():
+    # at q = (90°, −90°) joint 1 pushes the tool into the wall (−x) and along it, joint 2
+    # along it (+y); statics: λ = (τ1 − τ2)/L1, F_t = −τ2/L2 (stick: |F_t| <= μλ)
+    stick = simulate(_pressed((3.0, 0.5)))
+    ph = stick.columns["contact_phase"]
+    late = stick.columns["t"] > 0.3        # after the start-up transient
+    assert set(ph[late]) == {"sticking"}, set(ph[late])
+    slide = simulate(_pressed((4.0, 2.5)))
+    ph = slide.columns["contact_phase"]
+    late = slide.columns["t"] > 0.1
+    assert set(ph[late]) == {"sliding"}, set(ph[late])
+    fn = slide.columns["contact_normal_force"][late]
+    ft = slide.columns["contact_friction_force"][late]
+    np.testing.assert_allclose(np.abs(ft), 0.5 * fn, rtol=1e-9)
+    vy = slide.columns["tool_vy"][late]
+    assert np.all(vy > 0) and np.all(ft < 0)               # sliding +y, friction −y
+
+
+def test_friction_reverses_with_the_drive():
+    progs = [{"joint": 1, "torque": {"type": "constant", "value": 4.0}},
+             {"joint": 2, "torque": {"type": "piecewise_constant", "times": [0.0, 0.3],
+                                     "values": [2.5, -4.0]}}]
+    res = simulate(_pressed(None, programs=progs, duration=0.8))
+    t = res.columns["t"]
+    vy = res.columns["tool_vy"]
+    ft = res.columns["contact_friction_force"]
+    ph = res.columns["contact_phase"]
+    assert np.all(vy[(t > 0.05) & (t < 0.3)] > 0)
+    assert vy[-1] < 0                                       # moving the other way
+    late = (t > 0.6) & (ph == "sliding")
+    assert late.any() and np.all(ft[late] > 0)             # friction reversed
+    early = (t > 0.05) & (t < 0.3) & (ph == "sliding")
+    assert np.all(ft[early] < 0)                            # friction opposed +y slip
+
+
+def test_separation_exactly_when_the_normal_force_turns():
+    # press, then pull away from the wall with joint 2 from t = 0.2 s
+    progs = [{"joint": 1, "torque": {"type": "piecewise_linear", "times": [0.0, 0.2, 0.4],
+                                     "values": [3.0, 3.0, -3.0]}},
+             {"joint": 2, "torque": {"type": "constant", "value": 0.0}}]
+    res = simulate(_pressed(None, programs=progs, duration=0.5))
+    t = res.columns["t"]
+    ph = res.columns["contact_phase"]
+    fn = res.columns["contact_normal_force"]
+    in_contact = np.isin(ph, ["sliding", "sticking"])
+    k0 = int(np.nonzero(in_contact)[0][0])                  # settles onto the wall
+    assert t[k0] < 0.01
+    k_sep = int(np.nonzero(~in_contact & (t > 0.2))[0][0])
+    assert np.all(in_contact[k0:k_sep])                    # never left before
+    assert np.all(fn[k0:k_sep] >= 0)
+    assert fn[k_sep - 1] < 0.05 * fn[:k_sep].max()         # force was about to vanish
+    assert np.all(res.columns["gap"][k_sep + 5:] > 0)      # and it flies off
+    # the normal force of the pressed phase would have turned negative at separation:
+    # extrapolating the last two contact samples crosses zero within one output step
+    slope = fn[k_sep - 1] - fn[k_sep - 2]
+    assert slope < 0 and fn[k_sep - 1] + slope < 0.0
+
+
+def test_grazing_and_chattering_complete():
+    # grazing: the tool path just touches the wall line tangentially
+    graze = _arm(torques=(0.0, 0.0), rates=(-1.0, 0.0), wall_x=None, duration=0.3)
+    free = simulate(graze)
+    xmin = free.columns["tip_x"].min()
+    res = simulate(_arm(torques=(0.0, 0.0), rates=(-1.0, 0.0), wall_x=xmin - 1e-7,
+                        duration=0.3))
+    assert res.run.success
+    # chattering: a fast flexible arm driven hard into the wall bounces repeatedly
+    res = simulate(_arm(torques=(2.0, 1.0), wall_x=-0.15, duration=1.5, EI=5.0))
+    assert res.run.success and len(res.contact.impacts) >= 2
+    assert all(i.kinetic_after <= i.kinetic_before for i in res.contact.impacts)
+
+
+def test_compliant_contact_converges_to_the_impulse_rung():
+    base = dict(torques=(1.0, 0.3), wall_x=-0.15, duration=1.45)
+    ref = simulate(_arm(**base))
+    t_imp = ref.contact.impacts[0].time
+    errs = []
+    for k in (1e5, 1e6, 1e7):
+        res = simulate(_arm(**base, method="compliant", stiffness=k, damping=0.0))
+        gap = res.columns["gap"]
+        t = res.columns["t"]
+        t_touch = t[np.nonzero(gap < 0)[0][0]]
+        tip_err = np.max(np.hypot(res.columns["tip_x"] - ref.columns["tip_x"],
+                                  res.columns["tip_y"] - ref.columns["tip_y"]))
+        errs.append((abs(t_touch - t_imp), tip_err, -gap.min()))
+    # penetration shrinks and the tip path approaches the impulse solution
+    assert errs[2][2] < errs[1][2] < errs[0][2]
+    assert errs[2][1] < errs[0][1]
+    assert errs[2][0] <= 2e-3
+
+
+def test_contact_scenes_refuse_other_integrators_and_inside_start():
+    sc = _arm(wall_x=-0.15).with_fidelity(integrator="dop853")
+    with pytest.raises(SceneError, match="expected rk4"):
+        simulate(sc)
+    with pytest.raises(SceneError, match="inside the wall"):
+        simulate(_arm(wall_x=10.0))
+    with pytest.raises(SceneError, match="at most one"):
+        load_scene_dict({**{"name": "x", "links": [{"name": "a", "beam": {
+            "length": 1.0, "EI": 1.0, "mass_per_length": 1.0}}]},
+            "walls": [{"point": [0, 0], "normal": [1, 0]}] * 2})

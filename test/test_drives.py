@@ -225,7 +225,7 @@ def test_dc_current_limit_with_inductance():
     # limit, the torque sits at the limit during the run-up (t1 = 29 ms .. t2 = 0.46 s),
     # and the motion follows the piecewise analytic solution. Measured with the automatic
     # RK4 step (3.3e-4 s): rel. error 7.4e-5 (ω), 1.5e-3 (i) -- only first order in the
-    # step, see the xfail test below; dop853 (rtol 1e-10) 5e-11 (ω).
+    # step, a found-and-fixed overshoot, tested below; dop853 (rtol 1e-10) 5e-11 (ω).
     V, i_lim = 24.0, 10.0
     res = simulate(_dc_scene(V, _dc(current_limit=i_lim), fid={"output_dt": 1e-3}), 1.0)
     c = res.columns
@@ -253,12 +253,6 @@ def test_dc_current_limit_adaptive_integrator_is_exact():
     assert np.max(np.abs(res.run.z[:, 0])) <= i_lim * (1 + 1e-7)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "drives.actuator_rate (DC_CURRENT) only zeroes di/dt once the current state is at or "
-    "beyond i_limit; a fixed RK4 step overshoots the state past the limit (10.019 A for "
-    "i_limit 10 A at the automatic step) and it is then held there, so the limited phase "
-    "ends at the wrong speed and the run is only first-order accurate in the step "
-    "(ω error 7.4e-5 at h = 3.3e-4 s, 4.3e-6 at 3e-5 s)"))
 def test_dc_current_limit_state_never_exceeds_limit_with_rk4():
     V, i_lim = 24.0, 10.0
     res = simulate(_dc_scene(V, _dc(current_limit=i_lim), fid={"output_dt": 1e-3}), 1.0)
@@ -458,7 +452,7 @@ def test_backlash_dead_band(k, c, dt):
     # Measured (k = 1e5): settled δ = ±(width/2 + τ_c/k) to 1.5e-13 rel.; swing
     # max δ − min δ = width · 1.013 (impact penetration); link acceleration in the gap
     # 6e-8 rad/s² (4.5 rad/s² engaged). k = 1e6 needs a step below the engaged mesh's
-    # RK4 limit 2.65e-4 s (see the xfail test below): 2e-12, swing width · 1.0016.
+    # RK4 limit 2.65e-4 s (the automatic step now sees the engaged mesh, tested below): 2e-12, swing width · 1.0016.
     res = _dead_band_run(k, c, dt)
     col = res.columns
     t = col["t"]
@@ -485,14 +479,6 @@ def test_backlash_dead_band(k, c, dt):
     assert np.median(np.abs(macc[gap])) == pytest.approx(0.5 / J_MOTOR_SIDE, rel=1e-6)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "integrate.choose_step / linear.highest_rate take the automatic RK4 step from the "
-    "Jacobian at the initial state, where the backlash teeth are apart (δ = 0 inside the "
-    "dead zone), so the mesh stiffness is not seen: with k = 1e6 the engaged mesh "
-    "frequency √(k/μ) = 1.05e4 rad/s needs h <= 2.78/1.05e4 = 2.6e-4 s but the automatic "
-    "step is 3.3e-4 s (the rate at x0 is 3000 1/s, engaged 10488 1/s); the run is "
-    "unstable while engaged and silently wrong (no error raised): settled δ off by up to "
-    "2.1× its value, swing 7.8 % over the gap (with dt = 2e-4 s: 2e-12 and 0.16 %)"))
 def test_backlash_dead_band_stiff_mesh_automatic_step():
     k, c = 1e6, 100.0            # ζ ≈ 0.5 as above
     res = _dead_band_run(k, c)
@@ -648,12 +634,6 @@ def test_hydraulic_torque_bound_rk4():
     assert np.max(col["arm_drive_torque"]) == ETA * D_M * P_S
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "drives.actuator_rate (HYDRAULIC) only zeroes dP/dt once P is at or beyond ±P_s; an "
-    "RK4 step overshoots the pressure state past the supply pressure and it is held "
-    "there (P = 1.029 P_s in this run), and simulate.actuator_columns reports the raw "
-    "state as <link>_pressure, contradicting 'P_L held within ±P_s' (drives.py docstring, "
-    "scene.Drive)"))
 def test_hydraulic_pressure_stays_within_supply_rk4():
     P = _pump_up({})["arm_pressure"]
     assert np.max(np.abs(P)) <= P_S * (1 + 1e-6)

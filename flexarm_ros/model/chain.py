@@ -226,6 +226,12 @@ class Chain:
             a.par = apar[j]           # one array: a later null-bias update reaches the kernel
         bidx = np.array([(b[0], b[1]) for b in self.backlash], dtype=np.int64).reshape(-1, 2)
         bpar = np.array([b[2:] for b in self.backlash], float).reshape(-1, 3)
+        zlo = np.full(max(self.nz, 1), -np.inf)
+        zhi = np.full(max(self.nz, 1), np.inf)
+        for a in acts:
+            if a.state >= 0:
+                zlo[a.state], zhi[a.state] = drives.state_bounds(a.kind, a.par)
+        self.z_bounds = (zlo[:self.nz], zhi[:self.nz])
         for j, (_, p, tt, vv) in enumerate(a.enc for a in acts):
             tpar[j] = p
             ttimes[j, :len(tt)] = tt
@@ -245,7 +251,7 @@ class Chain:
                 self.gravity, self.foreshortening, float(self.scene.base_angle),
                 self.M_drive, self.K, self.D, self.free.astype(np.int64),
                 self.presc_idx.astype(np.int64), mcode, mpar, tidx, tcode, tpar, ttimes,
-                tvalues, tlen, EXT, akind, apar, azi, bidx, bpar, self.nz)
+                tvalues, tlen, EXT, akind, apar, azi, bidx, bpar, self.nz, zlo, zhi)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
@@ -480,6 +486,13 @@ class Chain:
         if len(self.presc_idx):
             qdd[self.presc_idx] = self.prescribed_state(t)[2]
         return qdd
+
+    def clamp_states(self, x) -> np.ndarray:
+        """x with its actuator states clamped into their bounds (in place; returned)."""
+        if self.nz:
+            nf2 = 2 * len(self.free)
+            np.clip(x[nf2:], self.z_bounds[0], self.z_bounds[1], out=x[nf2:])
+        return x
 
     def state_labels(self) -> list[str]:
         """Names of the first-order state x = [q_free, q̇_free, z]."""

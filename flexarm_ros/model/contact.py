@@ -282,7 +282,7 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
         k3 = contact.rhs(t0 + 0.5 * dt, x0_ + 0.5 * dt * k2, md, sg)[0]
         k4 = contact.rhs(t0 + (1 - kernel.STAGE_EPS) * dt, x0_ + dt * k3, md, sg)[0]
         calls += 4
-        return x0_ + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+        return chain.clamp_states(x0_ + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
 
     def indicators(tt, xx, md, sg):
         """Event functions (positive while the mode holds)."""

@@ -52,6 +52,17 @@ def encode(drive, motor_current: str = "dynamic"):
     return HYDRAULIC, par, True
 
 
+def state_bounds(kind, par) -> tuple[float, float]:
+    """(lower, upper) bound of an actuator's state: ±i_limit (A), ±P_s (Pa). The
+    integrators clamp the state into them after every step (fixed-step methods would
+    otherwise overshoot a bound by a fraction of a step's change)."""
+    if kind == DC_CURRENT:
+        return -par[6], par[6]
+    if kind == HYDRAULIC:
+        return -par[4], par[4]
+    return -INF, INF
+
+
 @jit
 def _clip(v, lim):
     return min(max(v, -lim), lim)

@@ -144,7 +144,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                 k2 = f(tj + 0.5 * h, x + 0.5 * h * k1)
                 k3 = f(tj + 0.5 * h, x + 0.5 * h * k2)
                 k4 = f(tj + (1.0 - kernel.STAGE_EPS) * h, x + h * k3)
-                x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+                x = chain.clamp_states(x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
                 steps += 1
                 guard.check(tj + h, x)
             xs[k + 1] = x
@@ -159,7 +159,13 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             solver = SOLVE_IVP[integrator](f, t_lo, x, t_hi, rtol=rtol, atol=atol,
                                            **({"max_step": dt} if dt > 0 else {}))
             while solver.status == "running":
-                msg = solver.step()
+                try:
+                    msg = solver.step()
+                except (ValueError, np.linalg.LinAlgError) as exc:
+                    raise SimulationDiverged(
+                        "integrator", solver.t, float(np.abs(solver.y).max()),
+                        "use --integrator rk4 or radau, or give the beams a realistic mass",
+                        detail=f"{integrator} failed: {exc}") from None
                 if solver.status == "failed":
                     raise SimulationDiverged(
                         "integrator", solver.t, float(np.abs(solver.y).max()),

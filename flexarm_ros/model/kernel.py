@@ -37,7 +37,7 @@ STAGE_EPS = 1e-9
 M_N, M_NL, M_E0, M_NE, M_NPT, M_X, M_PHI, M_FREE, M_PRESC = 0, 1, 3, 4, 8, 9, 11, 20, 21
 M_K, M_D, M_MCODE, M_MPAR = 18, 19, 22, 23
 M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
-M_AKIND, M_APAR, M_AZI, M_BIDX, M_BPAR, M_NZ = 31, 32, 33, 34, 35, 36
+M_AKIND, M_APAR, M_AZI, M_BIDX, M_BPAR, M_NZ, M_ZLO, M_ZHI = 31, 32, 33, 34, 35, 36, 37, 38
 (W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
  W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD, W_TIP) = range(22)
 
@@ -421,6 +421,9 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
     NON_FINITE or DEFLECTION.
     """
     m = x0.shape[0]
+    nz = model[M_NZ]
+    zlo = model[M_ZLO]
+    zhi = model[M_ZHI]
     x = x0.copy()
     xn = np.empty(m)
     tmp = np.empty(m)
@@ -448,6 +451,9 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
                 xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
                 if not math.isfinite(xn[i]):
                     finite = False
+            for a in range(nz):     # actuator states held within their bounds
+                i = m - nz + a
+                xn[i] = min(max(xn[i], zlo[a]), zhi[a])
             steps += 1
             if not finite:
                 return NON_FINITE, t + h, steps, x, xn

@@ -263,7 +263,7 @@ def actuator_columns(chain: Chain, run: Integration) -> dict:
             cols[f"{name}_torque_cmd"] = uj
         elif a.kind == drives.HYDRAULIC:
             cols[f"{name}_valve_current"] = uj + a.par[7]
-            cols[f"{name}_pressure"] = z
+            cols[f"{name}_pressure"] = np.clip(z, -a.par[4], a.par[4])
         else:
             cols[f"{name}_voltage"] = np.clip(uj, -a.par[5], a.par[5])
             cols[f"{name}_current"] = np.array(

@@ -247,162 +247,172 @@ class ContactRun:
             contact.nf:2 * contact.nf]
 
 
-def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
-                      progress=None):
-    """Fixed-step RK4 through the contact modes with located events (module doc).
+class ContactStepper:
+    """Fixed-step RK4 through the contact modes with located events (module doc), as an
+    object: ``advance(t_target)`` moves the state to ``t_target`` (a batch run and the ROS
+    simulator's plant both drive it); ``sample()`` reads the contact quantities."""
 
-    Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
-    nf = contact.nf
-    n_out = int(np.floor(t_end / output_dt + 1e-9))
-    t_out = np.arange(n_out + 1) * output_dt
-    N = n_out + 1
-    xs = np.empty((N, len(x0)))
-    phase = np.zeros(N, dtype=np.int64)
-    fn_out = np.zeros(N)
-    ft_out = np.zeros(N)
-    gap = np.zeros(N)
-    tool = np.zeros((N, 2))
-    tvel = np.zeros((N, 2))
-    modes = np.zeros(N, dtype=np.int64)
-    signs = np.zeros(N)
-    impacts: list[ImpactRecord] = []
-    calls = 0
-    steps = 0
-    max_drift = 0.0
-    mode, s = FREE, 0.0
-    t, x = 0.0, np.array(x0, float)
-    last_sep = -math.inf
-    impact_since_out = False
-    compliant = contact.method == "compliant"
+    def __init__(self, chain, contact: WallContact, x0, h, guard, t0=0.0):
+        self.chain = chain
+        self.contact = contact
+        self.h = h
+        self.guard = guard
+        self.t = t0
+        self.x = np.array(x0, float)
+        self.mode, self.s = FREE, 0.0
+        self.last_sep = -math.inf
+        self.impacts: list[ImpactRecord] = []
+        self.impact_pending = False
+        self.calls = 0
+        self.steps = 0
+        self.max_drift = 0.0
+        self.compliant = contact.method == "compliant"
 
-    def rk4(t0, x0_, dt, md, sg):
-        nonlocal calls
-        k1 = contact.rhs(t0 + kernel.STAGE_EPS * dt, x0_, md, sg)[0]
-        k2 = contact.rhs(t0 + 0.5 * dt, x0_ + 0.5 * dt * k1, md, sg)[0]
-        k3 = contact.rhs(t0 + 0.5 * dt, x0_ + 0.5 * dt * k2, md, sg)[0]
-        k4 = contact.rhs(t0 + (1 - kernel.STAGE_EPS) * dt, x0_ + dt * k3, md, sg)[0]
-        calls += 4
-        return chain.clamp_states(x0_ + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
+    # ------------------------------------------------------------------ internals
+    def _rk4(self, t0, x0, dt, md, sg):
+        f = self.contact.rhs
+        k1 = f(t0 + kernel.STAGE_EPS * dt, x0, md, sg)[0]
+        k2 = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)[0]
+        k3 = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)[0]
+        k4 = f(t0 + (1 - kernel.STAGE_EPS) * dt, x0 + dt * k3, md, sg)[0]
+        self.calls += 4
+        return self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
 
-    def indicators(tt, xx, md, sg):
-        """Event functions (positive while the mode holds)."""
-        _, ln, lt, tm = contact.rhs(tt, xx, md, sg)
-        if compliant:
+    def _indicators(self, tt, xx, md, sg):
+        """Event functions of a mode (positive while the mode holds)."""
+        if self.compliant:
             return ()
+        _, ln, lt, tm = self.contact.rhs(tt, xx, md, sg)
         if md == FREE:
-            return (contact.gap(tm),)
+            return (self.contact.gap(tm),)
         if md == SLIDING:
-            return (ln, sg * (contact.t @ tm.v))
-        return (ln, contact.mus * ln - abs(lt))
+            return (ln, sg * (self.contact.t @ tm.v))
+        return (ln, self.contact.mus * ln - abs(lt))
 
-    def record(k, tt, xx):
-        nonlocal impact_since_out
-        xs[k] = xx
-        _, ln, lt, tm = contact.rhs(tt, xx, mode, s)
-        ph = mode
-        if compliant:
-            if ln > 0:
-                ph = STICKING if abs(contact.t @ tm.v) < contact.wall.slip_velocity else SLIDING
-            else:
-                ph = FREE
-        phase[k] = PHASE_CODE["impact"] if impact_since_out else ph
-        modes[k], signs[k] = mode, s
-        impact_since_out = False
-        fn_out[k], ft_out[k] = ln, lt
-        gap[k] = contact.gap(tm)
-        tool[k] = tm.r
-        tvel[k] = tm.v
-
-    def transition(tt, xx, which):
+    def _transition(self, tt, xx, which):
         """New (x, mode, s) after event ``which`` of the current mode at time tt."""
-        nonlocal impact_since_out, last_sep
-        if mode == FREE:                                   # impact
-            tm = contact.terms(tt, xx)
+        c, nf = self.contact, self.contact.nf
+        if self.mode == FREE:                              # impact
+            tm = c.terms(tt, xx)
             v = xx[nf:2 * nf]
-            vn = contact.n @ tm.J @ v
-            ke0 = contact.kinetic(tm, v)
-            v1, pn, pt, stick = contact.impulse(tm, v)
+            vn = c.n @ tm.J @ v
+            ke0 = c.kinetic(tm, v)
+            v1, pn, pt, stick = c.impulse(tm, v)
             xx = xx.copy()
             xx[nf:2 * nf] = v1
             new_mode = STICKING if stick else SLIDING
-            vt1 = contact.t @ tm.J @ v1
+            vt1 = c.t @ tm.J @ v1
             sg = 0.0 if stick else (math.copysign(1.0, vt1) if vt1 != 0 else
                                     -math.copysign(1.0, pt) if pt else 1.0)
             if new_mode == SLIDING and abs(vt1) < 1e-12:
-                new_mode, sg = _stick_or_slip(contact, tt, xx)
-            _, ln, _, _ = contact.rhs(tt, xx, new_mode, sg)
+                new_mode, sg = _stick_or_slip(c, tt, xx)
+            _, ln, _, _ = c.rhs(tt, xx, new_mode, sg)
             outcome = "sticking" if new_mode == STICKING else "sliding"
-            if ln < 0 and tt - last_sep > MIN_FLIGHT:
+            if ln < 0 and tt - self.last_sep > MIN_FLIGHT:
                 new_mode, sg, outcome = FREE, 0.0, "bounce"
-                last_sep = tt
-            impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, contact.kinetic(tm, v1),
-                                        outcome))
-            impact_since_out = True
+                self.last_sep = tt
+            self.impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, c.kinetic(tm, v1),
+                                             outcome))
+            self.impact_pending = True
             return xx, new_mode, sg
         if which == 0:                                     # normal force turned pulling
-            last_sep = tt
+            self.last_sep = tt
             return xx, FREE, 0.0
-        if mode == SLIDING:                                # slip speed reached zero
-            md, sg = _stick_or_slip(contact, tt, xx)
+        if self.mode == SLIDING:                           # slip speed reached zero
+            md, sg = _stick_or_slip(c, tt, xx)
             return xx, md, sg
-        _, _, lt, _ = contact.rhs(tt, xx, STICKING)        # static friction exceeded
+        _, _, lt, _ = c.rhs(tt, xx, STICKING)              # static friction exceeded
         return xx, SLIDING, -math.copysign(1.0, lt)
 
-    record(0, 0.0, x)
-    wall0 = time.perf_counter()
-    last_report = wall0
-    events_here = 0
-    for k in range(n_out):
-        t_next = t_out[k + 1]
-        while t < t_next - 1e-15:
-            dt = min(h, t_next - t)
-            x1 = rk4(t, x, dt, mode, s)
-            steps += 1
+    # --------------------------------------------------------------------- public
+    def advance(self, t_target):
+        """Integrate to ``t_target`` (steps of at most h; events located and handled)."""
+        chain, h = self.chain, self.h
+        t, x, mode, s = self.t, self.x, self.mode, self.s
+        events_here = 0
+        while t < t_target - 1e-15:
+            dt = min(h, t_target - t)
+            x1 = self._rk4(t, x, dt, mode, s)
+            self.steps += 1
             if not np.all(np.isfinite(x1)):
-                guard.check(t + dt, x1)
-            ind0 = indicators(t, x, mode, s)
-            ind1 = indicators(t + dt, x1, mode, s)
+                self.guard.check(t + dt, x1)
+            ind0 = self._indicators(t, x, mode, s)
+            ind1 = self._indicators(t + dt, x1, mode, s)
             hit = [j for j, (a, b) in enumerate(zip(ind0, ind1)) if a >= 0.0 > b]
             if hit:
-                # earliest crossing among the mode's event functions
                 best_tau, best_j = dt, hit[0]
-                for j in hit:
+                for j in hit:                  # earliest crossing among the mode's events
                     def fun(tau, j=j):
-                        return indicators(t + tau, rk4(t, x, tau, mode, s), mode, s)[j]
+                        return self._indicators(t + tau, self._rk4(t, x, tau, mode, s),
+                                                mode, s)[j]
                     tau = brentq(fun, 0.0, dt, xtol=1e-14, rtol=1e-12) if fun(0.0) > 0 else 0.0
                     if tau < best_tau:
                         best_tau, best_j = tau, j
-                xe = rk4(t, x, best_tau, mode, s) if best_tau > 0 else x
+                xe = self._rk4(t, x, best_tau, mode, s) if best_tau > 0 else x
                 t += best_tau
-                x, mode_new, s_new = transition(t, xe, best_j)
+                self.mode, self.s = mode, s
+                x, mode, s = self._transition(t, xe, best_j)
                 events_here = events_here + 1 if best_tau <= 1e-12 else 0
                 if events_here > 50:
                     raise SimulationDiverged(
-                        "contact events", t, float(contact.gap(contact.terms(t, x))),
+                        "contact events", t, float(self.contact.gap(self.contact.terms(t, x))),
                         "use fidelity.contact: compliant, or a finer --dt",
                         detail="more than 50 contact events at one instant (Zeno)")
-                mode, s = mode_new, s_new
                 continue
             x, t = x1, t + dt
-            if mode != FREE and not compliant:
-                x, drift = contact.project(t, x, mode)
-                max_drift = max(max_drift, drift)
-                if drift > chain.fidelity.contact_tolerance:
+            if mode != FREE and not self.compliant:
+                x, drift = self.contact.project(t, x, mode)
+                self.max_drift = max(self.max_drift, drift)
+                tol = chain.fidelity.contact_tolerance
+                if drift > tol:
                     raise SimulationDiverged(
-                        "tool drift off the wall", t, drift,
-                        f"reduce the step (--dt, now {h:.3g} s)",
-                        detail=f"drift {drift:.3g} m in one step exceeds "
-                               f"fidelity.contact_tolerance = "
-                               f"{chain.fidelity.contact_tolerance:.3g} m")
-            guard.check(t, x)
-        t = t_next
-        record(k + 1, t, x)
+                        "tool drift off the wall", t, drift, f"reduce the step (--dt, now "
+                        f"{h:.3g} s)", detail=f"drift {drift:.3g} m in one step exceeds "
+                        f"fidelity.contact_tolerance = {tol:.3g} m")
+            self.guard.check(t, x)
+        self.t, self.x, self.mode, self.s = t_target, x, mode, s
+
+    def sample(self):
+        """(phase code, λ_n, λ_t, gap, tool r, tool ṙ, q̈_free) at the current state; the
+        phase is 'impact' once after an impact."""
+        c = self.contact
+        xd, ln, lt, tm = c.rhs(self.t, self.x, self.mode, self.s)
+        ph = self.mode
+        if self.compliant:
+            ph = FREE if ln <= 0 else (STICKING if abs(c.t @ tm.v) < c.wall.slip_velocity
+                                       else SLIDING)
+        if self.impact_pending:
+            ph = PHASE_CODE["impact"]
+            self.impact_pending = False
+        return ph, ln, lt, c.gap(tm), tm.r.copy(), tm.v.copy(), xd[c.nf:2 * c.nf]
+
+
+def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
+                      progress=None):
+    """Run a :class:`ContactStepper` over [0, t_end], sampling every ``output_dt``.
+
+    Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
+    n_out = int(np.floor(t_end / output_dt + 1e-9))
+    N = n_out + 1
+    xs = np.empty((N, len(x0)))
+    phase = np.zeros(N, dtype=np.int64)
+    fn_out, ft_out, gap = np.zeros(N), np.zeros(N), np.zeros(N)
+    tool, tvel = np.zeros((N, 2)), np.zeros((N, 2))
+    modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
+    st = ContactStepper(chain, contact, x0, h, guard)
+    last_report = time.perf_counter()
+    for k in range(N):
+        if k:
+            st.advance(k * output_dt)
+        xs[k] = st.x
+        phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], _ = st.sample()
+        modes[k], signs[k] = st.mode, st.s
         now = time.perf_counter()
         if progress is not None and now - last_report > 1.0:
-            progress(t / t_end)
+            progress(k * output_dt / t_end)
             last_report = now
-    return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, impacts, max_drift, modes,
-                          signs), steps, calls
+    return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
+                          modes, signs), st.steps, st.calls
 
 
 def _stick_or_slip(contact, t, x):

@@ -412,6 +412,35 @@ def _deflection_ratio(x, model):
     return worst
 
 
+@_jit_inline
+def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+    """One RK4 step x → xn from time t; actuator states clamped to their bounds. Returns
+    False when xn is not finite."""
+    m = x.shape[0]
+    nz = model[M_NZ]
+    zlo = model[M_ZLO]
+    zhi = model[M_ZHI]
+    rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
+    for i in range(m):
+        tmp[i] = x[i] + 0.5 * h * k1[i]
+    rhs_into(t + 0.5 * h, tmp, k2, model, ws)
+    for i in range(m):
+        tmp[i] = x[i] + 0.5 * h * k2[i]
+    rhs_into(t + 0.5 * h, tmp, k3, model, ws)
+    for i in range(m):
+        tmp[i] = x[i] + h * k3[i]
+    rhs_into(t + (1.0 - STAGE_EPS) * h, tmp, k4, model, ws)
+    finite = True
+    for i in range(m):
+        xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        if not math.isfinite(xn[i]):
+            finite = False
+    for a in range(nz):     # actuator states held within their bounds
+        i = m - nz + a
+        xn[i] = min(max(xn[i], zlo[a]), zhi[a])
+    return finite
+
+
 @_jit
 def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
     """Fixed-step RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt), storing
@@ -421,9 +450,6 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
     NON_FINITE or DEFLECTION.
     """
     m = x0.shape[0]
-    nz = model[M_NZ]
-    zlo = model[M_ZLO]
-    zhi = model[M_ZHI]
     x = x0.copy()
     xn = np.empty(m)
     tmp = np.empty(m)
@@ -436,24 +462,7 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
         t0 = k * out_dt
         for j in range(per):
             t = t0 + j * h
-            rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
-            for i in range(m):
-                tmp[i] = x[i] + 0.5 * h * k1[i]
-            rhs_into(t + 0.5 * h, tmp, k2, model, ws)
-            for i in range(m):
-                tmp[i] = x[i] + 0.5 * h * k2[i]
-            rhs_into(t + 0.5 * h, tmp, k3, model, ws)
-            for i in range(m):
-                tmp[i] = x[i] + h * k3[i]
-            rhs_into(t + (1.0 - STAGE_EPS) * h, tmp, k4, model, ws)
-            finite = True
-            for i in range(m):
-                xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-                if not math.isfinite(xn[i]):
-                    finite = False
-            for a in range(nz):     # actuator states held within their bounds
-                i = m - nz + a
-                xn[i] = min(max(xn[i], zlo[a]), zhi[a])
+            finite = _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws)
             steps += 1
             if not finite:
                 return NON_FINITE, t + h, steps, x, xn
@@ -464,6 +473,29 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
         for i in range(m):
             xs[k + 1, i] = x[i]
     return OK, n_out * out_dt, steps, x, x
+
+
+@_jit
+def rk4_span(x0, t0, h, nsteps, max_ratio, model, ws):
+    """``nsteps`` fixed RK4 steps of size h from (t0, x0): the co-simulation plant's
+    advance. Returns (status, time, last good state, offending state)."""
+    m = x0.shape[0]
+    x = x0.copy()
+    xn = np.empty(m)
+    tmp = np.empty(m)
+    k1 = np.empty(m)
+    k2 = np.empty(m)
+    k3 = np.empty(m)
+    k4 = np.empty(m)
+    for j in range(nsteps):
+        t = t0 + j * h
+        if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+            return NON_FINITE, t + h, x, xn
+        if _deflection_ratio(xn, model) > max_ratio:
+            return DEFLECTION, t + h, x, xn
+        for i in range(m):
+            x[i] = xn[i]
+    return OK, t0 + nsteps * h, x, x
 
 
 @_jit

@@ -56,11 +56,14 @@ class SensorModel:
         return [self.name, f"{self.name}_true"]
 
 
-def build_sensors(chain) -> list[SensorModel]:
-    """SensorModels for the scene's sensors (validated against the built chain)."""
+def build_sensors(chain, scene=None) -> list[SensorModel]:
+    """SensorModels for the scene's sensors (validated against the built chain); ``scene``
+    (default the chain's) supplies the drives' gear ratios when the chain was built
+    without its drives (the co-simulation plant)."""
+    scene = scene or chain.scene
     names = [lm.name for lm in chain.links]
     out = []
-    for sn in chain.scene.sensors:
+    for sn in scene.sensors:
         link = names.index(sn.link) if sn.link else sn.joint - 1
         lm = chain.links[link]
         coord, gain = -1, 0.0
@@ -69,7 +72,9 @@ def build_sensors(chain) -> list[SensorModel]:
         curv = np.zeros(0)
         if sn.kind == "encoder":
             coord = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
-            ratio = lm.link.joint.drive.gear_ratio if sn.on_motor_shaft else 1.0
+            drive = scene.links[link].joint.drive
+            ratio = (drive.gear_ratio if drive is not None else None) if sn.on_motor_shaft \
+                else 1.0
             if sn.on_motor_shaft and ratio is None:
                 raise SceneError(f"sensors: encoder {sn.name!r} on_motor_shaft needs a "
                                  f"dc_motor drive with gear_ratio on joint {sn.joint}")
@@ -104,9 +109,11 @@ def true_value(sm: SensorModel, chain, q, qd, qdd, q_initial, kin=None):
     return float(f @ e)
 
 
-def measure(sm: SensorModel, values: np.ndarray) -> np.ndarray:
+def measure(sm: SensorModel, values: np.ndarray, rng=None) -> np.ndarray:
     """Instrument output from true SI values: × sensitivity, + noise, ADC (clip, quantize).
-    Encoder counts stay integers (noise and ADC do not apply)."""
+    Encoder counts stay integers (noise and ADC do not apply). The noise is drawn from
+    ``rng`` (default: a fresh generator seeded with the sensor's seed), one value per
+    sample in time order, so sample-by-sample and whole-table readings agree."""
     sn = sm.spec
     v = np.asarray(values, float).copy()
     if sn.kind in ("encoder", "tip_position"):
@@ -114,7 +121,8 @@ def measure(sm: SensorModel, values: np.ndarray) -> np.ndarray:
     if sn.sensitivity is not None:
         v = v * sn.sensitivity
     if sn.noise_std > 0:
-        v = v + np.random.default_rng(sn.seed).normal(0.0, sn.noise_std, v.shape)
+        rng = np.random.default_rng(sn.seed) if rng is None else rng
+        v = v + rng.normal(0.0, sn.noise_std, v.shape)
     if sn.adc_range is not None:
         lo, hi = sn.adc_range
         v = np.clip(v, lo, hi)

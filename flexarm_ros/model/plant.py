@@ -1,0 +1,217 @@
+"""The arm alone, stepped from outside: the ROS simulator node's core and the batch
+co-simulation's plant (ros2_control habit: time is an argument, ``step(dt)``).
+
+Inputs are joint torques at the gearbox outputs (N·m), held constant over each step
+(zero-order hold, as a real amplifier between control ticks). The scene's drives are left
+out — the motor driver turns voltage or valve-current commands into these torques — while
+the mechanics of the drive train stay in the plant: reflected inertia J_eq, viscous C_eq,
+backlash, joint flexibility; prescribed motions stay too.
+
+Sensors are sampled on their own grids inside a step (the step is cut at every sample
+time), from the model at that instant (see :mod:`sensors`); contact is integrated through
+its events (:class:`contact.ContactStepper`). Nothing non-finite ever leaves: a diverging
+state raises :class:`SimulationDiverged` before any sample of it is returned.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kernel
+from .chain import Chain
+from .contact import PHASES, ContactStepper, build_contact, constrained_rate, contact_rate
+from .errors import SceneError
+from .integrate import RK4_AUTO, _Guard, choose_step
+from .scene import Input, Program
+from .sensors import build_sensors, measure, sample_grid_ns, true_value
+from .simulate import initial_state
+
+
+def plant_scene(scene):
+    """The scene with drives removed and every non-prescribed joint taking a torque input
+    (constant 0 until :meth:`Plant.set_torques`)."""
+    links = []
+    for lk in scene.links:
+        jt = dataclasses.replace(lk.joint, drive=None)
+        links.append(dataclasses.replace(lk, joint=jt))
+    motions = {inp.joint: inp for inp in scene.inputs if inp.motion is not None}
+    inputs = []
+    for j in range(1, len(links) + 1):
+        inputs.append(motions.get(j) or Input(joint=j, torque=Program(type="constant")))
+    return dataclasses.replace(scene, links=tuple(links), inputs=tuple(inputs))
+
+
+@dataclass
+class Sample:
+    """One sensor reading: time (s), measured value (instrument units), true SI value."""
+    sensor: str
+    t: float
+    value: float
+    true: float
+
+
+class Plant:
+    """A scene's arm advanced by :meth:`step` with held joint torques."""
+
+    def __init__(self, scene, physics_dt: float = 0.0):
+        self.scene = scene
+        self.chain = ch = Chain(plant_scene(scene))
+        self.contact = build_contact(ch)
+        q0, qd0, _ = initial_state(ch)
+        self.q_initial = q0.copy()
+        self.x = np.concatenate([q0[ch.free], qd0[ch.free]])
+        self.t = 0.0
+        self.k = 0                                   # grid index of self.t
+        self.sensors = build_sensors(ch, scene)
+        periods = [1.0 / s.spec.rate_hz for s in self.sensors]
+        self.grid_ns = sample_grid_ns(periods) if periods else 0
+        self._every = [int(round(1e9 / s.spec.rate_hz)) for s in self.sensors]
+        self._rng = {s.name: np.random.default_rng(s.spec.seed) for s in self.sensors}
+        self._act = {a.link: j for j, a in enumerate(ch.actuators)}
+        self.torques = np.zeros(len(ch.links))
+        fid = ch.fidelity
+        h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt)
+        if self.contact is not None:
+            rate = (contact_rate(self.contact, self.x) if self.contact.method == "compliant"
+                    else constrained_rate(self.contact, self.x))
+            h = min(h, RK4_AUTO / rate)
+        if physics_dt > 0:
+            h = min(h, physics_dt)
+        self.h = h
+        self.guard = _Guard(ch, fid.max_deflection_ratio, "rk4", h)
+        self.guard.check(0.0, self.x)
+        self.ws = kernel.workspace(ch.kernel_args)
+        self.stepper = (ContactStepper(ch, self.contact, self.x, h, self.guard)
+                        if self.contact is not None else None)
+        self.contact_sample = None
+        if self.stepper is not None:
+            self.contact_sample = self.stepper.sample()
+
+    # ------------------------------------------------------------------- inputs
+    def set_torques(self, torques) -> None:
+        """Joint torques (N·m, joint order) held from now until the next call."""
+        tau = np.asarray(torques, float)
+        if tau.shape != (len(self.chain.links),) or not np.all(np.isfinite(tau)):
+            raise SceneError(f"torques: got {tau!r}, expected {len(self.chain.links)} finite "
+                             f"values (N·m, joint order)")
+        self.torques = tau.copy()
+        tpar = self.chain.kernel_args[kernel.M_TPAR]
+        for link, j in self._act.items():
+            tpar[j, 0] = tau[link]
+            self.chain.actuators[j].enc[1][0] = tau[link]   # the numpy path's copy
+
+    # --------------------------------------------------------------------- stepping
+    def step(self, dt: float) -> list[Sample]:
+        """Advance by ``dt`` (a whole number of sensor-grid periods when sensors are
+        declared); returns the sensor samples taken in (t, t + dt], in time order."""
+        samples: list[Sample] = []
+        if self.grid_ns:
+            n = dt * 1e9 / self.grid_ns
+            if abs(n - round(n)) > 1e-6 or round(n) < 1:
+                raise SceneError(f"step: got dt = {dt} s, expected a whole number of sensor "
+                                 f"grid periods ({self.grid_ns * 1e-9:g} s)")
+            for _ in range(int(round(n))):
+                self.k += 1
+                self._advance(self.k * self.grid_ns * 1e-9)
+                samples.extend(self._sample_due())
+        else:
+            self._advance(self.t + dt)
+        return samples
+
+    def _advance(self, t_end):
+        dt = t_end - self.t
+        if self.stepper is not None:
+            self.stepper.advance(t_end)
+            self.x = self.stepper.x
+            self.contact_sample = self.stepper.sample()
+        else:
+            n = max(1, int(math.ceil(dt / self.h - 1e-9)))
+            code, t_fail, x_last, x_bad = kernel.rk4_span(
+                self.x, self.t, dt / n, n, self.chain.fidelity.max_deflection_ratio,
+                self.chain.kernel_args, self.ws)
+            if code != kernel.OK:
+                self.guard.last = x_last
+                self.guard.check(t_fail, x_bad)
+            self.x = x_last
+        self.t = t_end
+
+    def _sample_due(self) -> list[Sample]:
+        t_ns = self.k * self.grid_ns
+        due = [j for j, every in enumerate(self._every) if t_ns % every == 0]
+        if not due:
+            return []
+        ch = self.chain
+        q, qd = ch.full_state(self.t, self.x)
+        qdd = None
+        if any(self.sensors[j].spec.kind == "accelerometer" for j in due):
+            qdd = self.accelerations()
+        kin = ch.kinematics(q, qd, frames_only=True)
+        out = []
+        for j in due:
+            sm = self.sensors[j]
+            val = true_value(sm, ch, q, qd, qdd, self.q_initial, kin)
+            if sm.spec.kind == "tip_position":
+                out.append(Sample(f"{sm.name}_x", self.t, val[0], val[0]))
+                out.append(Sample(f"{sm.name}_y", self.t, val[1], val[1]))
+                continue
+            out.append(Sample(sm.name, self.t, float(self._measure(sm, val)), val))
+        return out
+
+    def _measure(self, sm, val):
+        """Instrument output of one reading (noise from the sensor's own stream)."""
+        return measure(sm, np.array([val]), self._rng[sm.name])[0]
+
+    # --------------------------------------------------------------------- readings
+    def accelerations(self) -> np.ndarray:
+        """q̈ of every coordinate now (contact included)."""
+        ch = self.chain
+        if self.stepper is not None:
+            qdd = np.empty(ch.n)
+            qdd[ch.free] = self.contact_sample[6]
+            if len(ch.presc_idx):
+                qdd[ch.presc_idx] = ch.prescribed_state(self.t)[2]
+            return qdd
+        return ch.full_qdd(self.t, self.x)
+
+    def joint_names(self) -> list[str]:
+        return [lm.name + "_joint" for lm in self.chain.links]
+
+    def joint_state(self):
+        """(angles, rates) of the link-side joint coordinates (rad, rad/s)."""
+        q, qd = self.chain.full_state(self.t, self.x)
+        idx = [lm.i_joint for lm in self.chain.links]
+        return q[idx], qd[idx]
+
+    def drive_state(self):
+        """(angles, rates) of the drive coordinates (motor side where declared)."""
+        q, qd = self.chain.full_state(self.t, self.x)
+        idx = self.chain.drive_index()
+        return q[idx], qd[idx]
+
+    def tip_position(self) -> np.ndarray:
+        q, _ = self.chain.full_state(self.t, self.x)
+        return self.chain.tip_position(q)
+
+    def contact_state(self) -> dict:
+        """phase, normal/friction force (N), gap (m), tool position/velocity; phase 'free'
+        and zeros without a wall."""
+        if self.contact_sample is None:
+            return {"phase": "free", "normal_force": 0.0, "friction_force": 0.0,
+                    "gap": math.inf, "tool": self.tip_position(), "tool_velocity":
+                    np.zeros(2)}
+        ph, fn, ft, gap, r, v, _ = self.contact_sample
+        return {"phase": PHASES[ph], "normal_force": fn, "friction_force": ft, "gap": gap,
+                "tool": r, "tool_velocity": v}
+
+    def holding_torques(self) -> np.ndarray:
+        """Joint torques that hold the initial configuration at rest (gravity, springs):
+        what a hydraulic driver's initial pressure supplies."""
+        ch = self.chain
+        q, _ = ch.full_state(0.0, self.x)
+        kin = ch.kinematics(q, np.zeros(ch.n))
+        f = kin.Qg - kin.h - ch.K @ q + ch.coupling_forces(q, np.zeros(ch.n))
+        return np.array([-f[i] for i in ch.drive_index()])

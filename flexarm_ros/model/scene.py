@@ -374,6 +374,45 @@ class Tool:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Sanding:
+    """Sanding task parameters (seed 000 Sec. 5.4 demo): approach the wall, press with a
+    normal force, slide between two points along it, reverse, lift off
+    (:class:`flexarm_ros.control.sanding.SandingTask`)."""
+    wall_x: float = param(unit="m", doc="wall line x")
+    y_start: float = param(unit="m", doc="stroke start along the wall")
+    y_end: float = param(unit="m", doc="stroke end along the wall")
+    speed: float = param(0.1, unit="m/s", gt=0.0, doc="sliding speed")
+    normal_force: float = param(5.0, unit="N", gt=0.0, doc="normal force set point")
+    approach_time: float = param(1.0, unit="s", gt=0.0, doc="time to reach the wall")
+    kp_force: float = param(0.02, unit="m/(N·s)", gt=0.0,
+                            doc="force-through-position gain")
+    strokes: int = param(2, ge=1, doc="passes along the wall")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Control:
+    """What the controller node runs (seed 000 Sec. 5.4). open_loop: the scene's input
+    programs as commands; position: joint PD (Eq. 5.16) with voltages from the static motor
+    equation (Eq. 5.17) towards ``tip_target`` (Newton–Raphson inverse kinematics) or
+    ``joint_target``; sanding: the sanding task through the same loop."""
+    mode: str = param("open_loop", choices=("open_loop", "position", "sanding"),
+                      doc="control mode")
+    rate_hz: float = param(1000.0, unit="Hz", gt=0.0, doc="control rate")
+    kp: tuple[float, ...] = param((), unit="N·m/rad", doc="PD stiffness per joint")
+    kd: tuple[float, ...] = param((), unit="N·m·s/rad", doc="PD damping per joint")
+    tip_target: Optional[tuple[float, float]] = param(None, unit="m",
+                                                      doc="position mode: tip target")
+    joint_target: tuple[float, ...] = param((), unit="rad",
+                                            doc="position mode: joint targets")
+    velocity_filter_hz: float = param(20.0, unit="Hz", gt=0.0,
+                                      doc="encoder velocity low-pass cutoff")
+    sanding: Optional[Sanding] = param(None, doc="sanding mode parameters")
+    watchdog_s: float = param(0.05, unit="s", gt=0.0,
+                              doc="motor driver: commands older than this → 0 V / closed "
+                                  "valve")
+
+
+@dataclass(frozen=True, kw_only=True)
 class Fidelity:
     """Model and integrator choice: the rung of the ladder and how finely it is refined."""
     rung: str = param("cubic", choices=RUNGS, doc="beam discretization")
@@ -430,6 +469,7 @@ class Scene:
     walls: tuple[Wall, ...] = param((), doc="walls the tool can touch (none: no contact "
                                            "model)")
     tool: Tool = param(default_factory=Tool, doc="the tool point on the last body")
+    control: Control = param(default_factory=Control, doc="controller node (ROS twin)")
     fidelity: Fidelity = param(default_factory=Fidelity, doc="model and integrator")
     initial: Initial = param(default_factory=Initial, doc="initial condition")
     duration: float = param(1.0, unit="s", gt=0.0, doc="default simulated duration")
@@ -467,6 +507,21 @@ class Scene:
                     raise SceneError(f"inputs[{k}].current: got a program reaching "
                                      f"{max(abs(lo), abs(hi)):.6g} A, expected within the "
                                      f"valve's rated current ±{imax:.6g} A")
+        ctl = self.control
+        nj = len(self.links)
+        for key in ("kp", "kd", "joint_target"):
+            val = getattr(ctl, key)
+            if val and len(val) != nj:
+                raise SceneError(f"control.{key}: got {len(val)} values, expected {nj} (one "
+                                 f"per joint)")
+        if ctl.mode in ("position", "sanding") and not (ctl.kp and ctl.kd):
+            raise SceneError(f"control.kp: missing, expected PD gains for mode {ctl.mode!r}")
+        if ctl.mode == "position" and (ctl.tip_target is None) == (not ctl.joint_target):
+            raise SceneError("control.tip_target: expected exactly one of tip_target / "
+                             "joint_target for mode 'position'")
+        if ctl.mode == "sanding" and ctl.sanding is None:
+            raise SceneError("control.sanding: missing, expected the sanding parameters "
+                             "for mode 'sanding'")
         if len(self.walls) > 1:
             raise SceneError(f"walls: got {len(self.walls)} walls, expected at most one "
                              f"(one contact constraint at a time)")

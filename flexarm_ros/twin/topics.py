@@ -1,0 +1,57 @@
+"""The topic contract of the twin (node-relative names under the namespace, default
+``/flexarm``; ros2_control's names so a user's effort or forward-command controller runs
+against the twin unchanged). Standard message types only.
+
+| topic | type | from → to | content |
+|---|---|---|---|
+| ``/clock`` | rosgraph_msgs/Clock | sim → all | simulation time (the only publisher) |
+| ``joint_states`` | sensor_msgs/JointState | sim → ctrl | from the quantized encoders (rad; rate by backward difference over the control period), effort = applied joint torque (N·m) |
+| ``encoders/counts`` | std_msgs/Int32MultiArray | sim → ctrl, log | raw counts, joint order |
+| ``accelerometers/batch`` | std_msgs/Float64MultiArray | sim → log | [sample, channel] in the sensors' output units (V with a sensitivity, else m/s²), samples of (t − T, t], uniform 1/fs spacing, the last at the message time |
+| ``strain/batch``, ``potentiometer/batch`` | std_msgs/Float64MultiArray | sim → log | same layout |
+| ``tool/contact`` | std_msgs/Bool | sim → ctrl | in contact (scenes with a wall) |
+| ``tool/wrench`` | geometry_msgs/WrenchStamped | sim → ctrl | frame ``wall``: x = normal force on the tool (N, ≥ 0), y = friction force along the wall's tangent t = E·n |
+| ``ground_truth/joint_states`` | sensor_msgs/JointState | sim → analysis | exact link-side joint angles ``<link>_joint`` and drive coordinates ``<link>_drive`` (rad, rad/s) |
+| ``ground_truth/tip`` | geometry_msgs/PointStamped | sim → analysis | tip position (m, ``world``) |
+| ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
+| ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
+| ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
+"""
+
+CLOCK = "/clock"
+JOINT_STATES = "joint_states"
+ENCODER_COUNTS = "encoders/counts"
+ACCEL_BATCH = "accelerometers/batch"
+STRAIN_BATCH = "strain/batch"
+POT_BATCH = "potentiometer/batch"
+TOOL_CONTACT = "tool/contact"
+TOOL_WRENCH = "tool/wrench"
+GT_JOINT_STATES = "ground_truth/joint_states"
+GT_TIP = "ground_truth/tip"
+COMMANDS = "motor_driver/commands"
+EFFORTS = "effort_controller/commands"
+MOTOR_STATES = "motor_driver/motor_states"
+
+TYPES = {
+    CLOCK: "rosgraph_msgs/msg/Clock",
+    JOINT_STATES: "sensor_msgs/msg/JointState",
+    ENCODER_COUNTS: "std_msgs/msg/Int32MultiArray",
+    ACCEL_BATCH: "std_msgs/msg/Float64MultiArray",
+    STRAIN_BATCH: "std_msgs/msg/Float64MultiArray",
+    POT_BATCH: "std_msgs/msg/Float64MultiArray",
+    TOOL_CONTACT: "std_msgs/msg/Bool",
+    TOOL_WRENCH: "geometry_msgs/msg/WrenchStamped",
+    GT_JOINT_STATES: "sensor_msgs/msg/JointState",
+    GT_TIP: "geometry_msgs/msg/PointStamped",
+    COMMANDS: "std_msgs/msg/Float64MultiArray",
+    EFFORTS: "std_msgs/msg/Float64MultiArray",
+    MOTOR_STATES: "sensor_msgs/msg/JointState",
+}
+
+
+def resolve(namespace: str, topic: str) -> str:
+    """Absolute topic name: ``/clock`` stays global, the rest go under the namespace."""
+    if topic.startswith("/"):
+        return topic
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return f"{ns}/{topic}"

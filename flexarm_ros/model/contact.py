@@ -27,10 +27,14 @@ sticking) after every step (M-orthogonal projection), so the drift stays below
 ``fidelity.contact_tolerance``. A re-impact within ``MIN_FLIGHT`` of a separation keeps
 the contact (a burst of impacts goes to sliding instead of stalling the integrator).
 
-**Compliant rung**: no events; a penalty force F_n = k δ^e (1 + α δ̇) ≥ 0 for penetration
-δ = −g > 0 (Hunt & Crossley, J. Appl. Mech. 42, 1975) and regularized Coulomb friction
-−μ F_n v_t/√(v_t² + v_s²) enter the equations of motion as J_nᵀF_n + J_tᵀF_t. Stiff and
-cheap per step; its step is set by the contact frequency √(k_eff·G_nn) (automatic).
+**Compliant rung**: no events; a penalty force F_n = max(0, k δ^e + c δ̇) for
+penetration δ = −g > 0 with c = 2ζ√(k_eff m_eff) (m_eff = 1/G_nn, G_nn = J_n M⁻¹ J_nᵀ at
+the start; ζ = 1 by default: no contact rebound, as the impulse rung) and regularized
+Coulomb friction −μ F_n v_t/√(v_t² + v_s²) enter the equations of motion as
+J_nᵀF_n + J_tᵀF_t. Cheap per step, stiff: the automatic step follows the contact's
+eigenvalue ω(ζ + √(ζ² − 1)), ω = √(k_eff G_nn). (A Hunt–Crossley damping c ∝ δ^e was
+tried first: its rate grows with the peak force, unknown before the run, and RK4 went
+unstable at k = 1e7 N/m — measured.)
 """
 
 from __future__ import annotations
@@ -95,6 +99,20 @@ class WallContact:
         self.ws = kernel.workspace(self.model)
         self.free = chain.free
         self.nf = len(chain.free)
+        self.c_contact = 0.0       # compliant damping, set from the start (set_start)
+
+    def set_start(self, x0) -> float:
+        """Fix the compliant damping c = 2ζ√(k_eff m_eff) at the start state; returns the
+        contact's largest rate |λ| (1/s) for the automatic step."""
+        tm = self.terms(0.0, x0)
+        jn = self.n @ tm.J
+        Gnn = float(jn @ np.linalg.solve(tm.M, jn))
+        w = self.wall
+        k_eff = w.exponent * w.stiffness * 1e-3 ** (w.exponent - 1.0)
+        omega = math.sqrt(k_eff * Gnn)
+        zeta = w.damping_ratio
+        self.c_contact = 2.0 * zeta * math.sqrt(k_eff / Gnn)
+        return omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
 
     # --------------------------------------------------------------------- evaluation
     def terms(self, t, x) -> Terms:
@@ -136,8 +154,7 @@ class WallContact:
             A[:nf, :nf] = M
             A[:nf, nf] = -(jn - self.mu * s * jt)
             A[nf, :nf] = jn
-            b = np.concatenate([f, [-cn]])
-            sol = np.linalg.solve(A, b)
+            sol = _solve_kkt(A, np.concatenate([f, [-cn]]))
             lam = sol[nf]
             return sol[:nf], lam, -self.mu * s * lam
         jt = self.t @ tm.J
@@ -148,7 +165,7 @@ class WallContact:
         A[:nf, nf + 1] = -jt
         A[nf, :nf] = jn
         A[nf + 1, :nf] = jt
-        sol = np.linalg.solve(A, np.concatenate([f, [-cn, -ct]]))
+        sol = _solve_kkt(A, np.concatenate([f, [-cn, -ct]]))
         return sol[:nf], sol[nf], sol[nf + 1]
 
     def compliant_force(self, tm: Terms):
@@ -159,7 +176,7 @@ class WallContact:
         w = self.wall
         delta = -g
         ddelta = -(self.n @ tm.v)
-        fn = max(w.stiffness * delta ** w.exponent * (1.0 + w.damping * ddelta), 0.0)
+        fn = max(w.stiffness * delta ** w.exponent + self.c_contact * ddelta, 0.0)
         vt = self.t @ tm.v
         ft = -self.mu * fn * vt / math.sqrt(vt * vt + w.slip_velocity ** 2)
         return fn, ft
@@ -240,6 +257,7 @@ class ContactRun:
     max_drift: float
     mode: np.ndarray          # smooth mode (free/sliding/sticking) after each sample
     slip_sign: np.ndarray
+    normal_impulse: np.ndarray   # cumulative normal impulse from the wall (N·s)
 
     def accelerations(self, contact, k, t, x) -> np.ndarray:
         """q̈ of the free coordinates at sample k (the mode's constrained dynamics)."""
@@ -266,17 +284,23 @@ class ContactStepper:
         self.calls = 0
         self.steps = 0
         self.max_drift = 0.0
+        self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
         self.compliant = contact.method == "compliant"
 
     # ------------------------------------------------------------------ internals
-    def _rk4(self, t0, x0, dt, md, sg):
+    def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
+        """One RK4 step; with ``want_impulse`` also the normal impulse ∫λ dt over it (the
+        stages' forces with the RK4 weights)."""
         f = self.contact.rhs
-        k1 = f(t0 + kernel.STAGE_EPS * dt, x0, md, sg)[0]
-        k2 = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)[0]
-        k3 = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)[0]
-        k4 = f(t0 + (1 - kernel.STAGE_EPS) * dt, x0 + dt * k3, md, sg)[0]
+        k1, l1, _, _ = f(t0 + kernel.STAGE_EPS * dt, x0, md, sg)
+        k2, l2, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)
+        k3, l3, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)
+        k4, l4, _, _ = f(t0 + (1 - kernel.STAGE_EPS) * dt, x0 + dt * k3, md, sg)
         self.calls += 4
-        return self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
+        x = self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
+        if want_impulse:
+            return x, (dt / 6.0) * (l1 + 2 * l2 + 2 * l3 + l4)
+        return x
 
     def _indicators(self, tt, xx, md, sg):
         """Event functions of a mode (positive while the mode holds)."""
@@ -313,6 +337,7 @@ class ContactStepper:
                 self.last_sep = tt
             self.impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, c.kinetic(tm, v1),
                                              outcome))
+            self.normal_impulse += pn
             self.impact_pending = True
             return xx, new_mode, sg
         if which == 0:                                     # normal force turned pulling
@@ -332,7 +357,7 @@ class ContactStepper:
         events_here = 0
         while t < t_target - 1e-15:
             dt = min(h, t_target - t)
-            x1 = self._rk4(t, x, dt, mode, s)
+            x1, dp = self._rk4(t, x, dt, mode, s, want_impulse=True)
             self.steps += 1
             if not np.all(np.isfinite(x1)):
                 self.guard.check(t + dt, x1)
@@ -348,7 +373,9 @@ class ContactStepper:
                     tau = brentq(fun, 0.0, dt, xtol=1e-14, rtol=1e-12) if fun(0.0) > 0 else 0.0
                     if tau < best_tau:
                         best_tau, best_j = tau, j
-                xe = self._rk4(t, x, best_tau, mode, s) if best_tau > 0 else x
+                xe, dp = (self._rk4(t, x, best_tau, mode, s, want_impulse=True)
+                          if best_tau > 0 else (x, 0.0))
+                self.normal_impulse += dp
                 t += best_tau
                 self.mode, self.s = mode, s
                 x, mode, s = self._transition(t, xe, best_j)
@@ -360,6 +387,7 @@ class ContactStepper:
                         detail="more than 50 contact events at one instant (Zeno)")
                 continue
             x, t = x1, t + dt
+            self.normal_impulse += dp
             if mode != FREE and not self.compliant:
                 x, drift = self.contact.project(t, x, mode)
                 self.max_drift = max(self.max_drift, drift)
@@ -399,6 +427,7 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
     fn_out, ft_out, gap = np.zeros(N), np.zeros(N), np.zeros(N)
     tool, tvel = np.zeros((N, 2)), np.zeros((N, 2))
     modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
+    impulse = np.zeros(N)
     st = ContactStepper(chain, contact, x0, h, guard)
     last_report = time.perf_counter()
     for k in range(N):
@@ -407,12 +436,23 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
         xs[k] = st.x
         phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], _ = st.sample()
         modes[k], signs[k] = st.mode, st.s
+        impulse[k] = st.normal_impulse
         now = time.perf_counter()
         if progress is not None and now - last_report > 1.0:
             progress(k * output_dt / t_end)
             last_report = now
     return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
-                          modes, signs), st.steps, st.calls
+                          modes, signs, impulse), st.steps, st.calls
+
+
+def _solve_kkt(A, b):
+    """Solve the constrained-dynamics (KKT) system; at a kinematic singularity (the two
+    contact constraints dependent, e.g. a straight arm) take the least-squares solution
+    (accelerations unique, multipliers of minimum norm)."""
+    try:
+        return np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
 def _stick_or_slip(contact, t, x):
@@ -449,13 +489,8 @@ def constrained_rate(contact: WallContact, x0) -> float:
 
 
 def contact_rate(contact: WallContact, x0) -> float:
-    """Compliant rung: contact angular frequency √(k_eff G_nn) at x0 (1/s)."""
-    tm = contact.terms(0.0, x0)
-    jn = contact.n @ tm.J
-    Gnn = jn @ np.linalg.solve(tm.M, jn)
-    w = contact.wall
-    k_eff = w.exponent * w.stiffness * 1e-3 ** (w.exponent - 1.0)
-    return math.sqrt(k_eff * Gnn)
+    """Compliant rung: the contact's largest rate (1/s) at x0 (sets its damping too)."""
+    return contact.set_start(x0)
 
 
 def build_contact(chain):

@@ -336,9 +336,10 @@ class Wall:
     (pointing into the free side); the gap of the tool point is g = n·(r_tool − point).
 
     friction/static_friction: Coulomb coefficients (seed 000: μ = 0.5 kinetic).
-    stiffness/exponent/damping/slip_velocity are used by the compliant rung only:
-    F_n = k δ^e (1 + α δ̇) for penetration δ = −g > 0 (Hunt & Crossley 1975), friction
-    −μ F_n v_t/√(v_t² + v_s²).
+    stiffness/exponent/damping_ratio/slip_velocity are used by the compliant rung only:
+    F_n = max(0, k δ^e + c δ̇) for penetration δ = −g > 0, c = 2ζ√(k m_eff) (a penalty
+    spring–damper; the Hunt–Crossley form c ∝ δ^e made the explicit step depend on the
+    unknown peak force), friction −μ F_n v_t/√(v_t² + v_s²).
     """
     point: tuple[float, float] = param(unit="m", doc="a point on the wall line")
     normal: tuple[float, float] = param(doc="inward normal (into the free side)")
@@ -349,7 +350,11 @@ class Wall:
                                                           "stiffness k")
     exponent: float = param(1.0, ge=1.0, le=2.0, doc="compliant rung: force exponent e "
                                                     "(1 linear, 1.5 Hertz)")
-    damping: float = param(0.0, unit="s/m", ge=0.0, doc="compliant rung: Hunt–Crossley α")
+    damping_ratio: float = param(3.0, ge=0.0, doc="compliant rung: damping c = 2ζ√(k m) "
+                                 "of the contact, m the tool's effective mass at the start; "
+                                 "the contact's own restitution is 0.135 / 0.048 / 0.024 / "
+                                 "0.009 for ζ = 1 / 2 / 3 / 5 (measured), 1 for ζ = 0; "
+                                 "the impulse rung has none")
     slip_velocity: float = param(1e-3, unit="m/s", gt=0.0,
                                  doc="compliant rung: friction regularization speed v_s")
 

@@ -203,7 +203,8 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
 
 def contact_columns(crun, every: int = 1) -> dict:
     """contact_phase (free/impact/sliding/sticking), gap (m), contact_normal_force and
-    contact_friction_force (N), tool_x/tool_y (m), tool_vx/tool_vy (m/s). A sample is
+    contact_friction_force (N), contact_normal_impulse (cumulative N·s, impacts included),
+    tool_x/tool_y (m), tool_vx/tool_vy (m/s). A sample is
     'impact' when an impact happened in the output interval before it."""
     sl = slice(None, None, every)
     ph = crun.phase.copy()
@@ -214,6 +215,7 @@ def contact_columns(crun, every: int = 1) -> dict:
     return {"contact_phase": np.array(PHASES, dtype=object)[ph[sl]],
             "gap": crun.gap[sl], "contact_normal_force": crun.normal_force[sl],
             "contact_friction_force": crun.friction_force[sl],
+            "contact_normal_impulse": crun.normal_impulse[sl],
             "tool_x": crun.tool[sl, 0], "tool_y": crun.tool[sl, 1],
             "tool_vx": crun.tool_velocity[sl, 0], "tool_vy": crun.tool_velocity[sl, 1]}
 

@@ -375,7 +375,8 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
               progress: Optional[Callable[[str], None]] = None, *,
               ladder: Optional[list] = None, reference: Optional[dict] = None,
               budget_s: Optional[float] = DEFAULT_BUDGET_S) -> StudyRows:
-    """Run the speed–accuracy study of ``scene``; returns the rows (see module doc).
+    """Run the speed–accuracy study of ``scene``; returns the rows (see module doc). A
+    scene with a wall gets the contact trade instead (:mod:`contact_study`).
 
     ``ladder``: row specs (:func:`spec`), default :func:`default_ladder`;
     ``reference``: the reference spec, default :func:`reference_spec` of the ladder;
@@ -383,6 +384,19 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     one line of text per row. Fidelity fields the specs do not set (foreshortening,
     modal basis, output sampling, deflection limit) stay the scene's.
     """
+    if scene.walls:
+        from .contact_study import run_contact_study
+        rows = run_contact_study(scene, duration, quick, progress)
+        ok = [r for r in rows if r.get("status") == "ok"]
+        front = pareto_front([(r["wall_s_per_sim_s"], r["tip_rms_error_m"]) for r in ok])
+        for r in rows:
+            r.setdefault("integrator", "rk4")
+            r["pareto"] = False
+            r["label"] = (f"{r['rung']} impulse" if r["contact"] == "impulse" else
+                          f"{r['rung']} k={r['stiffness']:.0e}")
+        for r, p in zip(ok, front):
+            r["pareto"] = p
+        return StudyRows(rows, {"kind": "contact"})
     ladder = [dict(s) for s in (ladder if ladder is not None else default_ladder(quick))]
     for s in ladder:
         s.setdefault("refine", 0)
@@ -463,6 +477,9 @@ def _fmt(v, spec_):
 
 def format_table(rows) -> str:
     """A fixed-width text table of the rows (failed rows show their status at the end)."""
+    if rows and "contact" in rows[0]:
+        from .contact_study import format_contact_table
+        return format_contact_table(rows)
     cols = [("rung", 6, "s"), ("ref", 4, "d"), ("integrator", 10, "s"), ("n", 4, "d"),
             ("wall s/s", 9, ".3g"), ("RTF", 9, ".3g"), ("RHS evals", 10, "d"),
             ("tip RMS m", 10, ".3e"), ("tip max m", 10, ".3e"), ("f1 Hz", 11, ".6g"),
@@ -532,7 +549,8 @@ def plot_pareto(rows, png_path, title: str = "") -> None:
         ax.scatter(r["wall_s_per_sim_s"], y_of(r), marker=_MARKERS.get(r["rung"], "x"),
                    s=60 if r["pareto"] else 42, color=_COLOURS.get(r["integrator"], "k"),
                    edgecolors="k" if r["pareto"] else "none", linewidths=1.0, zorder=3)
-        ax.annotate(f"{r['rung']} {r['refinement']}", (r["wall_s_per_sim_s"], y_of(r)),
+        ax.annotate(r.get("label", f"{r['rung']} {r['refinement']}"),
+                    (r["wall_s_per_sim_s"], y_of(r)),
                     xytext=(5, 4), textcoords="offset points", fontsize=7.5, color="0.2")
     front = sorted((r for r in ok if r["pareto"]), key=lambda r: r["wall_s_per_sim_s"])
     if len(front) > 1:

@@ -1,0 +1,123 @@
+"""Seed 000 Cases 1 and 2 with the wall: the twin against the source (Hariharesan 1998,
+Sec. 5.6), for the flexible rungs and the rigid-spring rung.
+
+    python tools/reproduce_contact.py            # writes docs/reproduction_contact.md
+
+Per case and rung: impact time, number of impacts, bounce height (largest gap within
+0.3 s after the first impact), the dominant post-impact acceleration frequency at points
+A–D (Hann-windowed, zero-padded FFT with peak interpolation, from 20 ms after the impact to
+the end of a 3.5 s run; resolution fs/N and the estimator's bound stated) against the
+source's experiment and its own simulation, with the ±10 % bar of seed 002, and the peak
+post-impact acceleration.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from flexarm_ros.analysis.spectra import dominant_frequency  # noqa: E402
+from flexarm_ros.model.scene import load_scene  # noqa: E402
+from flexarm_ros.model.simulate import simulate  # noqa: E402
+
+DURATION = 3.5
+SOURCE = {  # experiment, author's simulation (Hz); seed 000 Sec. 5.6 / SEEDS.md
+    "two_link_case1": {"A": (10.96, 11.53), "B": (10.94, 11.52), "C": (10.56, 11.53),
+                       "D": (None, None)},
+    "two_link_case2": {"A": ((9.31, 9.71), (10.05, 10.14)), "B": ((9.31, 9.71), (10.05, 10.14)),
+                       "C": ((9.31, 9.71), (10.05, 10.14)), "D": ((9.31, 9.71), (10.05, 10.14))},
+}
+RUNGS = (("cubic", 0), ("fem", 4), ("rigid", 0))
+
+
+def analyse(name, rung, refine):
+    sc = load_scene(name).with_fidelity(rung=rung, refine=refine)
+    t0 = time.perf_counter()
+    res = simulate(sc, DURATION)
+    wall = time.perf_counter() - t0
+    imp = res.contact.impacts
+    t = res.columns["t"]
+    gap = res.columns["gap"]
+    row = {"case": name, "rung": f"{rung} {refine}" if refine else rung, "wall_s": wall,
+           "impact_s": imp[0].time if imp else None, "impacts": len(imp)}
+    if imp:
+        win = (t > imp[0].time) & (t < imp[0].time + 0.3)
+        row["bounce_mm"] = 1e3 * max(0.0, gap[win].max())
+    tab = res.sensor_tables[4000.0]
+    ts = tab["t"]
+    start = (imp[0].time + 0.02) if imp else 0.5
+    sel = ts > start
+    for ch in "ABCD":
+        y = tab[f"acc_{ch}_true"][sel]
+        pk = dominant_frequency(ts[sel], y, f_min=2.0, f_max=60.0)
+        row[f"f_{ch}"] = pk.frequency_hz
+        row[f"peak_{ch}"] = float(np.abs(y).max())
+        row["res_hz"], row["bound_hz"] = pk.resolution_hz, pk.bound_hz
+    return row
+
+
+def _err(f, ref):
+    if ref is None:
+        return "—"
+    if isinstance(ref, tuple):
+        lo, hi = ref
+        e = 0.0 if lo <= f <= hi else (f - hi) / hi if f > hi else (f - lo) / lo
+    else:
+        e = (f - ref) / ref
+    ok = "✓" if abs(e) <= 0.10 else "✗"
+    return f"{100 * e:+.1f} % {ok}"
+
+
+def _ref(ref):
+    if ref is None:
+        return "—"
+    return f"{ref[0]}–{ref[1]}" if isinstance(ref, tuple) else f"{ref}"
+
+
+def main():
+    rows = [analyse(name, rung, refine) for name in SOURCE for rung, refine in RUNGS]
+    lines = ["# Seed 000 with the wall: the twin against the source", "",
+             "Regenerate: `python tools/reproduce_contact.py` (impulse–constraint contact, "
+             f"{DURATION} s runs, about a minute).", "",
+             "Source (Hariharesan 1998, Sec. 5.6): Case 1 impact near 2.1 s, the tip "
+             "bounces about 5 mm and is driven back; dominant post-impact acceleration "
+             "frequency, experiment vs the author's simulation: A 10.96/11.53, B 10.94/11.52, "
+             "C 10.56/11.53 Hz, D differs by 0.97 Hz; Case 2 9.31–9.71 Hz (experiment), "
+             "10.05–10.14 Hz (simulation). The rigid model changes abruptly at impact, misses "
+             "the higher frequencies and over-predicts the impact acceleration.", "",
+             "| case | rung | impact s | impacts | bounce mm | f_A Hz | f_B Hz | f_C Hz | "
+             "f_D Hz | peak acc A/B/C/D m/s² | wall s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        imp = f"{r['impact_s']:.3f}" if r["impact_s"] is not None else "none"
+        lines.append(
+            f"| {r['case'][-5:]} | {r['rung']} | {imp} | {r['impacts']} | "
+            f"{r.get('bounce_mm', float('nan')):.3f} | "
+            + " | ".join(f"{r['f_' + c]:.2f}" for c in "ABCD")
+            + " | " + " / ".join(f"{r['peak_' + c]:.2g}" for c in "ABCD")
+            + f" | {r['wall_s']:.1f} |")
+    lines += ["", f"Frequency resolution fs/N ≈ {rows[0]['res_hz']:.2f} Hz; estimator bound "
+              f"≈ {rows[0]['bound_hz']:.2f} Hz (`flexarm_ros/analysis/spectra.py`).", "",
+              "## Against the ±10 % bar (relative error of the dominant frequency)", "",
+              "| case | rung | point | twin Hz | experiment Hz | vs experiment | source's "
+              "simulation Hz | vs source's simulation |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        for c in "ABCD":
+            exp, sim = SOURCE[r["case"]][c]
+            f = r["f_" + c]
+            lines.append(f"| {r['case'][-5:]} | {r['rung']} | {c} | {f:.2f} | {_ref(exp)} | "
+                         f"{_err(f, exp)} | {_ref(sim)} | {_err(f, sim)} |")
+    out = ROOT / "docs" / "reproduction_contact.md"
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -263,23 +263,57 @@ def test_grazing_and_chattering_complete():
     assert all(i.kinetic_after <= i.kinetic_before for i in res.contact.impacts)
 
 
+def _compliant_vs_impulse(mu, stiffnesses):
+    """Errors of compliant runs against the impulse rung over one strike: touch time,
+    penetration, normal impulse delivered (∫F dt + impact impulses), tip path. The same
+    fixed free-flight step for every run (the compliant stepper subdivides only near and
+    in contact), output at 0.2 ms for contacts of about a millisecond."""
+    from flexarm_ros.model.contact_study import _metrics
+    base = dict(torques=(6.0, 1.8), wall_x=-0.15, duration=0.7, mu=mu)
+    fine = {"output_dt": 2e-4, "dt": 1e-4}
+    ref = simulate(_arm(**base).with_fidelity(**fine))
+    m_ref = _metrics(ref)
+    assert ref.contact.impacts and m_ref["normal_impulse_ns"] > 0
+    out = []
+    for k in stiffnesses:
+        res = simulate(_arm(**base, method="compliant", stiffness=k, damping=5.0)
+                       .with_fidelity(**fine))
+        m = _metrics(res)
+        out.append({"touch": abs(m["impact_time_s"] - m_ref["impact_time_s"]),
+                    "pen": m["penetration_m"],
+                    "dP": abs(m["normal_impulse_ns"] - m_ref["normal_impulse_ns"])
+                    / m_ref["normal_impulse_ns"],
+                    "tip": float(np.max(np.hypot(res.columns["tip_x"] - ref.columns["tip_x"],
+                                                 res.columns["tip_y"] - ref.columns["tip_y"])))})
+    print(mu, out)
+    return out
+
+
 def test_compliant_contact_converges_to_the_impulse_rung():
-    base = dict(torques=(1.0, 0.3), wall_x=-0.15, duration=1.45)
-    ref = simulate(_arm(**base))
-    t_imp = ref.contact.impacts[0].time
-    errs = []
-    for k in (1e5, 1e6, 1e7):
-        res = simulate(_arm(**base, method="compliant", stiffness=k, damping=3.0))
-        gap = res.columns["gap"]
-        t = res.columns["t"]
-        t_touch = t[np.nonzero(gap < 0)[0][0]]
-        tip_err = np.max(np.hypot(res.columns["tip_x"] - ref.columns["tip_x"],
-                                  res.columns["tip_y"] - ref.columns["tip_y"]))
-        errs.append((abs(t_touch - t_imp), tip_err, -gap.min()))
-    # penetration shrinks and the tip path approaches the impulse solution
-    assert errs[2][2] < errs[1][2] < errs[0][2]
-    assert errs[2][1] < errs[0][1]
-    assert errs[2][0] <= 2e-3
+    """Frictionless strike: as the wall stiffens the compliant rung's penetration, normal
+    impulse and tip path converge to the impulse rung's (measured: k = 1e5 / 1e6 / 1e7 N/m
+    → tip 2.2e-4 (1e6) and 6.1e-5 m (1e7), impulse 4e-4 and 9.5e-5)."""
+    e = _compliant_vs_impulse(0.0, (1e5, 1e6))
+    assert e[0]["touch"] < 1e-6 and e[1]["touch"] < 1e-6      # same free flight
+    assert e[0]["pen"] > 1.5 * e[1]["pen"] > 0               # ~1/√k at fixed ζ
+    assert e[1]["dP"] < e[0]["dP"] and e[1]["dP"] < 2e-3
+    assert e[1]["tip"] < e[0]["tip"] and e[1]["tip"] < 1e-3
+
+
+@pytest.mark.slow
+def test_compliant_contact_with_friction_converges_to_a_different_impact_law():
+    """With μ = 0.5 the compliant rung still converges as k grows, but to a limit 4–5 %
+    (normal impulse) and ~5 cm (tip path, 0.13 s after the strike) away from the impulse
+    rung: the impulse rung's frictional impact is Moreau's maximum-dissipation law (the
+    seed's μ·P_n sliding impulse when slip persists), the compliant contact integrates
+    Coulomb friction through compression and restitution (Stronge's process, slip may stop
+    inside the impact). Pinned here so a change to either law is noticed."""
+    fr = _compliant_vs_impulse(0.5, (1e6, 1e7))
+    assert abs(fr[1]["dP"] - fr[0]["dP"]) < 0.005                # converged in k
+    assert 0.02 < fr[1]["dP"] < 0.06
+    assert fr[1]["tip"] < 0.06
+    fl = _compliant_vs_impulse(0.0, (1e7,))
+    assert fl[0]["tip"] < 1e-4 and fl[0]["dP"] < 2e-4
 
 
 def test_contact_scenes_refuse_other_integrators_and_inside_start():

@@ -349,6 +349,26 @@ class ContactStepper:
         _, _, lt, _ = c.rhs(tt, xx, STICKING)              # static friction exceeded
         return xx, SLIDING, -math.copysign(1.0, lt)
 
+    def _compliant_step(self, t, x):
+        """Largest stable RK4 step near or in a compliant contact: 1.5/|λ| of the contact's
+        spring–damper with the tool's effective mass at the current configuration (it can
+        be far lighter than at the start); the fixed step elsewhere."""
+        c = self.contact
+        tm = c.terms(t, x)
+        g = c.gap(tm)
+        vn = c.n @ tm.v
+        if g > 0.0 and g + min(vn, 0.0) * self.h > 0.0:
+            return self.h                       # cannot reach the wall within this step
+        jn = c.n @ tm.J
+        Gnn = float(jn @ np.linalg.solve(tm.M, jn))
+        w = c.wall
+        delta = max(-g, 1e-3)
+        k_eff = w.exponent * w.stiffness * delta ** (w.exponent - 1.0)
+        omega = math.sqrt(k_eff * Gnn)
+        zeta = 0.5 * c.c_contact * math.sqrt(Gnn / k_eff)
+        rate = omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
+        return min(self.h, 1.5 / rate)
+
     # --------------------------------------------------------------------- public
     def advance(self, t_target):
         """Integrate to ``t_target`` (steps of at most h; events located and handled)."""
@@ -357,6 +377,8 @@ class ContactStepper:
         events_here = 0
         while t < t_target - 1e-15:
             dt = min(h, t_target - t)
+            if self.compliant:
+                dt = min(dt, self._compliant_step(t, x))
             x1, dp = self._rk4(t, x, dt, mode, s, want_impulse=True)
             self.steps += 1
             if not np.all(np.isfinite(x1)):

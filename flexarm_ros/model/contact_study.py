@@ -31,8 +31,10 @@ STIFFNESSES = (1e4, 1e5, 1e6, 1e7)
 
 
 def _first_touch(res) -> float:
-    """The located impact (impulse rung), or the gap's first zero crossing interpolated
-    linearly between output samples (compliant)."""
+    """The located impact (impulse rung), or, for the compliant rung, the touch time
+    extrapolated from the last sample before penetration with the tool's normal speed
+    (t = t_k + g_k / (−ġ_k); interpolating to the first penetrating sample would be biased
+    late, that sample's gap being held back by the contact)."""
     gap = res.columns["gap"]
     t = res.columns["t"]
     if res.contact is not None and res.contact.impacts:
@@ -43,7 +45,12 @@ def _first_touch(res) -> float:
     k = idx[0]
     if k == 0:
         return float(t[0])
-    return float(t[k - 1] + (t[k] - t[k - 1]) * gap[k - 1] / (gap[k - 1] - gap[k]))
+    n = np.asarray(res.chain.scene.walls[0].normal, float)
+    n = n / np.linalg.norm(n)
+    gdot = n[0] * res.columns["tool_vx"][k - 1] + n[1] * res.columns["tool_vy"][k - 1]
+    if gdot >= 0.0:
+        return float(t[k])
+    return float(t[k - 1] + min(gap[k - 1] / -gdot, t[k] - t[k - 1]))
 
 
 def _metrics(res) -> dict:

@@ -76,9 +76,10 @@ class Plant:
         fid = ch.fidelity
         h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt)
         if self.contact is not None:
-            rate = (contact_rate(self.contact, self.x) if self.contact.method == "compliant"
-                    else constrained_rate(self.contact, self.x))
-            h = min(h, RK4_AUTO / rate)
+            if self.contact.method == "compliant":
+                contact_rate(self.contact, self.x)      # fixes the contact damping
+            else:
+                h = min(h, RK4_AUTO / constrained_rate(self.contact, self.x))
         if physics_dt > 0:
             h = min(h, physics_dt)
         self.h = h

@@ -34,6 +34,15 @@ setup(
     entry_points={
         "console_scripts": [
             "flexarm = flexarm_ros.cli:main",
+            # the twin's nodes: `ros2 run flexarm_ros simulator` runs lib/flexarm_ros/simulator
+            "simulator = flexarm_ros.nodes.simulator:main",
+            "motor_driver = flexarm_ros.nodes.motor_driver:main",
+            "controller = flexarm_ros.nodes.controller:main",
+            "recorder = flexarm_ros.nodes.recorder:main",
+            "flexarm-simulator = flexarm_ros.nodes.simulator:main",
+            "flexarm-motor-driver = flexarm_ros.nodes.motor_driver:main",
+            "flexarm-controller = flexarm_ros.nodes.controller:main",
+            "flexarm-recorder = flexarm_ros.nodes.recorder:main",
         ],
     },
 )

@@ -161,6 +161,21 @@ def cmd_study(args):
     return 0
 
 
+def cmd_run(args):
+    """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
+    from .run import DEFAULT_SCENE as RUN_SCENE
+    from .run import run
+    res = run(args.scene or RUN_SCENE, duration=args.duration, mode=args.mode,
+              record=None if args.no_record else args.record, processes=args.processes,
+              namespace=args.namespace, progress=not args.quiet)
+    print(res.summary())
+    bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
+    if bad:
+        print(f"flexarm run: nodes exited with {bad}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="flexarm", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -208,6 +223,24 @@ def build_parser():
     st.add_argument("--no-foreshortening", action="store_true",
                     help="drop the geometric-stiffening terms in every rung")
     st.set_defaults(func=cmd_study)
+    r = sub.add_parser("run", help="the ROS 2 twin: simulator, motor driver, controller and "
+                                    "recorder nodes")
+    r.add_argument("scene", nargs="?", help="scene YAML or shipped name (two_link_case1)")
+    r.add_argument("--duration", type=float,
+                   help="simulated seconds (default: the scene's); Ctrl-C stops earlier")
+    r.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default="lockstep",
+                   help="lockstep: message-driven, deterministic, equal to the batch "
+                        "co-simulation (default); realtime: paced by the wall clock; fast: "
+                        "free-running with /clock")
+    r.add_argument("--record", type=Path, default=Path("run.mcap"), metavar="FILE.mcap",
+                   help="rosbag2-compatible MCAP of every topic, log time = simulation time, "
+                        "finalized on Ctrl-C too (default: run.mcap)")
+    r.add_argument("--no-record", action="store_true", help="run without the recorder")
+    r.add_argument("--processes", action="store_true",
+                   help="one process per node (default: all nodes on one executor)")
+    r.add_argument("--namespace", default="/flexarm", help="node namespace (default /flexarm)")
+    r.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    r.set_defaults(func=cmd_run)
     return p
 
 

@@ -583,8 +583,11 @@ def plot_pareto(rows, png_path, title: str = "") -> None:
     ax.grid(True, which="major", color="0.85", lw=0.6)
     ax.grid(True, which="minor", color="0.93", lw=0.4)
     sub = ""
-    if meta:
+    if meta.get("reference"):
         sub = (f"reference {meta['reference']}, {meta['duration_s']:.3g} s simulated")
+    elif meta.get("kind") == "contact" and rows:
+        ref = rows[0].get("reference", {})
+        sub = f"reference {ref.get('rung')} impulse, dt {ref.get('dt', 0):.3g} s"
     elif rows:
         sub = f"reference {rows[0].get('reference')}, {rows[0].get('duration_s', 0):.3g} s"
     ax.set_title((title + "\n" if title else "") + f"speed–accuracy of the fidelity ladder"

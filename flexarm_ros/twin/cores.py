@@ -212,6 +212,7 @@ class DriverCore:
     def update(self, t: float, dt: float, drive_rates) -> np.ndarray:
         """Joint torques (N·m) to hold over (t, t + dt], given the drive-coordinate rates
         now; advances the drive states to t + dt."""
+        self.t_now = t
         u = self._effective(t)
         w = np.asarray(drive_rates, float)
         tau = np.zeros(self.n)
@@ -244,9 +245,10 @@ class DriverCore:
         n = [self.par[k][0] if self.kind[k] in (drives.DC_CURRENT, drives.DC_QUASI_STATIC)
              else 1.0 for k in range(self.n)]
         eff = []
+        u = self._effective(self.t_now) if hasattr(self, "t_now") else self.command
         for k in range(self.n):
             if self.kind[k] == drives.DC_QUASI_STATIC:
-                eff.append(drives.motor_current(self.kind[k], self.par[k], self.command[k],
+                eff.append(drives.motor_current(self.kind[k], self.par[k], u[k],
                                                 drive_rates[k], 0.0))
             else:
                 eff.append(self.z[k])

@@ -1,0 +1,34 @@
+"""The twin's ROS 2 nodes: thin rclpy adapters over :mod:`flexarm_ros.twin.cores`.
+
+=================  ===========================  ==========================================
+node (executable)  subscribes                   publishes
+=================  ===========================  ==========================================
+``simulator``      effort_controller/commands   /clock, joint_states, encoders/counts,
+                                                accelerometers|strain|potentiometer/batch,
+                                                tool/contact, tool/wrench,
+                                                ground_truth/joint_states, ground_truth/tip
+``controller``     joint_states, tool/contact,  motor_driver/commands
+                   tool/wrench
+``motor_driver``   motor_driver/commands,       effort_controller/commands,
+                   ground_truth/joint_states    motor_driver/motor_states
+``recorder``       all of the above             (an MCAP file)
+=================  ===========================  ==========================================
+
+Topic names are relative to the node namespace (``flexarm run`` uses ``/flexarm``),
+``/clock`` is global; the contract is :mod:`flexarm_ros.twin.topics`. Every node takes
+the parameters ``scene`` (YAML path or shipped name), ``mode`` (``lockstep``,
+``realtime`` or ``fast``), ``duration`` and ``recorders``; ``<executable> --help`` lists
+them. ``flexarm run`` (:mod:`flexarm_ros.run`) starts the graph.
+"""
+
+__all__ = ["node_classes"]
+
+
+def node_classes() -> dict:
+    """{executable name: Node class} (imports rclpy)."""
+    from .controller import ControllerNode
+    from .motor_driver import MotorDriverNode
+    from .recorder import RecorderNode
+    from .simulator import SimulatorNode
+    return {"simulator": SimulatorNode, "motor_driver": MotorDriverNode,
+            "controller": ControllerNode, "recorder": RecorderNode}

@@ -1,0 +1,247 @@
+"""Plumbing shared by the twin's nodes: QoS, parameters, the start barrier, the mapping
+from a message stamp to the simulator's float time, and the ``main()`` of every node
+(``--help``, rclpy init, spin, clean shutdown on Ctrl-C / SIGTERM)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+import warnings
+
+with warnings.catch_warnings():
+    # rclpy loads message type support through rosidl_generator_py, whose parser (lark)
+    # imports the deprecated sre_parse / sre_constants modules: load it once, quietly.
+    warnings.filterwarnings("ignore", message="module 'sre_.*' is deprecated",
+                            category=DeprecationWarning)
+    try:
+        import rosidl_generator_py  # noqa: F401
+    except ImportError:  # pragma: no cover - other ROS installs
+        pass
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ..twin.cores import _ns, control_period
+
+MODES = ("lockstep", "realtime", "fast")
+DEFAULT_SCENE = "two_link_case1"
+DEPTH = 1000
+QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
+                 reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+"""Every topic of the twin: reliable, volatile, keep_last 1000 (deep enough that nothing
+is dropped while a subscriber lags by less than 1000 messages per topic)."""
+
+
+
+def publisher(node, msgtype: str, topic: str):
+    """A publisher with :data:`QOS` and no QoS-event handlers: rclpy's default handlers
+    add waitables that every executor wait has to scan (a third of a lockstep tick)."""
+    from ._msgconv import msg_class
+    return node.create_publisher(msg_class(msgtype), topic, QOS,
+                                 event_callbacks=PublisherEventCallbacks(
+                                     use_default_callbacks=False))
+
+
+def subscription(node, msgtype: str, topic: str, callback):
+    """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`)."""
+    from ._msgconv import msg_class
+    return node.create_subscription(msg_class(msgtype), topic, callback, QOS,
+                                    event_callbacks=SubscriptionEventCallbacks(
+                                        use_default_callbacks=False))
+
+
+COMMON = {
+    "scene": (DEFAULT_SCENE, "scene YAML path or shipped scene name"),
+    "mode": ("lockstep", "time mode: lockstep (message-driven, deterministic), realtime "
+                         "(wall-clock paced) or fast (free-running, /clock)"),
+    "duration": (0.0, "simulated seconds until the run ends (0: the scene's duration, inf: "
+                      "no end); the controller and driver do not answer states at or past it"),
+    "recorders": (0, "recorders expected on every topic before publishing starts (lockstep "
+                     "loses nothing only if every subscriber is matched first)"),
+}
+
+
+def declare(node, params: dict) -> dict:
+    """Declare ``{name: (default, description)}`` read-only; return the values."""
+    out = {}
+    for name, (default, text) in params.items():
+        desc = ParameterDescriptor(description=text, read_only=True)
+        out[name] = node.declare_parameter(name, default, desc).value
+    return out
+
+
+def load(node, params: dict) -> tuple:
+    """Common parameters → (values, scene, end tick count or None)."""
+    from ..model.scene import load_scene
+    p = declare(node, {**COMMON, **params})
+    if p["mode"] not in MODES:
+        raise ValueError(f"parameter mode: got {p['mode']!r}, expected one of {MODES}")
+    scene = load_scene(p["scene"])
+    dur = p["duration"] or scene.duration
+    n = None if dur == float("inf") else int(round(dur / control_period(scene)))
+    return p, scene, n
+
+
+def tick_of(scene, t_ns: int) -> int:
+    return int(round(t_ns * 1e-9 / control_period(scene)))
+
+
+def stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+class SimTime:
+    """The simulator core's time of a tick, bit for bit. The plant advances on the integer
+    sensor grid (t = k·g·1e-9) when sensors are declared, else by repeated ``t +=
+    period``; replaying that lets the controller and driver use the very float the core
+    used (``__call__``: stamp → t) and the recorder stamp tick n (``tick_ns``), so a
+    lockstep run equals :func:`~flexarm_ros.twin.cosim.cosimulate` exactly."""
+
+    def __init__(self, scene):
+        from ..model.sensors import sample_grid_ns
+        self.grid = sample_grid_ns([1.0 / s.rate_hz for s in scene.sensors])
+        self.period = control_period(scene)
+        self.per_tick = int(round(self.period * 1e9 / self.grid)) if self.grid else 0
+        self._t = self._tick_t = 0.0
+        self._ticks = [0]                                  # ns of tick n (no grid)
+
+    def __call__(self, t_ns: int) -> float:
+        if self.grid:
+            return t_ns * 1e-9
+        while _ns(self._t) < t_ns:
+            self._t += self.period
+        return self._t if _ns(self._t) == t_ns else t_ns * 1e-9
+
+    def tick_ns(self, n: int) -> int:
+        if self.grid:
+            return n * self.per_tick * self.grid
+        while len(self._ticks) <= n:
+            self._tick_t += self.period
+            self._ticks.append(_ns(self._tick_t))
+        return self._ticks[n]
+
+
+GRAPH = ("simulator", "controller", "motor_driver", "recorder")
+
+
+class Barrier:
+    """True once every publisher has its expected number of matched subscriptions and,
+    with ``recorders``, the graph shows the recorder of this namespace subscribed to it
+    (a foreign subscriber must not stand in for it); then stays true. Logs what it waits
+    for every few seconds."""
+
+    def __init__(self, node, needs, recorders=0):
+        self.node, self.needs, self.ok = node, [(p, n) for p, n in needs if n > 0], False
+        self.recorders = recorders
+        self._since = time.monotonic()
+        self._said = 0.0
+
+    def _missing(self, pub, n) -> str | None:
+        have = pub.get_subscription_count()
+        if have < n:
+            return f"{pub.topic_name} ({have}/{n} subscribers)"
+        if self.recorders:
+            ns = self.node.get_namespace()
+            if not any(i.node_name == "recorder" and i.node_namespace == ns
+                       for i in self.node.get_subscriptions_info_by_topic(pub.topic_name)):
+                return f"{pub.topic_name} (recorder)"
+        return None
+
+    def __call__(self) -> bool:
+        if not self.ok:
+            missing = [m for p, n in self.needs if (m := self._missing(p, n))]
+            self.ok = not missing
+            waited = time.monotonic() - self._since
+            if missing and waited - self._said > 5.0:
+                self._said = waited
+                self.node.get_logger().info("waiting for " + ", ".join(missing))
+        return self.ok
+
+
+class StopFlag:
+    """SIGINT / SIGTERM set the flag (the spin loop then shuts down cleanly) instead of
+    raising inside a callback; the previous handlers come back with ``restore()``."""
+
+    def __init__(self):
+        self.set = False
+        self.signum = None
+        self._old = {}
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._old[s] = signal.signal(s, self._handle)
+
+    def _handle(self, signum, frame):
+        if self.set and signum == signal.SIGINT:      # second Ctrl-C: give up at once
+            raise KeyboardInterrupt
+        self.set, self.signum = True, signum
+
+    def restore(self):
+        for s, h in self._old.items():
+            signal.signal(s, h)
+        self._old = {}
+
+
+def make_executor(context, kind="single"):
+    """rclpy's SingleThreadedExecutor, or with ``kind="events"`` the experimental
+    EventsExecutor (C++ event queue, about 1 ms less per lockstep tick than rebuilding the
+    wait set in Python, but it still calls back into nodes already removed/destroyed)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    from rclpy.executors import SingleThreadedExecutor
+    return SingleThreadedExecutor(context=context)
+
+
+def node_main(cls, args=None) -> int:
+    """``main()`` of a node: ``--help``, init, spin until done or stopped, shut down."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.utilities import remove_ros_args
+    argv = list(sys.argv if args is None else args)
+    params = {**COMMON, **getattr(cls, "PARAMS", {})}
+    epilog = "parameters (--ros-args -p name:=value):\n" + "\n".join(
+        f"  {k} (default {v[0]!r}): {v[1]}" for k, v in params.items())
+    mod_doc = (sys.modules[cls.__module__].__doc__ or "").strip().split("\n\n")
+    ap = argparse.ArgumentParser(
+        prog=cls.EXECUTABLE, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(cls.__doc__ or "").strip().splitlines()[0] + "\n\n" +
+        "\n\n".join(mod_doc[1:2]),
+        epilog=epilog + f"\n\nexample: ros2 run flexarm_ros {cls.EXECUTABLE} --ros-args "
+                        "-r __ns:=/flexarm -p scene:=two_link_position -p mode:=realtime")
+    ap.parse_args(remove_ros_args(argv)[1:])
+    from ..cli import _ros_env_defaults
+    _ros_env_defaults()
+    ctx = Context()
+    rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopFlag()
+    node = None
+    try:
+        from rclpy.exceptions import ParameterException
+        try:
+            node = cls(context=ctx)
+        except (ValueError, OSError, ParameterException) as exc:    # SceneError: ValueError
+            print(f"{cls.EXECUTABLE}: error: {exc}", file=sys.stderr)
+            return 2
+        exe = make_executor(ctx)
+        exe.add_node(node)
+        while ctx.ok() and not stop.set and not getattr(node, "finished", False):
+            exe.spin_once(timeout_sec=0.1)
+        if hasattr(node, "finish"):
+            node.finish(exe)
+        exe.shutdown()
+        return 0
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        stop.restore()
+        if node is not None:
+            if hasattr(node, "close"):
+                node.close()
+            node.destroy_node()
+        if ctx.ok():
+            rclpy.shutdown(context=ctx)

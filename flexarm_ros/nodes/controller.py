@@ -1,0 +1,92 @@
+"""The bench computer: :class:`~flexarm_ros.twin.cores.ControllerCore` on ROS 2.
+
+Subscribes (node-relative): ``joint_states`` (quantized encoder angles), and in scenes
+with a wall ``tool/contact`` and ``tool/wrench``. Publishes: ``motor_driver/commands``
+(std_msgs/Float64MultiArray, V per joint; A for a valve; N·m for a joint without drive),
+one per joint state it answers. The control law comes from the scene's ``control:``
+section (open_loop programs, position PD with inverse kinematics, sanding).
+
+Time: the state's stamp (simulation time) is the controller's time; no timer, no clock.
+In ``lockstep`` the k-th joint state is paired with the k-th contact and wrench messages
+(count-based FIFO, the same tick); in ``realtime`` / ``fast`` the latest contact and
+wrench go with each joint state. States at or past ``duration`` are not answered, and
+nothing is published before the driver (and ``recorders``) have matched.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import deque
+
+from rclpy.node import Node
+
+from ..bag import messages as msg
+from ..twin import topics as T
+from ..twin.cores import ControllerCore
+from . import _common as C
+from ._msgconv import to_msg
+
+
+class ControllerNode(Node):
+    """flexarm twin controller node: joint states in, motor commands out."""
+
+    EXECUTABLE = "controller"
+
+    def __init__(self, **kwargs):
+        super().__init__("controller", **kwargs)
+        self.p, scene, self.n_end = C.load(self, {})
+        self.lockstep = self.p["mode"] == "lockstep"
+        self.scene = scene
+        self.core = ControllerCore(scene)
+        self.period = 1.0 / scene.control.rate_hz
+        self.sim_time = C.SimTime(scene)
+        self.pub = C.publisher(self, T.TYPES[T.COMMANDS], T.COMMANDS)
+        self.ready = C.Barrier(self, [(self.pub, 1 + self.p["recorders"])], self.p["recorders"])
+        self.queues = {T.JOINT_STATES: deque()}
+        if scene.walls:
+            self.queues[T.TOOL_CONTACT] = deque()
+            self.queues[T.TOOL_WRENCH] = deque()
+        self.latest = {T.TOOL_CONTACT: False, T.TOOL_WRENCH: 0.0}
+        for topic in self.queues:
+            C.subscription(self, T.TYPES[topic], topic, lambda m, topic=topic: self._on(topic, m))
+        self.published = {T.COMMANDS: 0}
+        self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
+
+    def _on(self, topic, m):
+        if topic == T.TOOL_CONTACT:
+            m = bool(m.data)
+        elif topic == T.TOOL_WRENCH:
+            m = m.wrench.force.x
+        if self.lockstep or topic == T.JOINT_STATES:
+            self.queues[topic].append(m)
+        else:
+            self.latest[topic] = m
+        self._drain()
+
+    def _drain(self):
+        if not self.ready():
+            return
+        self.timer.cancel()
+        qs = self.queues
+        while qs[T.JOINT_STATES] and (not self.lockstep or all(qs.values())):
+            js = qs[T.JOINT_STATES].popleft()
+            if self.lockstep and len(qs) > 1:
+                contact, fn = qs[T.TOOL_CONTACT].popleft(), qs[T.TOOL_WRENCH].popleft()
+            else:
+                contact, fn = self.latest[T.TOOL_CONTACT], self.latest[T.TOOL_WRENCH]
+            t_ns = C.stamp_ns(js.header.stamp)
+            if self.n_end is not None and C.tick_of(self.scene, t_ns) >= self.n_end:
+                continue
+            cmd = self.core.update(self.sim_time(t_ns), self.period, list(js.position),
+                                   contact, fn)
+            self.pub.publish(to_msg(T.TYPES[T.COMMANDS], msg.float64_multiarray(cmd,
+                                                                                  ("joint",))))
+            self.published[T.COMMANDS] += 1
+
+
+def main(args=None):
+    return C.node_main(ControllerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""The plant node: :class:`~flexarm_ros.twin.cores.SimulatorCore` on ROS 2.
+
+Publishes (node-relative, reliable keep_last 1000): ``/clock``, ``joint_states``,
+``encoders/counts``, ``accelerometers/batch`` / ``strain/batch`` /
+``potentiometer/batch`` (scenes with such sensors), ``tool/contact`` and ``tool/wrench``
+(scenes with a wall), ``ground_truth/joint_states``, ``ground_truth/tip`` — the state of
+one control tick, in that order. Subscribes: ``effort_controller/commands`` (N·m per
+joint, held over the next control period).
+
+Time modes (parameter ``mode``):
+
+* ``lockstep``: publishes tick k, then waits for the k-th effort message and steps
+  (count-based pairing, no timer): deterministic, equal to ``cosimulate``.
+* ``realtime``: a wall-clock timer at the control period steps with the latest effort
+  (zero-order hold); the real-time factor and overruns (ticks that started more than one
+  period late) are logged every few seconds and at the end.
+* ``fast``: steps as fast as the executor allows with the latest effort; ``/clock`` is the
+  only time (run the other nodes with ``use_sim_time``).
+
+Publishing starts once every topic is matched (``recorders`` + the controller/driver).
+With a finite ``duration`` the node stops after the state at that time (and its process
+exits); ``progress`` prints the simulated time on stderr.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from ..twin import topics as T
+from ..twin.cores import SimulatorCore
+from . import _common as C
+from ._msgconv import to_msg
+
+
+class SimulatorNode(Node):
+    """flexarm twin simulator node: plant, sensors, contact and /clock."""
+
+    EXECUTABLE = "simulator"
+    PARAMS = {"progress": (False, "print the simulated time on stderr")}
+
+    def __init__(self, **kwargs):
+        super().__init__("simulator", **kwargs)
+        self.p, scene, self.n_end = C.load(self, self.PARAMS)
+        self.mode = self.p["mode"]
+        self.core = SimulatorCore(scene)
+        self.period = self.core.period
+        pubs = {}                                   # outputs() at k = 0 changes nothing
+        for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
+            pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
+        self.pubs = pubs
+        C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort)
+        r = self.p["recorders"]
+        to_nodes = (T.JOINT_STATES, T.TOOL_CONTACT, T.TOOL_WRENCH, T.GT_JOINT_STATES)
+        self.ready = C.Barrier(self, [(p, r + (t in to_nodes)) for t, p in pubs.items()], r)
+        self.published = {t: 0 for t in pubs}
+        self.torque = np.zeros(len(scene.links))
+        self.finished = self.started = False
+        self.overruns = 0
+        self.t_wall0 = self.t_wall_end = None
+        self._last_report = self._last_log = 0.0
+        # wall-clock timer: lockstep polls the start barrier (then efforts drive the
+        # steps), realtime paces the steps, fast steps whenever the executor is free
+        period = {"lockstep": 0.001, "realtime": self.period, "fast": 0.0}[self.mode]
+        self.timer = self.create_timer(period, self._on_timer)
+
+    # ---------------------------------------------------------------------------- ticks
+    def _publish_state(self):
+        for topic, tp, data in self.core.outputs():
+            self.pubs[topic].publish(to_msg(tp, data))
+            self.published[topic] += 1
+        if self.n_end is not None and self.core.k >= self.n_end:
+            self.halt()
+
+    def halt(self):
+        """Stop stepping (end of the run, or Ctrl-C): no more states are published."""
+        if not self.finished:
+            self.finished = True
+            self.t_wall_end = time.monotonic()
+            self.timer.cancel()
+            self.report(final=True)
+
+    def _step(self, torque):
+        tau = np.asarray(torque, float)
+        if tau.shape != self.torque.shape or not np.all(np.isfinite(tau)):
+            self.get_logger().error(f"effort {tau.tolist()} rejected (expected "
+                                    f"{self.torque.size} finite values); holding the last",
+                                    throttle_duration_sec=1.0)
+            tau = self.torque
+        self.torque = tau
+        self.core.step(tau)
+        self._publish_state()
+        self.report()
+
+    def _on_effort(self, msg):
+        data = list(msg.data)
+        if self.mode != "lockstep":
+            self.torque = np.asarray(data, float) if len(data) == self.torque.size and \
+                all(map(math.isfinite, data)) else self.torque
+            return
+        if self.started and not self.finished:
+            self._step(data)
+
+    def _on_timer(self):
+        if not self.started:
+            if not self.ready():
+                return
+            self.started, self.t_wall0 = True, time.monotonic()
+            self._last_log = self.t_wall0
+            self._publish_state()
+            if self.mode == "lockstep":
+                self.timer.cancel()
+            return
+        if self.finished:
+            return
+        if self.mode == "realtime":
+            due = (time.monotonic() - self.t_wall0) / self.period
+            if due - self.core.k > 2.0:             # started more than a period late
+                self.overruns += 1
+        self._step(self.torque)
+
+    def finish(self, executor):
+        """Called by main() when the node is stopped."""
+        self.halt()
+
+    # --------------------------------------------------------------------------- report
+    def rtf(self) -> float:
+        if self.t_wall0 is None:
+            return 0.0
+        wall = (self.t_wall_end or time.monotonic()) - self.t_wall0
+        return self.core.t / wall if wall > 0 else math.inf
+
+    def report(self, final=False):
+        if self.finished and not final:
+            return
+        now = time.monotonic()
+        if self.p["progress"] and (final or now - self._last_report > 0.2):
+            end = "" if self.n_end is None else f" / {self.n_end * self.period:.3f}"
+            print(f"\r  t = {self.core.t:.3f}{end} s  (real-time factor {self.rtf():.3g}"
+                  + (f", {self.overruns} overruns" if self.mode == "realtime" else "") + ")",
+                  end="\n" if final else "", file=sys.stderr, flush=True)
+            self._last_report = now
+        if final or (self.mode != "lockstep" and now - self._last_log > 5.0):
+            self._last_log = now
+            self.get_logger().info(f"{self.mode}: {self.core.t:.3f} s simulated, "
+                                   f"{self.core.k} ticks, real-time factor {self.rtf():.3g}, "
+                                   f"{self.overruns} overruns")
+
+
+def main(args=None):
+    return C.node_main(SimulatorNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

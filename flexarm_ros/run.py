@@ -1,0 +1,260 @@
+"""Start the twin's ROS 2 graph: simulator, motor driver, controller and (optionally) the
+recorder, in one process (all nodes on one executor, the default) or one process per
+node, for a duration or until Ctrl-C; always leaves a finalized MCAP when recording.
+
+``flexarm run`` is :func:`run`; tests and benchmarks use :class:`InProcessGraph` and
+:class:`ProcessGraph` directly to reach into a running graph (kill a node, publish a bad
+command, read counters).
+
+Environment: DDS discovery stays on the loopback interface
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless set) and the graph gets a private
+``ROS_DOMAIN_ID`` (1 + pid mod 101, unless set), both before rclpy initializes and in the
+environment of every child process.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+DEFAULT_SCENE = "two_link_case1"
+DEFAULT_NAMESPACE = "/flexarm"
+NODES = ("recorder", "motor_driver", "controller", "simulator")   # start order
+
+
+def ros_environment() -> dict:
+    """Loopback discovery and a private domain id (kept when the user chose them)."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
+    return {k: os.environ[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID")}
+
+
+@dataclass
+class RunResult:
+    scene: str
+    mode: str
+    processes: bool
+    record: Path | None
+    wall_s: float
+    sim_s: float | None = None              # in-process runs only
+    ticks: int | None = None
+    real_time_factor: float | None = None
+    overruns: int | None = None
+    rejected_commands: int | None = None
+    interrupted: bool = False
+    returncodes: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        how = "one process per node" if self.processes else "one process"
+        s = f"{self.scene}: {self.mode} run ({how})"
+        if self.sim_s is not None:
+            s += (f", {self.sim_s:.3f} s simulated in {self.wall_s:.3g} s "
+                  f"(real-time factor {self.real_time_factor:.3g}")
+            s += f", {self.overruns} overruns)" if self.mode == "realtime" else ")"
+        else:
+            s += f", {self.wall_s:.3g} s wall"
+        if self.interrupted:
+            s += ", interrupted"
+        return s + (f" → {self.record}" if self.record else "")
+
+
+def _params(scene, mode, duration, record, node, progress) -> dict:
+    """ROS parameters of ``node``: the common ones, the recorder's output, the
+    simulator's progress, sim time for the others in fast mode."""
+    p = {"scene": _scene_arg(scene), "mode": mode, "duration": float(duration or 0.0),
+         "recorders": 1 if record else 0}
+    if node == "recorder":
+        p["output"] = str(record)
+    if node == "simulator":
+        p["progress"] = bool(progress)
+    elif mode == "fast":
+        p["use_sim_time"] = True
+    return p
+
+
+def _scene_arg(scene) -> str:
+    """A path given as such becomes absolute (children may run elsewhere)."""
+    p = Path(str(scene))
+    return str(p.resolve()) if p.is_file() else str(scene)
+
+
+class InProcessGraph:
+    """All nodes in this process on one executor and a private context.
+
+    ``executor="single"``: rclpy's SingleThreadedExecutor (default); ``"events"``: the
+    experimental EventsExecutor, about 1 ms faster per lockstep tick, but it still
+    dispatches events queued for a node that was removed or destroyed (used by
+    ``bench/bench_realtime.py --executor events`` only)."""
+
+    def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
+                 namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
+                                                                       "controller"),
+                 executor="single"):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.parameter import Parameter
+        from rclpy.signals import SignalHandlerOptions
+
+        from .nodes import node_classes
+        from .nodes._common import make_executor
+        env = ros_environment()
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]),
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.executor = make_executor(self.context, executor)
+        self.nodes = {}
+        names = list(nodes) + (["recorder"] if record else [])
+        try:
+            for name in NODES:
+                if name not in names:
+                    continue
+                p = _params(scene, mode, duration, record, name, progress)
+                node = node_classes()[name](
+                    context=self.context, namespace=namespace,
+                    parameter_overrides=[Parameter(k, value=v) for k, v in p.items()])
+                self.nodes[name] = node
+                self.executor.add_node(node)
+        except BaseException:
+            self.close()
+            raise
+
+    def __getitem__(self, name):
+        return self.nodes[name]
+
+    def spin_until(self, condition, timeout=None, stop=None) -> bool:
+        """Spin until ``condition()`` (True), ``timeout`` s of wall time or ``stop.set``."""
+        t0 = time.monotonic()
+        while not condition():
+            if (timeout is not None and time.monotonic() - t0 > timeout) or \
+                    (stop is not None and stop.set) or not self.context.ok():
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def recorded_all(self) -> bool:
+        """Every message published by this process's nodes has reached the recorder."""
+        rec = self.nodes.get("recorder")
+        if rec is None:
+            return True
+        sent: dict = {}
+        for name, node in self.nodes.items():
+            for topic, n in getattr(node, "published", {}).items():
+                sent[topic] = sent.get(topic, 0) + n
+        return all(rec.received.get(t, 0) >= n for t, n in sent.items())
+
+    def remove(self, name):
+        """Take a node out of the graph (what a crash does), without closing the others."""
+        node = self.nodes.pop(name)
+        self.executor.remove_node(node)
+        node.destroy_node()
+
+    def close(self):
+        import rclpy
+        rec = self.nodes.get("recorder")
+        if rec is not None:
+            rec.close()
+        for node in self.nodes.values():
+            node.destroy_node()
+        self.nodes = {}
+        self.executor.shutdown()
+        if self.context.ok():
+            rclpy.shutdown(context=self.context)
+
+
+class ProcessGraph:
+    """One child process per node: ``python -m flexarm_ros.nodes.<node> --ros-args ...``."""
+
+    def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
+                 namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
+                                                                       "controller"),
+                 stderr=None):
+        env = dict(os.environ, **ros_environment())
+        names = list(nodes) + (["recorder"] if record else [])
+        self.procs = {}
+        try:
+            for name in NODES:
+                if name not in names:
+                    continue
+                p = _params(scene, mode, duration, record and Path(record).resolve(), name,
+                            progress)
+                cmd = [sys.executable, "-m", f"flexarm_ros.nodes.{name}", "--ros-args",
+                       "-r", f"__ns:={namespace}"]
+                for k, v in p.items():
+                    cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+                self.procs[name] = subprocess.Popen(cmd, env=env, stderr=stderr)
+        except BaseException:
+            self.stop(timeout=5.0)
+            raise
+
+    def failed(self) -> list:
+        """Nodes that exited with an error."""
+        return [n for n, p in self.procs.items() if p.poll() not in (None, 0)]
+
+    def signal(self, name, sig=signal.SIGTERM):
+        proc = self.procs.get(name)
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(sig)
+
+    def stop(self, timeout=15.0) -> dict:
+        """SIGTERM the nodes (simulator, controller, driver, then the recorder, which
+        drains and finalizes), kill what does not exit; the return codes."""
+        for group in (("simulator", "controller", "motor_driver"), ("recorder",)):
+            for name in group:
+                self.signal(name)
+            for name in group:
+                proc = self.procs.get(name)
+                if proc is None:
+                    continue
+                try:
+                    proc.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+        return {name: p.returncode for name, p in self.procs.items()}
+
+
+def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
+        processes=False, namespace=DEFAULT_NAMESPACE, progress=True) -> RunResult:
+    """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
+    SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL."""
+    from .model.scene import load_scene
+    from .nodes._common import MODES, StopFlag
+    if mode not in MODES:
+        raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
+    name = load_scene(scene).name                      # fails early on a bad scene
+    record = Path(record) if record else None
+    stop = StopFlag()
+    t0 = time.monotonic()
+    try:
+        if processes:
+            g = ProcessGraph(scene, mode, duration, record, namespace, progress)
+            sim = g.procs["simulator"]
+            while sim.poll() is None and not stop.set and not g.failed():
+                try:
+                    sim.wait(0.1)
+                except subprocess.TimeoutExpired:
+                    pass
+            codes = g.stop()
+            return RunResult(name, mode, True, record, time.monotonic() - t0,
+                             interrupted=stop.set, returncodes=codes)
+        g = InProcessGraph(scene, mode, duration, record, namespace, progress)
+        try:
+            sim = g["simulator"]
+            g.spin_until(lambda: sim.finished, stop=stop)
+            sim.halt()
+            if record:
+                g.spin_until(g.recorded_all, timeout=10.0, stop=None if stop.set else stop)
+            return RunResult(name, mode, False, record, time.monotonic() - t0,
+                             sim_s=sim.core.t, ticks=sim.core.k, real_time_factor=sim.rtf(),
+                             overruns=sim.overruns,
+                             rejected_commands=g["motor_driver"].rejected,
+                             interrupted=stop.set)
+        finally:
+            g.close()
+    finally:
+        stop.restore()

@@ -291,7 +291,14 @@ def test_sigkill_leaves_a_readable_bag_up_to_the_last_chunk(tmp_path):
     _consistent(bag)
     ref = cosimulate(load_scene("link_motor"), len(bag[T.CLOCK]) * 1e-3)
     js = [to_dict(m) for _, m in bag[f"{NS}/{T.JOINT_STATES}"]]
-    assert js == [m.data for m in ref.topic(T.JOINT_STATES)][:len(js)]
+    want = [m.data for m in ref.topic(T.JOINT_STATES)][:len(js)]
+    assert [m["header"] for m in js] == [m["header"] for m in want]   # gap-free prefix
+    # values to round-off: this run's plant was compiled in another process (a fresh
+    # numba cache on a clean machine), where the last bit can differ (measured: 1 ulp of
+    # an effort after 331 ticks); bit-identity is asserted for in-process lockstep runs
+    for key in ("position", "velocity", "effort"):
+        np.testing.assert_allclose([m[key] for m in js], [m[key] for m in want],
+                                   rtol=1e-12, atol=1e-15)
 
 
 # ----------------------------------------------------------------------------- packaging

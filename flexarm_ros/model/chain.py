@@ -292,6 +292,13 @@ class Chain:
                 zd[a.state] = drives.actuator_rate(a.kind, a.par, u, w, zj)
         return Q, zd
 
+    def static_forces(self, q) -> np.ndarray:
+        """Generalized forces at rest without inputs, Q_grav − h − K q + Q_coupling (n,):
+        minus the torque each drive coordinate needs to hold configuration q."""
+        zero = np.zeros(self.n)
+        kin = self.kinematics(q, zero)
+        return kin.Qg - kin.h - self.K @ q + self.coupling_forces(q, zero)
+
     def coupling_forces(self, q, qd) -> np.ndarray:
         """Backlash mesh torques as generalized forces (motor side −τ, link side +τ)."""
         Q = np.zeros(self.n)
@@ -415,11 +422,6 @@ class Chain:
         return hub.o + As, J, c, hub.psi + slope @ eta
 
     # -------------------------------------------------------------------------- dynamics
-    def accelerations(self, t, q, qd, z=None) -> np.ndarray:
-        """q̈ of all coordinates at (t, q, q̇, z); prescribed coordinates follow their
-        program."""
-        return self.dynamics(t, q, qd, z)[0]
-
     def dynamics(self, t, q, qd, z=None) -> tuple[np.ndarray, np.ndarray]:
         """(q̈, ż) at (t, q, q̇, z): the equations of motion and the actuator states."""
         z = np.zeros(self.nz) if z is None else z

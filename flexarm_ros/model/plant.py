@@ -207,12 +207,3 @@ class Plant:
         ph, fn, ft, gap, r, v, _ = self.contact_sample
         return {"phase": PHASES[ph], "normal_force": fn, "friction_force": ft, "gap": gap,
                 "tool": r, "tool_velocity": v}
-
-    def holding_torques(self) -> np.ndarray:
-        """Joint torques that hold the initial configuration at rest (gravity, springs):
-        what a hydraulic driver's initial pressure supplies."""
-        ch = self.chain
-        q, _ = ch.full_state(0.0, self.x)
-        kin = ch.kinematics(q, np.zeros(ch.n))
-        f = kin.Qg - kin.h - ch.K @ q + ch.coupling_forces(q, np.zeros(ch.n))
-        return np.array([-f[i] for i in ch.drive_index()])

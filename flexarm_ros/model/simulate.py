@@ -97,8 +97,7 @@ def initial_state(chain: Chain):
     z0 = np.zeros(chain.nz)
     hyd = [a for a in chain.actuators if a.kind == drives.HYDRAULIC]
     if hyd:
-        kin = chain.kinematics(q0, np.zeros(chain.n))
-        f = kin.Qg - kin.h - chain.K @ q0 + chain.coupling_forces(q0, np.zeros(chain.n))
+        f = chain.static_forces(q0)
         for a in hyd:
             p_hold, i_bias = drives.hydraulic_hold(a.par, -f[a.coord])
             if not np.isfinite(i_bias):

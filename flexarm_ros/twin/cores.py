@@ -80,7 +80,6 @@ class SimulatorCore:
         """Joint angles as the controller sees them: from the encoder counts where an
         encoder is declared (quantized), else the model's angle."""
         q, _ = self.plant.joint_state()
-        qdrive, _ = self.plant.drive_state()
         ang = q.copy()
         q0 = self.plant.q_initial
         for link, sm in self.encoders.items():

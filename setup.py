@@ -22,6 +22,7 @@ setup(
         "ros": ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-geometry-msgs",
                 "ros-rmw-fastrtps-cpp"],
         "fast": ["numba>=0.60"],
+        "viz": ["rerun-sdk>=0.20"],
         "dev": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "colcon-common-extensions", "colcon-ros",
                 "ros-ament-package"],
     },

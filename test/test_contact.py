@@ -326,3 +326,53 @@ def test_contact_scenes_refuse_other_integrators_and_inside_start():
         load_scene_dict({**{"name": "x", "links": [{"name": "a", "beam": {
             "length": 1.0, "EI": 1.0, "mass_per_length": 1.0}}]},
             "walls": [{"point": [0, 0], "normal": [1, 0]}] * 2})
+
+
+def _reference_only(monkeypatch):
+    """Run every ContactStepper on the Python reference (no compiled smooth stretches)."""
+    from flexarm_ros.model import contact as C
+    orig = C.ContactStepper.__init__
+
+    def init(self, *a, **k):
+        orig(self, *a, **k)
+        self.compiled = False
+    monkeypatch.setattr(C.ContactStepper, "__init__", init)
+
+
+@pytest.mark.parametrize("case", ["strike", "stick", "reverse", "separate", "chatter"])
+def test_compiled_contact_stepping_equals_the_reference(case, monkeypatch):
+    """kernel_contact (compiled smooth stepping, Schur-complement constrained dynamics)
+    against the Python reference stepper: same impacts, phases, forces and states to
+    round-off through strike, sticking, sliding, reversal, separation and re-impacts."""
+    from flexarm_ros.model import kernel
+    if not kernel.HAVE_NUMBA:
+        pytest.skip("the compiled stepper needs numba")
+    progs_rev = [{"joint": 1, "torque": {"type": "constant", "value": 4.0}},
+                 {"joint": 2, "torque": {"type": "piecewise_constant", "times": [0.0, 0.3],
+                                         "values": [2.5, -4.0]}}]
+    progs_sep = [{"joint": 1, "torque": {"type": "piecewise_linear",
+                                         "times": [0.0, 0.2, 0.4], "values": [3.0, 3.0, -3.0]}},
+                 {"joint": 2, "torque": {"type": "constant", "value": 0.0}}]
+    scene = {"strike": lambda: _arm(torques=(1.0, 0.3), wall_x=-0.15, duration=1.5),
+             "stick": lambda: _pressed((3.0, 0.5)),
+             "reverse": lambda: _pressed(None, programs=progs_rev, duration=0.8),
+             "separate": lambda: _pressed(None, programs=progs_sep, duration=0.5),
+             "chatter": lambda: _arm(torques=(2.0, 1.0), wall_x=-0.15, duration=1.0,
+                                     EI=5.0)}[case]()
+    fast = simulate(scene)
+    with monkeypatch.context() as m:
+        _reference_only(m)
+        ref = simulate(scene)
+    a, b = fast.contact, ref.contact
+    if case in ("strike", "chatter"):
+        assert b.impacts, "the comparison must go through an impact"
+    assert [(i.outcome) for i in a.impacts] == [(i.outcome) for i in b.impacts]
+    np.testing.assert_allclose([i.time for i in a.impacts], [i.time for i in b.impacts],
+                               atol=1e-12)
+    assert np.array_equal(a.phase, b.phase)
+    scale = max(1.0, float(np.abs(b.normal_force).max()))
+    np.testing.assert_allclose(a.normal_force, b.normal_force, atol=1e-9 * scale)
+    np.testing.assert_allclose(a.normal_impulse, b.normal_impulse, atol=1e-11 * scale)
+    np.testing.assert_allclose(fast.run.q, ref.run.q, atol=1e-11)
+    np.testing.assert_allclose(fast.run.qd, ref.run.qd, atol=1e-8)
+    assert fast.run.steps == ref.run.steps

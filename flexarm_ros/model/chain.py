@@ -528,7 +528,23 @@ class Chain:
 
     def tip_position(self, q) -> np.ndarray:
         """Position (x, y) of the last beam's tip (m)."""
-        return self.kinematics(q, np.zeros(self.n)).tip_frames[-1].o.copy()
+        return self.kinematics(q, np.zeros(self.n), frames_only=True).tip_frames[-1].o.copy()
+
+    def centerlines(self, q, samples: int = 21) -> list[np.ndarray]:
+        """Deformed beam centerlines in the world frame, one (samples, 2) array per link
+        from the beam root to its tip: r(x) = o_hub + A(ψ)·[r_h + x + u_f(x), φ(x)ᵀη], the
+        kinematics of the mass points and sensors (:meth:`point_kinematics`), for views."""
+        if samples < 2:
+            raise ValueError(f"samples: got {samples}, expected at least 2")
+        q = np.asarray(q, float)
+        qd = np.zeros(self.n)
+        kin = self.kinematics(q, qd, frames_only=True)
+        out = []
+        for k, lm in enumerate(self.links):
+            xs = np.linspace(0.0, lm.beam.length, samples)
+            out.append(np.array([self.point_kinematics(q, qd, k, "beam", (x, 0.0), kin=kin)[0]
+                                 for x in xs]))
+        return out
 
     def tip_deflections(self, q) -> np.ndarray:
         """Transverse tip deflection w(L) of every beam (m; rigid rung: L·β)."""

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from . import kernel
+from . import kernel, kernel_contact
 from .errors import SceneError, SimulationDiverged
 
 FREE, SLIDING, STICKING = 0, 1, 2
@@ -287,6 +287,12 @@ class ContactStepper:
         self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
         self.h_contact = h              # step while in contact (halved on excess drift)
         self.compliant = contact.method == "compliant"
+        # smooth stretches of the impulse rung in compiled code (numba backend); events,
+        # impacts and retaken steps stay in the Python reference below
+        self.compiled = not self.compliant and chain.backend == "numba"
+        if self.compiled:
+            self._sc = kernel_contact.scratch(contact)
+            self._xdot = np.empty(len(self.x))
 
     # ------------------------------------------------------------------ internals
     def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
@@ -376,7 +382,25 @@ class ContactStepper:
         chain, h = self.chain, self.h
         t, x, mode, s = self.t, self.x, self.mode, self.s
         events_here = 0
+        cp = kernel_contact.parameters(self.contact) if self.compiled else None
         while t < t_target - 1e-15:
+            if self.compiled:
+                hh = h if mode == FREE else min(h, self.h_contact)
+                code, t, x, dp, nst, calls, drift, x_bad = kernel_contact.span(
+                    x, float(t), float(t_target), hh, int(mode), float(s),
+                    chain.fidelity.max_deflection_ratio, chain.fidelity.contact_tolerance,
+                    self.contact.model, self.contact.ws, cp, self._sc)
+                self.normal_impulse += dp
+                self.steps += nst
+                self.calls += calls
+                self.max_drift = max(self.max_drift, drift)
+                if code == kernel.OK:
+                    break
+                if code in (kernel.NON_FINITE, kernel.DEFLECTION):
+                    self.guard.last = x
+                    self.guard.check(t + min(hh, t_target - t), x_bad)
+                # an event, excess drift or a singular constraint in the next step: the
+                # reference below takes that step
             dt = min(h, t_target - t)
             if self.compliant:
                 dt = min(dt, self._compliant_step(t, x))
@@ -437,6 +461,17 @@ class ContactStepper:
         """(phase code, λ_n, λ_t, gap, tool r, tool ṙ, q̈_free) at the current state; the
         phase is 'impact' once after an impact."""
         c = self.contact
+        if self.compiled:
+            res = self._sc[8]
+            if kernel_contact.evaluate(float(self.t), self.x, int(self.mode), float(self.s),
+                                       self._xdot, c.model, c.ws,
+                                       kernel_contact.parameters(c), res, self._sc):
+                ph = PHASE_CODE["impact"] if self.impact_pending else self.mode
+                self.impact_pending = False
+                R = kernel_contact
+                return (ph, res[R.R_LN], res[R.R_LT], res[R.R_GAP],
+                        np.array([res[R.R_RX], res[R.R_RY]]),
+                        np.array([res[R.R_VX], res[R.R_VY]]), self._xdot[c.nf:2 * c.nf].copy())
         xd, ln, lt, tm = c.rhs(self.t, self.x, self.mode, self.s)
         ph = self.mode
         if self.compliant:

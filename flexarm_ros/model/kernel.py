@@ -39,7 +39,7 @@ M_K, M_D, M_MCODE, M_MPAR = 18, 19, 22, 23
 M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
 M_AKIND, M_APAR, M_AZI, M_BIDX, M_BPAR, M_NZ, M_ZLO, M_ZHI = 31, 32, 33, 34, 35, 36, 37, 38
 (W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
- W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD, W_TIP) = range(22)
+ W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD, W_TIP, W_FR, W_FJ) = range(24)
 
 # status codes of the compiled loop
 OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
@@ -76,7 +76,26 @@ def workspace(model):
             np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
             np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
             np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n),
-            np.empty(2 * nf + model[M_NZ]), np.empty(max(model[M_NZ], 1)), np.empty(6))
+            np.empty(2 * nf + model[M_NZ]), np.empty(max(model[M_NZ], 1)), np.empty(6),
+            np.empty((model[M_NL], 2, 6)), np.empty((model[M_NL], 2, 3, n)))
+
+
+@_jit_inline
+def _store_frame(ws, k, j, ox, oy, cox, coy, psi, psid, Jo, Jpsi, n):
+    """Keep link k's hub (j = 0) or tip (j = 1) frame: ws[W_FR][k, j] = (o, c_o, ψ, ψ̇),
+    ws[W_FJ][k, j] = (∂o_x/∂q, ∂o_y/∂q, ∂ψ/∂q) — what the sensors read."""
+    fr = ws[W_FR]
+    fj = ws[W_FJ]
+    fr[k, j, 0] = ox
+    fr[k, j, 1] = oy
+    fr[k, j, 2] = cox
+    fr[k, j, 3] = coy
+    fr[k, j, 4] = psi
+    fr[k, j, 5] = psid
+    for i in range(n):
+        fj[k, j, 0, i] = Jo[0, i]
+        fj[k, j, 1, i] = Jo[1, i]
+        fj[k, j, 2, i] = Jpsi[i]
 
 
 @_jit_inline
@@ -155,6 +174,7 @@ def chain_terms(q, qd, model, ws):
         psi += q[jj]
         Jpsi[jj] += 1.0
         psid += qd[jj]
+        _store_frame(ws, k, 0, ox, oy, cox, coy, psi, psid, Jo, Jpsi, n)
         _add_body(M, h, Qg, bodies[k, 0, 0], bodies[k, 0, 1], bodies[k, 0, 2],
                   bodies[k, 0, 3], ox, oy, Jo, cox, coy, psi, Jpsi, psid, g, nact, Jx, Jy)
         c = math.cos(psi)
@@ -243,6 +263,7 @@ def chain_terms(q, qd, model, ws):
         psid = 0.0
         for i in range(n):
             psid += Jpsi[i] * qd[i]
+        _store_frame(ws, k, 1, ox, oy, cox, coy, psi, psid, Jo, Jpsi, n)
         _add_body(M, h, Qg, bodies[k, 1, 0], bodies[k, 1, 1], bodies[k, 1, 2],
                   bodies[k, 1, 3], ox, oy, Jo, cox, coy, psi, Jpsi, psid, g, nact, Jx, Jy)
     for i in range(n):

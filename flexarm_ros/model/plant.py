@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernel
+from . import kernel, kernel_sensors
 from .chain import Chain
 from .contact import PHASES, ContactStepper, build_contact, constrained_rate, contact_rate
 from .errors import SceneError
@@ -72,6 +72,12 @@ class Plant:
         self._every = [int(round(1e9 / s.spec.rate_hz)) for s in self.sensors]
         self._rng = {s.name: np.random.default_rng(s.spec.seed) for s in self.sensors}
         self._act = {a.link: j for j, a in enumerate(ch.actuators)}
+        # accelerometers read by the compiled kernel (numba backend; else the numpy path)
+        self._acc = None
+        if ch.backend == "numba" and any(s.spec.kind == "accelerometer" for s in self.sensors):
+            self._acc = kernel_sensors.pack(ch, self.sensors)
+            self._acc_out = np.empty(len(self._acc[0]))
+            self._acc_row = {int(j): r for r, j in enumerate(self._acc[0])}
         self.torques = np.zeros(len(ch.links))
         fid = ch.fidelity
         h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt)
@@ -148,13 +154,24 @@ class Plant:
         ch = self.chain
         q, qd = ch.full_state(self.t, self.x)
         qdd = None
+        kin = None
         if any(self.sensors[j].spec.kind == "accelerometer" for j in due):
             qdd = self.accelerations()
-        kin = ch.kinematics(q, qd, frames_only=True)
+            if self._acc is not None:       # compiled: frames from one kernel evaluation
+                nf2 = 2 * len(ch.free)
+                kernel.forces(float(self.t), q.copy(), qd.copy(), self.x[nf2:],
+                              ch.kernel_args, self.ws)
+                kernel_sensors.readings(q, qd, qdd, ch.kernel_args, self.ws,
+                                        *self._acc[1:], self._acc_out)
         out = []
         for j in due:
             sm = self.sensors[j]
-            val = true_value(sm, ch, q, qd, qdd, self.q_initial, kin)
+            if sm.spec.kind == "accelerometer" and self._acc is not None:
+                val = float(self._acc_out[self._acc_row[j]])
+            else:
+                if kin is None and sm.spec.kind in ("accelerometer", "tip_position"):
+                    kin = ch.kinematics(q, qd, frames_only=True)
+                val = true_value(sm, ch, q, qd, qdd, self.q_initial, kin)
             if sm.spec.kind == "tip_position":
                 out.append(Sample(f"{sm.name}_x", self.t, val[0], val[0]))
                 out.append(Sample(f"{sm.name}_y", self.t, val[1], val[1]))
@@ -194,8 +211,14 @@ class Plant:
         return q[idx], qd[idx]
 
     def tip_position(self) -> np.ndarray:
-        q, _ = self.chain.full_state(self.t, self.x)
-        return self.chain.tip_position(q)
+        """(x, y) of the last beam tip (m) now (the compiled kernel's frame when available,
+        else :meth:`Chain.tip_position`)."""
+        ch = self.chain
+        q, qd = ch.full_state(self.t, self.x)
+        if ch.backend != "numba":
+            return ch.tip_position(q)
+        kernel.forces(float(self.t), q, qd, self.x[2 * len(ch.free):], ch.kernel_args, self.ws)
+        return self.ws[kernel.W_FR][-1, 1, 0:2].copy()
 
     def contact_state(self) -> dict:
         """phase, normal/friction force (N), gap (m), tool position/velocity; phase 'free'

@@ -130,6 +130,9 @@ class SimulatorCore:
         tip = self.plant.tip_position()
         out.append((T.GT_TIP, T.TYPES[T.GT_TIP],
                     msg.point_stamped(t_ns, "world", (tip[0], tip[1], 0.0))))
+        qf, qdf = self.plant.chain.full_state(self.t, self.plant.x)
+        out.append((T.GT_COORDINATES, T.TYPES[T.GT_COORDINATES],
+                    msg.joint_state(t_ns, self.plant.chain.names, qf, qdf)))
         return out
 
     def step(self, torques) -> None:

@@ -3,7 +3,10 @@
 Seed 000 rates (scene ``two_link_case1``: 1 kHz control and encoders, four accelerometers
 at 4 kHz batched four samples per message):
 
-1. the plant alone: :class:`~flexarm_ros.twin.cosim.Lockstep` ticks per second (no ROS);
+1. the plant alone: :class:`~flexarm_ros.twin.cosim.Lockstep` ticks per second (no ROS),
+   and the simulator node's tick split into physics (``SimulatorCore.step``), building the
+   messages (``outputs``), converting them to rclpy objects and publishing them (no
+   subscriber) — the floor of a realtime tick before any other node runs;
 2. ``lockstep`` through ROS, all nodes on one executor: ticks per second, with and
    without the recorder;
 3. ``realtime`` with the recorder for ``--seconds`` of wall clock: real-time factor and
@@ -36,6 +39,49 @@ def plant_only(scene_name: str, ticks: int) -> float:
     for _ in range(ticks):
         ls.tick()
     return ticks / (time.perf_counter() - t0)
+
+
+def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
+    """Mean µs per simulator tick: physics, message dicts, rclpy objects, publish."""
+    import numpy as np
+    import rclpy
+    from rclpy.context import Context
+    from flexarm_ros.model.scene import load_scene
+    from flexarm_ros.nodes import _common as C
+    from flexarm_ros.nodes._msgconv import to_msg
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.cores import SimulatorCore
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node("tick_budget", context=ctx)
+        core = SimulatorCore(load_scene(scene_name))
+        tau = np.zeros(len(core.names))
+        core.outputs()
+        core.step(tau)                                # compile / warm up
+        pubs = {t: C.publisher(node, T.TYPES[t], t)
+                for t in [o[0] for o in core.outputs()] + list(core.groups)}
+        acc = dict.fromkeys(("physics", "messages", "to_msg", "publish"), 0.0)
+        for _ in range(ticks):
+            t0 = time.perf_counter()
+            core.step(tau)
+            t1 = time.perf_counter()
+            outs = core.outputs()
+            t2 = time.perf_counter()
+            msgs = [(topic, to_msg(tp, d)) for topic, tp, d in outs]
+            t3 = time.perf_counter()
+            for topic, m in msgs:
+                pubs[topic].publish(m)
+            t4 = time.perf_counter()
+            for key, dt in zip(acc, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+                acc[key] += dt
+        out = {k: 1e6 * v / ticks for k, v in acc.items()}
+        out["messages_per_tick"] = len(outs)
+        out["total"] = sum(v for k, v in out.items() if k != "messages_per_tick")
+        node.destroy_node()
+        return out
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 def ros_run(scene_name: str, mode: str, duration: float, record: Path | None,
@@ -79,16 +125,22 @@ def main(argv=None) -> int:
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
         rows.append({"mode": "plant only (cosim)", "ticks_per_s": plant,
                      "real_time_factor": plant / 1000.0})
+        budget = simulator_tick_budget(args.scene, int(args.lockstep_seconds * 1000))
         for rec in (None, Path(tmp) / "lockstep.mcap"):
             rows.append(ros_run(args.scene, "lockstep", args.lockstep_seconds, rec,
                                 executor=args.executor))
         rows.append(ros_run(args.scene, "realtime", float("inf"), Path(tmp) / "realtime.mcap",
                             wall_limit=args.seconds, executor=args.executor))
-    out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"], "runs": rows}
+    out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"], "runs": rows,
+           "simulator_tick_us": budget}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
     print(f"scene {args.scene} (control 1 kHz), {args.executor} executor")
+    b = budget
+    print(f"  simulator tick (no subscriber): {b['total']:.0f} µs = physics {b['physics']:.0f}"
+          f" + messages {b['messages']:.0f} + to_msg {b['to_msg']:.0f} + publish "
+          f"{b['publish']:.0f} ({b['messages_per_tick']} messages)")
     for r in rows:
         extra = ""
         if "wall_s" in r:

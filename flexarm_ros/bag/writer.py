@@ -128,8 +128,9 @@ def _default_compression() -> CompressionType:
         return CompressionType.NONE
 
 
-def _qos_yaml(version: int) -> list[dict[str, Any]]:
+def _qos_yaml(version: int, depth: int = 10) -> list[dict[str, Any]]:
     qos = copy.deepcopy(DEFAULT_QOS)
+    qos["depth"] = depth
     if version < 9:
         for key, table in _QOS_ENUMS_V8.items():
             qos[key] = table[qos[key]]
@@ -393,14 +394,15 @@ class BagWriter:
     """Write ROS 2 messages given as plain dicts into a rosbag2-compatible MCAP file.
 
     ``BagWriter(path_or_stream, metadata=None, *, chunk_size=256 * 1024,
-    compression="auto", rosbag2_version=9)``
+    compression="auto", rosbag2_version=9, qos_depth=10)``
 
     ``path_or_stream`` is a file path (created or overwritten) or a writable binary
     stream such as :class:`io.BytesIO` (left open by :meth:`close`).  ``metadata``
     (``dict[str, str]``) is written at once as an MCAP Metadata record named
     :data:`INFO_METADATA_NAME` and is also stored as rosbag2 ``custom_data``.
     ``compression`` is ``"auto"`` (zstd, else lz4, else none), ``"zstd"``, ``"lz4"`` or
-    ``"none"``.  Topics must be absolute ROS names (``/joint_states``); a topic keeps the
+    ``"none"``.  ``qos_depth`` is the keep_last depth recorded as the offered QoS of every
+    topic (the recorder passes the twin's publishers' depth, 1000).  Topics must be absolute ROS names (``/joint_states``); a topic keeps the
     type of its first message.  Thread-safe; use as a context manager or call
     :meth:`close`.
     """
@@ -408,7 +410,7 @@ class BagWriter:
     def __init__(self, path_or_stream: str | os.PathLike | IO[bytes],
                  metadata: Mapping[str, str] | None = None, *,
                  chunk_size: int = 256 * 1024, compression: str = "auto",
-                 rosbag2_version: int = 9):
+                 rosbag2_version: int = 9, qos_depth: int = 10):
         if rosbag2_version not in (8, 9):
             raise ValueError(f"rosbag2_version must be 8 or 9, got {rosbag2_version!r}")
         if not isinstance(chunk_size, int) or chunk_size <= 0:
@@ -418,6 +420,9 @@ class BagWriter:
         if compression not in compressions:
             raise ValueError(f"compression must be one of {sorted(compressions)}, "
                              f"got {compression!r}")
+        if not isinstance(qos_depth, int) or isinstance(qos_depth, bool) or qos_depth < 1:
+            raise ValueError(f"qos_depth must be a positive int, got {qos_depth!r}")
+        self._qos_depth = qos_depth
         info = _check_str_dict("metadata", metadata or {})
         self._lock = threading.RLock()
         self._rosbag2_version = rosbag2_version
@@ -499,7 +504,7 @@ class BagWriter:
             schema_id = self._writer.register_schema(msgtype, SchemaEncoding.ROS2,
                                                      text.encode())
             self._schema_ids[msgtype] = schema_id
-        qos = _qos_yaml(self._rosbag2_version)
+        qos = _qos_yaml(self._rosbag2_version, self._qos_depth)
         channel_id = self._writer.register_channel(
             topic=topic, message_encoding=MessageEncoding.CDR, schema_id=schema_id,
             metadata={"offered_qos_profiles": _dump_yaml(qos),
@@ -573,7 +578,7 @@ class BagWriter:
         start = self._start_ns or 0
         duration = 0 if self._start_ns is None else self._end_ns - self._start_ns
         total = sum(self._counts.values())
-        qos = _qos_yaml(version)
+        qos = _qos_yaml(version, self._qos_depth)
         topics = []
         for topic, (_, msgtype) in self._channels.items():
             topics.append({

@@ -64,7 +64,7 @@ class RecorderNode(Node):
         info = {"scene": scene.name, "scene_yaml": resolve_scene_path(self.p["scene"]).read_text(),
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],
                 "namespace": ns, "control_mode": scene.control.mode}
-        self.writer = BagWriter(self.p["output"], metadata=info)
+        self.writer = BagWriter(self.p["output"], metadata=info, qos_depth=C.DEPTH)
         self.writer.add_metadata("model", {"explain": explain(scene)})
         self.period_ns = int(round(control_period(scene) * 1e9))
         self.every_ns = {}

@@ -165,15 +165,40 @@ def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
     from .run import DEFAULT_SCENE as RUN_SCENE
     from .run import run
-    res = run(args.scene or RUN_SCENE, duration=args.duration, mode=args.mode,
-              record=None if args.no_record else args.record, processes=args.processes,
+    kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
               namespace=args.namespace, progress=not args.quiet)
-    print(res.summary())
+    record = None if args.no_record else args.record
+    if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
+        from .run import run_with_view
+        from .viz.rerun_view import RerunUnavailable
+        try:
+            res, view = run_with_view(args.rerun, args.rerun_spawn, record,
+                                      scene=args.scene or RUN_SCENE, **kw)
+        except RerunUnavailable as exc:
+            print(f"flexarm run: error: {exc}", file=sys.stderr)
+            return 2
+        print(res.summary())
+        print(f"rerun: {view.text()}" + (" (viewer spawned)" if args.rerun_spawn else ""))
+    else:
+        res = run(args.scene or RUN_SCENE, record=record, **kw)
+        print(res.summary())
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
     if bad:
         print(f"flexarm run: nodes exited with {bad}", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_replay(args):
+    """Publish a bag on ROS 2 with /clock, and/or convert it to rerun; see flexarm_ros.replay."""
+    from .replay import command
+    return command(args)
+
+
+def cmd_compare(args):
+    """Twin run vs reference (docs/compare.md): 0 pass, 1 fail, 2 bad input."""
+    from .analysis.compare import run_cli
+    return run_cli(args)
 
 
 def build_parser():
@@ -240,7 +265,69 @@ def build_parser():
                    help="one process per node (default: all nodes on one executor)")
     r.add_argument("--namespace", default="/flexarm", help="node namespace (default /flexarm)")
     r.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    r.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                   help="after the run, convert its bag to this rerun recording (needs "
+                        "rerun-sdk: pip install -e .[viz]; see docs/viewing.md)")
+    r.add_argument("--rerun-spawn", action="store_true",
+                   help="after the run, show its bag in a spawned rerun viewer (needs a "
+                        "display)")
     r.set_defaults(func=cmd_run)
+
+    rp = sub.add_parser("replay", help="publish a recorded bag on ROS 2 with /clock (no "
+                                       "rosbag2 needed) and/or convert it to rerun")
+    rp.add_argument("bag", type=Path, metavar="BAG.mcap", help="MCAP bag (flexarm run's or "
+                                                               "any ROS 2 MCAP)")
+    rp.add_argument("--rate", type=float, default=1.0,
+                    help="pace factor on the log times: 1 real time (default), 2 twice as "
+                         "fast, 0 as fast as possible")
+    rp.add_argument("--namespace", help="republish the recording namespace's topics under "
+                                        "this one instead")
+    rp.add_argument("--topics", nargs="+", metavar="TOPIC",
+                    help="only these topics (absolute, or relative to the recording "
+                         "namespace); /clock is always published")
+    rp.add_argument("--loop", action="store_true", help="start over at the end until Ctrl-C")
+    rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+                    help="before publishing, wait up to 30 s until every topic has N "
+                         "subscribers (default 0: do not wait)")
+    rp.add_argument("--delay", type=float, default=0.5, metavar="S",
+                    help="wall seconds between creating the publishers and the first "
+                         "message, for discovery (default 0.5)")
+    rp.add_argument("--rerun", type=Path, metavar="FILE.rrd",
+                    help="convert the bag to this rerun recording instead of publishing "
+                         "(no ROS needed; with --publish: both)")
+    rp.add_argument("--publish", action="store_true", help="with --rerun: also publish")
+    rp.add_argument("--shape-rate", type=float, default=100.0, metavar="HZ",
+                    help="--rerun: at most this many arm drawings per simulated second "
+                         "(default 100; 0: every coordinates message)")
+    rp.add_argument("--samples", type=int, default=21,
+                    help="--rerun: points per beam centerline (default 21)")
+    rp.add_argument("--force-scale", type=float, metavar="M_PER_N",
+                    help="--rerun: contact force arrow length per newton (default: the "
+                         "largest force draws a quarter of the arm's reach)")
+    rp.add_argument("--json", action="store_true", help="print the counts as JSON")
+    rp.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    rp.set_defaults(func=cmd_replay)
+
+    c = sub.add_parser("compare", help="a twin run beside an experiment or another run: "
+                                       "frequencies, errors, pass/fail, report")
+    c.add_argument("run", help="the twin's bag (flexarm run --record), or a CSV")
+    c.add_argument("reference", help="MCAP bag (twin, or foreign with --map) or CSV "
+                                     "('t [s]', 'name [unit]', ...)")
+    c.add_argument("--report", metavar="DIR", help="write DIR/report.md and PNG figures")
+    c.add_argument("--json", action="store_true", help="print the result as JSON")
+    c.add_argument("--map", metavar="MAP.yaml", help="channel map for the reference "
+                   "(foreign bag topics/fields, or renamed/rescaled CSV columns)")
+    c.add_argument("--offset", default="auto", metavar="auto|none|SECONDS",
+                   help="run(t + offset) = reference(t); auto: cross-correlation (default)")
+    c.add_argument("--max-shift", type=float, metavar="S",
+                   help="search range of --offset auto, s (default 0.5)")
+    c.add_argument("--threshold", type=float, help="pass mark on |relative error| "
+                                                   "(default 0.10 = ±10 %%)")
+    c.add_argument("--channels", nargs="+", metavar="NAME",
+                   help="only these channels (default: every common one)")
+    c.add_argument("--window", metavar="START:END",
+                   help="analyse only this span of the reference clock, s (e.g. 2.1:2.5)")
+    c.set_defaults(func=cmd_compare)
     return p
 
 

@@ -258,3 +258,22 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             g.close()
     finally:
         stop.restore()
+
+
+def run_with_view(rerun=None, spawn=False, record=None, view_options=None, **kw):
+    """:func:`run`, then its bag converted to a rerun recording: the file ``rerun``
+    (.rrd) and/or a spawned viewer (``spawn``); see :mod:`flexarm_ros.viz.rerun_view`.
+    Without ``record`` the bag is a temporary file, deleted afterwards. rerun-sdk is
+    checked, and the viewer started, before the run: ``RerunUnavailable``.
+    Returns (RunResult, RerunSummary)."""
+    import tempfile
+
+    from .viz.rerun_view import bag_to_rerun, require_rerun, start_viewer
+    start_viewer() if spawn else require_rerun()      # fail before the run, not after
+    with tempfile.TemporaryDirectory(prefix="flexarm_run_") as tmp:
+        bag = Path(record) if record else Path(tmp) / "run.mcap"
+        res = run(record=bag, **kw)
+        view = bag_to_rerun(bag, rerun, spawn=spawn, options=view_options)
+        if not record:
+            res.record = None
+    return res, view

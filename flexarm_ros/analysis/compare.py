@@ -1,0 +1,631 @@
+"""``flexarm compare``: a twin run beside a reference (an experiment or another run).
+
+Steps (every number in the result comes from :mod:`.metrics` and :mod:`.spectra`):
+
+1. Channels: :func:`flexarm_ros.analysis.channels.load_channels` on both files; the
+   compared names are ``channels`` or every name both have (in the run's order). Units
+   must agree. ``wall_gap`` is derived for the reference from its tip position with the
+   run's scene when the scene has a wall.
+2. Time alignment: ``offset_s`` is the shift with ``run(t + offset_s) ~ reference(t)``
+   (positive: the run lags); the run's times become ``t_run - offset_s``. ``'none'`` = 0,
+   a number = that, ``'auto'`` = the median of
+   :func:`~flexarm_ros.analysis.metrics.estimate_offset` (Pearson cross-correlation with
+   parabolic peak refinement, +-``max_shift_s``) over the compared channels that give
+   one, rounded to the nanosecond (the stamp resolution of a bag).
+3. Per channel, on the span both cover after alignment (cut to ``window``): the run is
+   interpolated linearly onto the reference times and
+   :func:`~flexarm_ros.analysis.metrics.channel_errors` gives the RMS, peak, relative RMS
+   and signed peak-to-peak amplitude errors; each record (put on a uniform grid when its
+   sampling is not) gives its dominant frequency by
+   :func:`~flexarm_ros.analysis.spectra.dominant_frequency` (Hann window, linear detrend,
+   4x zero padding, Gaussian peak interpolation; searched from 3 bins, ``3 fs / N``, up to
+   Nyquist) with resolution ``fs / N`` and stated bound ``0.1 fs / N`` (one bin outside
+   the validity domain); ``frequency_error = (f_run - f_ref) / f_ref`` (seed 000 Fig. 5.8
+   compares FFT peaks; seed 002 Gannon Tables 4.3 / 4.5 normalize by the experiment).
+4. Pass/fail (Gannon 1986 Ch. IV after Petroka: |relative error| <= 10 %): a channel
+   passes when ``|amplitude_error| <= threshold`` and, for the twin's vibration channels
+   (accelerometers, strain gauges, elastic beam coordinates, tip position),
+   ``|frequency_error| <= threshold``. The tip block adds Gannon's normalized tip-amplitude
+   error ``max_i |p_run(t_i) - p_ref(t_i)| / L`` (Table 4.2; L = the arm length, the sum of
+   the scene's hub radii and beam lengths) and the tip frequency error, both against the
+   threshold. The comparison passes when every evaluated criterion does.
+5. Contact (seed 000 Sec. 5): impact time = first rise of ``contact`` through 0.5 (else
+   the first fall of ``wall_gap`` through ``IMPACT_GAP_M``, else the first rise of
+   ``normal_force`` above 0), bounce height = largest ``wall_gap`` within
+   ``BOUNCE_WINDOW_S`` after it. Reported, not
+   pass criteria (the seed states no tolerance).
+
+The result is a plain dict (:func:`to_json` prints it): every error figure sits under a
+key containing ``error``, relative errors are fractions, and a figure that cannot be
+computed is ``null`` with its reason under ``null_reasons`` of the same block. The key
+set is documented in ``docs/compare.md`` and pinned by ``test/test_compare.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import statistics
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..io.experiment import CompareInputError, load_channel_map
+from . import metrics as M
+from .channels import ChannelSet, add_wall_gap, load_channels, same_unit
+from .spectra import MAX_JITTER, MIN_SAMPLES, dominant_frequency, uniform
+
+__all__ = ["BOUNCE_WINDOW_S", "CHANNEL_KEYS", "CONTACT_KEYS", "Comparison", "DEFAULT_MAX_SHIFT_S",
+           "SCHEMA", "TIP_KEYS", "TOP_KEYS", "compare", "compare_files", "to_json"]
+
+SCHEMA = "flexarm-compare/1"
+#: Seconds after the impact searched for the bounce (seed 000: the tip leaves the wall by
+#: ~5 mm and is driven back within a few tenths of a second).
+BOUNCE_WINDOW_S = 0.25
+#: Impact detection, in order of preference (the first channel both records have): the
+#: contact flag rising through 0.5, the wall gap falling through ``IMPACT_GAP_M``, the
+#: normal force rising through 0.
+IMPACT_SOURCES = ("contact", "wall_gap", "normal_force")
+#: A wall gap below this counts as touching (m): well above the round-off the contact
+#: solver leaves on a resting tool (~1e-13 m), well below the ~mm approach per ms.
+IMPACT_GAP_M = 1e-6
+#: Default search range of the automatic offset, s.
+DEFAULT_MAX_SHIFT_S = 0.5
+#: Frequency estimator settings (see :func:`flexarm_ros.analysis.spectra.dominant_frequency`).
+FREQ_WINDOW, FREQ_DETREND, FREQ_ZERO_PAD, FREQ_MIN_BINS = "hann", "linear", 4, 3
+
+TOP_KEYS = ("schema", "run", "reference", "threshold", "offset", "window", "frequency_method",
+            "channels", "contact", "tip", "pass", "failed", "warnings")
+SOURCE_KEYS = ("path", "kind", "scene", "truncated", "channels", "start_s", "end_s")
+OFFSET_KEYS = ("mode", "offset_s", "method", "max_shift_s", "estimates_s", "sample_period_s")
+CHANNEL_KEYS = ("unit", "span_s", "samples_run", "samples_reference", "sample_rate_run_hz",
+                "sample_rate_reference_hz", "frequency_run_hz", "frequency_reference_hz",
+                "frequency_resolution_hz", "frequency_bound_hz", "frequency_error",
+                "rms_error", "peak_error", "relative_rms_error", "amplitude_error",
+                "criteria", "pass", "null_reasons")
+CONTACT_KEYS = ("impact_source", "impact_time_run_s", "impact_time_reference_s",
+                "impact_time_error_s", "bounce_window_s", "bounce_height_run_m",
+                "bounce_height_reference_m", "bounce_height_abs_error_m",
+                "bounce_height_error", "null_reasons")
+TIP_KEYS = ("arm_length_m", "normalized_amplitude_error", "normalized_rms_amplitude_error",
+            "frequency_channel", "frequency_error", "criteria", "pass", "null_reasons")
+
+
+@dataclass
+class Comparison:
+    """The result document plus what the report needs to draw it."""
+
+    result: dict
+    run: ChannelSet
+    reference: ChannelSet
+    names: list[str]
+    offset_s: float
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.result["pass"])
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def _num(x):
+    """A JSON-safe float (None for non-finite)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _put(block, key, value, reasons, why):
+    """``block[key] = value`` when finite, else None with ``reasons[key] = why``."""
+    v = _num(value)
+    block[key] = v
+    if v is None:
+        reasons[key] = why
+    return v
+
+
+def _rate(t) -> float | None:
+    return None if t.size < 2 else 1.0 / float(np.median(np.diff(t)))
+
+
+def _crop(t, y, a, b, pad=False):
+    """Samples with a <= t <= b (``pad``: plus one each side, for interpolation)."""
+    i0 = int(np.searchsorted(t, a, side="left"))
+    i1 = int(np.searchsorted(t, b, side="right"))
+    if pad:
+        i0, i1 = max(i0 - 1, 0), min(i1 + 1, t.size)
+    return t[i0:i1], y[i0:i1]
+
+
+def _uniform_record(t, y):
+    """The record on a uniform grid (unchanged when its sampling already is uniform)."""
+    if t.size >= 2:
+        dt = np.diff(t)
+        mean = (t[-1] - t[0]) / (t.size - 1)
+        if float(np.max(np.abs(dt - mean))) <= MAX_JITTER * mean:
+            return t, y
+    return uniform(t, y)
+
+
+def _peak(t, y):
+    t, y = _uniform_record(t, y)
+    if t.size < MIN_SAMPLES:
+        raise ValueError(f"{t.size} samples in the span, need at least {MIN_SAMPLES}")
+    fs = (t.size - 1) / (t[-1] - t[0])
+    return dominant_frequency(t, y, window=FREQ_WINDOW, detrend=FREQ_DETREND,
+                              zero_pad=FREQ_ZERO_PAD, f_min=FREQ_MIN_BINS * fs / t.size)
+
+
+def parse_window(text):
+    """``'START:END'`` (s, either side may be empty) -> (start, end) or None."""
+    if text is None:
+        return None
+    try:
+        lo, hi = str(text).split(":")
+        a = float(lo) if lo.strip() else -math.inf
+        b = float(hi) if hi.strip() else math.inf
+    except ValueError:
+        raise CompareInputError(f"--window: got {text!r}, expected START:END in seconds of "
+                                f"the reference clock, e.g. 2.1:2.5 or 1.0:") from None
+    if not b > a or math.isnan(a) or math.isnan(b):
+        raise CompareInputError(f"--window: got {text!r}, expected START < END")
+    return a, b
+
+
+def parse_offset(text):
+    """``'auto'``, ``'none'`` or seconds -> 'auto' | 'none' | float."""
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        value = float(text)
+    elif str(text).strip().lower() in ("auto", "none"):
+        return str(text).strip().lower()
+    else:
+        try:
+            value = float(text)
+        except ValueError:
+            raise CompareInputError(f"--offset: got {text!r}, expected 'auto', 'none' or "
+                                    f"a number of seconds (positive: the run lags)") from None
+    if not math.isfinite(value):
+        raise CompareInputError(f"--offset: got {text!r}, expected a finite number of "
+                                f"seconds")
+    return value
+
+
+# ----------------------------------------------------------------------------- steps
+
+def _select(run: ChannelSet, ref: ChannelSet, channels) -> list[str]:
+    if channels:
+        names = []
+        for n in channels:
+            for cs in (run, ref):
+                if n not in cs:
+                    raise CompareInputError(
+                        f"{cs.path}: no channel {n!r}; channels: {', '.join(cs.names)}")
+            if n not in names:
+                names.append(n)
+    else:
+        names = [n for n in run.names if n in ref]
+        if not names:
+            raise CompareInputError(
+                f"{ref.path}: no channel in common with {run.path}; reference channels: "
+                f"{', '.join(ref.names)}; run channels: {', '.join(run.names)} (rename "
+                f"columns or topics with --map MAP.yaml)")
+    for n in names:
+        if not same_unit(run[n].unit, ref[n].unit):
+            raise CompareInputError(
+                f"{ref.path}: channel {n!r} is in {ref[n].unit!r}, the run "
+                f"({run.path}) in {run[n].unit!r}; expected the same unit (rescale with a "
+                f"map entry: scale, unit)")
+    return names
+
+
+def _auto_offset(run, ref, names, max_shift):
+    estimates, failures = {}, {}
+    for n in names:
+        a, b = run[n], ref[n]
+        try:
+            estimates[n] = M.estimate_offset(b.t, b.y, a.t, a.y, max_shift)
+        except ValueError as exc:
+            failures[n] = str(exc)
+    return estimates, failures
+
+
+def _offset(run, ref, names, mode, max_shift, warnings_out):
+    periods = [1.0 / r for n in names for r in (_rate(run[n].t), _rate(ref[n].t)) if r]
+    info = {"mode": "given" if isinstance(mode, float) else mode, "offset_s": 0.0,
+            "method": "", "max_shift_s": None, "estimates_s": {},
+            "sample_period_s": _num(min(periods)) if periods else None}
+    if mode == "none":
+        info["method"] = "none: the two clocks are taken as they are"
+        return 0.0, info
+    if isinstance(mode, float):
+        info["offset_s"] = mode
+        info["method"] = "given (--offset)"
+        return mode, info
+    info["max_shift_s"] = max_shift
+    estimates, failures = _auto_offset(run, ref, names, max_shift)
+    info["estimates_s"] = {k: _num(v) for k, v in estimates.items()}
+    if not estimates:
+        why = "; ".join(f"{k}: {v}" for k, v in list(failures.items())[:3])
+        warnings_out.append(f"automatic offset failed on every channel ({why}); offset 0 "
+                            f"used: pass --offset SECONDS or --offset none")
+        info["method"] = "auto failed on every channel; 0 used"
+        return 0.0, info
+    off = round(statistics.median(estimates.values()) * 1e9) / 1e9
+    info["offset_s"] = off
+    info["method"] = (f"auto: median of the cross-correlation estimates of "
+                      f"{len(estimates)} channel(s) within +-{max_shift:g} s, rounded to 1 ns")
+    return off, info
+
+
+def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
+    blk = {k: None for k in CHANNEL_KEYS}
+    why = {}
+    blk["unit"] = ref_ch.unit or run_ch.unit
+    tr = run_ch.t - off
+    a, b = max(ref_ch.t[0], tr[0]), min(ref_ch.t[-1], tr[-1])
+    if window is not None:
+        a, b = max(a, window[0]), min(b, window[1])
+    crit = {}
+    if not b > a:
+        msg = (f"no common time span: reference [{ref_ch.t[0]:g}, {ref_ch.t[-1]:g}] s, "
+               f"run [{tr[0]:g}, {tr[-1]:g}] s after the offset"
+               + ("" if window is None else f", window [{window[0]:g}, {window[1]:g}] s"))
+        for k in ("frequency_run_hz", "frequency_reference_hz", "frequency_resolution_hz",
+                  "frequency_bound_hz", "frequency_error", "rms_error", "peak_error",
+                  "relative_rms_error", "amplitude_error"):
+            why[k] = msg
+        blk.update(samples_run=0, samples_reference=0, criteria={}, null_reasons=why)
+        return blk
+    blk["span_s"] = [_num(a), _num(b)]
+    t_ref, y_ref = _crop(ref_ch.t, ref_ch.y, a, b)
+    t_run, y_run = _crop(tr, run_ch.y, a, b)
+    blk["samples_run"], blk["samples_reference"] = int(t_run.size), int(t_ref.size)
+    blk["sample_rate_run_hz"] = _num(_rate(run_ch.t))
+    blk["sample_rate_reference_hz"] = _num(_rate(ref_ch.t))
+    # pointwise errors: the run interpolated onto the reference instants
+    try:
+        tp, yp = _crop(tr, run_ch.y, a, b, pad=True)
+        errs = M.channel_errors(t_ref, y_ref, tp, yp)
+    except ValueError as exc:
+        errs = {}
+        for k in ("rms_error", "peak_error", "relative_rms_error", "amplitude_error"):
+            why[k] = str(exc)
+    _put(blk, "rms_error", errs.get("rms_error"), why, why.get("rms_error"))
+    _put(blk, "peak_error", errs.get("peak_error"), why, why.get("peak_error"))
+    _put(blk, "relative_rms_error", errs.get("relative_rms_error"), why,
+         why.get("relative_rms_error", "the reference is zero over the span (RMS 0)"))
+    _put(blk, "amplitude_error", errs.get("amplitude_error"), why,
+         why.get("amplitude_error", "the reference does not vary over the span "
+                                    "(peak-to-peak 0)"))
+    # dominant frequencies on the same span
+    peaks = {}
+    for side, (t, y) in (("run", (t_run, y_run)), ("reference", (t_ref, y_ref))):
+        try:
+            peaks[side] = _peak(t, y)
+        except ValueError as exc:
+            why[f"frequency_{side}_hz"] = f"{side}: {exc}"
+    pr, pf = peaks.get("run"), peaks.get("reference")
+    _put(blk, "frequency_run_hz", pr.frequency_hz if pr else None, why,
+         why.get("frequency_run_hz"))
+    _put(blk, "frequency_reference_hz", pf.frequency_hz if pf else None, why,
+         why.get("frequency_reference_hz"))
+    got = [p for p in (pr, pf) if p is not None]
+    _put(blk, "frequency_resolution_hz", max((p.resolution_hz for p in got), default=None),
+         why, "no spectral peak in either record")
+    _put(blk, "frequency_bound_hz", max((p.bound_hz for p in got), default=None), why,
+         "no spectral peak in either record")
+    if pr and pf:
+        try:
+            blk["frequency_error"] = _num(M.frequency_error(pf.frequency_hz, pr.frequency_hz))
+        except ValueError as exc:
+            why["frequency_error"] = str(exc)
+    else:
+        why["frequency_error"] = why.get("frequency_reference_hz") or why.get(
+            "frequency_run_hz")
+    # criteria
+    if blk["amplitude_error"] is not None:
+        crit["amplitude_error"] = M.passes(blk["amplitude_error"], threshold)
+    elif math.isinf(errs.get("amplitude_error", 0.0)):
+        crit["amplitude_error"] = False          # a flat reference, a run that swings
+        why["amplitude_error"] = ("the reference does not vary over the span (peak-to-peak "
+                                  "0) but the run does: relative error unbounded (fails)")
+    if vibration:
+        if blk["frequency_error"] is not None:
+            crit["frequency_error"] = M.passes(blk["frequency_error"], threshold)
+    blk["criteria"] = crit
+    blk["pass"] = all(crit.values()) if crit else None
+    if not crit:
+        why["pass"] = "no criterion could be evaluated"
+    blk["null_reasons"] = why
+    return blk
+
+
+def _impact(cs: ChannelSet, source: str):
+    ch = cs[source]
+    if source == "wall_gap":
+        return M.event_time(ch.t, ch.y, IMPACT_GAP_M, direction=-1)
+    if source == "contact":
+        return M.event_time(ch.t, ch.y, 0.5, direction=+1)
+    return M.event_time(ch.t, ch.y, 0.0, direction=+1)
+
+
+def _contact_block(run, ref, off, scene):
+    blk = {k: None for k in CONTACT_KEYS}
+    why = {}
+    blk["bounce_window_s"] = BOUNCE_WINDOW_S
+    source = next((s for s in IMPACT_SOURCES
+                   if s in run and s in ref), None)
+    if source is None:
+        reason = ("the scene has no wall" if scene is not None and not scene.walls else
+                  "neither contact, wall_gap nor normal_force is in both records")
+        for k in CONTACT_KEYS[1:-1]:
+            if k != "bounce_window_s":
+                why[k] = reason
+        blk["null_reasons"] = why
+        return blk
+    blk["impact_source"] = source
+    t_run = _impact(run, source)
+    t_ref = _impact(ref, source)
+    _put(blk, "impact_time_run_s", t_run, why, f"no impact in the run ({source})")
+    _put(blk, "impact_time_reference_s", t_ref, why, f"no impact in the reference ({source})")
+    _put(blk, "impact_time_error_s", None if t_run is None or t_ref is None
+         else (t_run - off) - t_ref, why, "no impact in one of the records")
+    if "wall_gap" in run and "wall_gap" in ref:
+        heights = {}
+        for side, cs, ti in (("run", run, t_run), ("reference", ref, t_ref)):
+            g = cs["wall_gap"]
+            try:
+                heights[side] = M.bounce_height(g.t, g.y, ti, BOUNCE_WINDOW_S)
+            except ValueError as exc:
+                heights[side] = None
+                why[f"bounce_height_{side}_m"] = str(exc)
+            if ti is None:
+                why[f"bounce_height_{side}_m"] = f"no impact in the {side}"
+        hr, hf = heights["run"], heights["reference"]
+        _put(blk, "bounce_height_run_m", hr, why, why.get("bounce_height_run_m"))
+        _put(blk, "bounce_height_reference_m", hf, why, why.get("bounce_height_reference_m"))
+        if hr is not None and hf is not None:
+            blk["bounce_height_abs_error_m"] = _num(hr - hf)
+            if hf != 0.0:
+                blk["bounce_height_error"] = _num(M.relative_error(hf, hr))
+            else:
+                why["bounce_height_error"] = ("the reference tip does not bounce (height "
+                                              "0): no relative error")
+        else:
+            why["bounce_height_abs_error_m"] = why["bounce_height_error"] = \
+                "no bounce height in one of the records"
+    else:
+        for k in ("bounce_height_run_m", "bounce_height_reference_m",
+                  "bounce_height_abs_error_m", "bounce_height_error"):
+            why[k] = "wall_gap is not in both records (needs the tip and a wall)"
+    blk["null_reasons"] = why
+    return blk
+
+
+def arm_length(scene) -> float | None:
+    """Sum of the hub radii and beam lengths (m): Gannon's normalizing arm length."""
+    if scene is None:
+        return None
+    return float(sum(lk.beam.hub_radius + lk.beam.length for lk in scene.links))
+
+
+def _tip_block(run, ref, off, scene, names, blocks, window, threshold):
+    blk = {k: None for k in TIP_KEYS}
+    why = {}
+    crit = {}
+    L = arm_length(scene)
+    blk["arm_length_m"] = L
+    if L is None:
+        why["arm_length_m"] = "no scene (arm length unknown)"
+    have = all(n in run and n in ref for n in ("tip_x", "tip_y"))
+    if not have:
+        why["normalized_amplitude_error"] = why["normalized_rms_amplitude_error"] = \
+            "tip_x and tip_y are not in both records"
+    elif L is not None:
+        rx, ry, fx, fy = run["tip_x"], run["tip_y"], ref["tip_x"], ref["tip_y"]
+        t = fx.t if np.array_equal(fx.t, fy.t) else None
+        a = max(fx.t[0], rx.t[0] - off, ry.t[0] - off, fy.t[0])
+        b = min(fx.t[-1], rx.t[-1] - off, ry.t[-1] - off, fy.t[-1])
+        if window is not None:
+            a, b = max(a, window[0]), min(b, window[1])
+        if t is None or not b > a:
+            why["normalized_amplitude_error"] = why["normalized_rms_amplitude_error"] = (
+                "the reference tip_x and tip_y are not sampled together" if t is None else
+                "no common time span of the tip records")
+        else:
+            ti = t[(t >= a) & (t <= b)]
+            ref_pts = np.column_stack([np.interp(ti, fx.t, fx.y), np.interp(ti, fy.t, fy.y)])
+            run_pts = np.column_stack([np.interp(ti, rx.t - off, rx.y),
+                                       np.interp(ti, ry.t - off, ry.y)])
+            blk["normalized_amplitude_error"] = _num(
+                M.normalized_amplitude_error(ref_pts, run_pts, L, reduce="max"))
+            blk["normalized_rms_amplitude_error"] = _num(
+                M.normalized_amplitude_error(ref_pts, run_pts, L, reduce="rms"))
+            crit["normalized_amplitude_error"] = M.passes(blk["normalized_amplitude_error"],
+                                                          threshold)
+    elif L is None:
+        why["normalized_amplitude_error"] = why["normalized_rms_amplitude_error"] = \
+            why["arm_length_m"]
+    # the tip frequency: the tip coordinate that oscillates more in the reference
+    cands = [n for n in ("tip_x", "tip_y") if n in names and n in ref]
+    amps = {}
+    for n in cands:
+        try:
+            a0, b0 = blocks[n]["span_s"] or (None, None)
+            if a0 is None:
+                continue
+            tt, yy = _crop(ref[n].t, ref[n].y, a0, b0)
+            amps[n] = _peak(tt, yy).amplitude
+        except ValueError:
+            continue
+    if amps:
+        n = max(amps, key=amps.get)
+        blk["frequency_channel"] = n
+        blk["frequency_error"] = blocks[n]["frequency_error"]
+        if blk["frequency_error"] is None:
+            why["frequency_error"] = blocks[n]["null_reasons"].get("frequency_error")
+        else:
+            crit["frequency_error"] = M.passes(blk["frequency_error"], threshold)
+    else:
+        why["frequency_channel"] = why["frequency_error"] = (
+            "no compared tip_x / tip_y channel with a spectral peak")
+    blk["criteria"] = crit
+    blk["pass"] = all(crit.values()) if crit else None
+    if not crit:
+        why["pass"] = "no tip criterion could be evaluated"
+    blk["null_reasons"] = why
+    return blk
+
+
+def _source(cs: ChannelSet) -> dict:
+    starts = [c.t[0] for c in cs.channels.values()]
+    ends = [c.t[-1] for c in cs.channels.values()]
+    return {"path": cs.path, "kind": cs.kind, "scene": cs.scene_name,
+            "truncated": bool(cs.truncated), "channels": list(cs.names),
+            "start_s": _num(min(starts)), "end_s": _num(max(ends))}
+
+
+# ----------------------------------------------------------------------------- API
+
+def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=M.GANNON_THRESHOLD,
+            channels=None, max_shift_s=DEFAULT_MAX_SHIFT_S, window=None) -> Comparison:
+    """Compare two loaded inputs (module docstring). ``offset``: 'auto', 'none' or
+    seconds; ``window``: (start, end) in s of the reference clock, or None."""
+    offset = parse_offset(offset)
+    try:
+        threshold = float(threshold)
+    except (TypeError, ValueError):
+        threshold = math.nan
+    if not (math.isfinite(threshold) and threshold > 0):
+        raise CompareInputError(f"--threshold: got {threshold!r}, expected a positive "
+                                f"fraction such as 0.10")
+    if not (isinstance(max_shift_s, (int, float)) and math.isfinite(max_shift_s)
+            and max_shift_s > 0):
+        raise CompareInputError(f"--max-shift: got {max_shift_s!r}, expected a positive "
+                                f"number of seconds")
+    scene = run.scene if run.scene is not None else reference.scene
+    run = dataclasses.replace(run, channels=dict(run.channels))     # inputs stay as given
+    reference = dataclasses.replace(reference, channels=dict(reference.channels))
+    for cs in (run, reference):
+        add_wall_gap(cs.channels, scene)
+    names = _select(run, reference, channels)
+    warn = list(run.warnings) + list(reference.warnings)
+    off, off_info = _offset(run, reference, names, offset, float(max_shift_s), warn)
+    blocks = {n: _channel_block(n, run[n], reference[n], off, window, threshold,
+                                run[n].vibration)
+              for n in names}
+    contact = _contact_block(run, reference, off, scene)
+    tip = _tip_block(run, reference, off, scene, names, blocks, window, threshold)
+    failed = sorted([f"{n}:{k}" for n, b in blocks.items()
+                     for k, ok in b["criteria"].items() if not ok]
+                    + [f"tip:{k}" for k, ok in tip["criteria"].items() if not ok])
+    evaluated = [b["pass"] for b in blocks.values() if b["pass"] is not None]
+    if tip["pass"] is not None:
+        evaluated.append(tip["pass"])
+    result = {
+        "schema": SCHEMA,
+        "run": _source(run),
+        "reference": _source(reference),
+        "threshold": threshold,
+        "offset": off_info,
+        "window": None if window is None else {"start_s": _num(window[0]),
+                                               "end_s": _num(window[1])},
+        "frequency_method": {
+            "estimator": "peak of the windowed, zero-padded FFT refined by Gaussian "
+                         "interpolation (flexarm_ros.analysis.spectra.dominant_frequency)",
+            "window": FREQ_WINDOW, "detrend": FREQ_DETREND, "zero_pad": FREQ_ZERO_PAD,
+            "search_from_bins": FREQ_MIN_BINS,
+            "resolution": "fs / N of the analysed span (about 1 / span)",
+            "bound": "0.1 fs / N (one bin within 3 bins of DC or 2 of Nyquist)"},
+        "channels": blocks,
+        "contact": contact,
+        "tip": tip,
+        "pass": bool(evaluated) and all(evaluated),
+        "failed": failed,
+        "warnings": warn,
+    }
+    return Comparison(result=result, run=run, reference=reference, names=names, offset_s=off)
+
+
+def compare_files(run_path, reference_path, *, map_path=None, **kw) -> Comparison:
+    """Load both files (``map_path`` applies to the reference) and :func:`compare`."""
+    cmap = load_channel_map(map_path) if map_path is not None else None
+    run = load_channels(run_path)
+    ref = load_channels(reference_path, cmap)
+    return compare(run, ref, **kw)
+
+
+def to_json(result: dict) -> str:
+    """The result as stable JSON: sorted keys, two-space indent, no NaN."""
+    return json.dumps(result, indent=2, sort_keys=True, allow_nan=False)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+def _summary(cmp: Comparison) -> str:
+    r = cmp.result
+    lines = [f"{r['run']['path']} vs {r['reference']['path']}: "
+             f"{'PASS' if r['pass'] else 'FAIL'} (threshold ±{100 * r['threshold']:g} %, "
+             f"offset {r['offset']['offset_s']:+.6g} s, {r['offset']['mode']})"]
+    lines.append(f"  {'channel':22s} {'f run':>9s} {'f ref':>9s} {'f err':>8s} "
+                 f"{'amp err':>8s} {'rel RMS':>8s}  result")
+
+    def pct(x):
+        return "-" if x is None else f"{100 * x:+.2f}%"
+
+    def hz(x):
+        return "-" if x is None else f"{x:.4g}"
+    for n in cmp.names:
+        b = r["channels"][n]
+        res = {True: "pass", False: "FAIL", None: "-"}[b["pass"]]
+        lines.append(f"  {n:22s} {hz(b['frequency_run_hz']):>9s} "
+                     f"{hz(b['frequency_reference_hz']):>9s} {pct(b['frequency_error']):>8s} "
+                     f"{pct(b['amplitude_error']):>8s} {pct(b['relative_rms_error']):>8s}  "
+                     f"{res}")
+    c = r["contact"]
+    if c["impact_source"] is not None:
+        lines.append(f"  impact ({c['impact_source']}): run {hz(c['impact_time_run_s'])} s, "
+                     f"reference {hz(c['impact_time_reference_s'])} s, error "
+                     f"{hz(c['impact_time_error_s'])} s")
+    tp = r["tip"]
+    if tp["normalized_amplitude_error"] is not None or tp["frequency_error"] is not None:
+        lines.append(f"  tip (Gannon): amplitude error / L "
+                     f"{pct(tp['normalized_amplitude_error'])}, frequency error "
+                     f"{pct(tp['frequency_error'])} "
+                     f"({tp['frequency_channel'] or 'no tip channel compared'})")
+    if r["failed"]:
+        lines.append("  failed: " + ", ".join(r["failed"]))
+    return "\n".join(lines)
+
+
+def run_cli(args) -> int:
+    """``flexarm compare`` (options parsed in :mod:`flexarm_ros.cli`): prints the summary
+    or the JSON, writes the report; returns 0 = pass, 1 = fail. Bad input raises
+    :class:`CompareInputError` (exit status 2)."""
+    import sys
+    import warnings as _w
+    channels = None
+    if args.channels:
+        channels = [c for item in args.channels for c in item.split(",") if c.strip()]
+    with _w.catch_warnings(record=True) as caught:
+        _w.simplefilter("always")
+        cmp = compare_files(
+            args.run, args.reference, map_path=args.map, offset=args.offset,
+            threshold=M.GANNON_THRESHOLD if args.threshold is None else args.threshold,
+            channels=channels,
+            max_shift_s=DEFAULT_MAX_SHIFT_S if args.max_shift is None else args.max_shift,
+            window=parse_window(args.window))
+    for w in caught:
+        print(f"flexarm compare: warning: {w.message}", file=sys.stderr)
+    for w in cmp.result["warnings"]:
+        if not any(str(c.message) == w for c in caught):
+            print(f"flexarm compare: warning: {w}", file=sys.stderr)
+    if args.report:
+        from .report import write_report
+        md = write_report(cmp, args.report)
+        if not args.json:
+            print(f"report: {md}")
+    print(to_json(cmp.result) if args.json else _summary(cmp))
+    return 0 if cmp.passed else 1

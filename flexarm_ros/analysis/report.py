@@ -1,0 +1,397 @@
+"""The ``flexarm compare --report DIR`` output: ``report.md`` and PNG figures.
+
+Figures (matplotlib's Agg canvas, no display, no pyplot state):
+
+* ``overlay_<channel>.png`` — reference and run (on the reference clock, ``t - offset``)
+  against time, and below them the difference run - reference at the reference instants;
+* ``spectrum_<channel>.png`` — the amplitude spectra of both records over the analysed
+  span on one axis (Hann window, linear detrend, 4x zero padding: what the peak estimator
+  searches; seed 000 Fig. 5.8 compares the FFTs of measured and simulated accelerations
+  this way), the two dominant peaks marked and labelled, the band below 3 bins (not
+  searched) shaded;
+* ``tip_path.png`` — the tip path in the plane, both records, with the wall line(s) of the
+  scene and the impact points;
+* ``contact.png`` — the wall normal force and the contact phase (1 = in contact) against
+  time, impact times marked.
+
+Every number in ``report.md`` is read from the comparison result (the ``--json``
+document), so the two never disagree.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from scipy import signal as _sig
+
+from .compare import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD, Comparison,
+                      _crop, _uniform_record)
+from .spectra import MIN_SAMPLES, _series
+
+__all__ = ["write_report"]
+
+RUN_STYLE = {"color": "C3", "lw": 1.0, "label": "run (twin)"}
+REF_STYLE = {"color": "k", "lw": 0.8, "alpha": 0.75, "label": "reference"}
+DPI = 100
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _pct(x) -> str:
+    return "—" if x is None else f"{100.0 * x:+.2f} %"
+
+
+def _g(x, unit="", digits=5) -> str:
+    if x is None:
+        return "—"
+    return f"{x:.{digits}g}" + (f" {unit}" if unit else "")
+
+
+def _ok(x) -> str:
+    return {True: "pass", False: "**FAIL**", None: "—"}[x]
+
+
+# ----------------------------------------------------------------------------- figures
+
+def _padded_spectrum(t, y):
+    """The amplitude spectrum the peak estimator searches: linear detrend, periodic Hann
+    window, ``FREQ_ZERO_PAD``-fold zero padding, scaled as
+    :func:`flexarm_ros.analysis.spectra.spectrum` (``2 |Y| / sum(w)``)."""
+    t, y = _series(t, y, min_samples=MIN_SAMPLES)
+    n = y.size
+    w = _sig.get_window(FREQ_WINDOW, n, fftbins=True)
+    nfft = FREQ_ZERO_PAD * n
+    amp = np.abs(np.fft.rfft(_sig.detrend(y, type=FREQ_DETREND) * w, nfft)) * 2.0 / w.sum()
+    return np.fft.rfftfreq(nfft, (t[-1] - t[0]) / (n - 1)), amp
+
+
+def _overlay(cmp: Comparison, name: str, out: Path) -> Path | None:
+    blk = cmp.result["channels"][name]
+    run, ref = cmp.run[name], cmp.reference[name]
+    off = cmp.offset_s
+    unit = blk["unit"]
+    fig = Figure(figsize=(8.0, 5.0))
+    ax, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    ax.plot(ref.t, ref.y, **REF_STYLE)
+    ax.plot(run.t - off, run.y, **RUN_STYLE)
+    ax.set_ylabel(f"{name} [{unit}]")
+    ax.set_title(f"{name}: amplitude error {_pct(blk['amplitude_error'])}, relative RMS "
+                 f"error {_pct(blk['relative_rms_error'])}", fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    if blk["span_s"] is not None:
+        a, b = blk["span_s"]
+        tr, yr = _crop(ref.t, ref.y, a, b)
+        tp, yp = _crop(run.t - off, run.y, a, b, pad=True)
+        if tr.size and tp.size >= 2:
+            ax2.plot(tr, np.interp(tr, tp, yp) - yr, color="C0", lw=0.8)
+        for axis in (ax, ax2):
+            axis.axvspan(a, b, color="0.9", zorder=-1)
+    ax2.set_ylabel(f"run − ref [{unit}]", fontsize=9)
+    ax2.set_xlabel(f"time, reference clock [s] (run shifted by −offset = "
+                   f"{0.0 - off:+.6g} s)")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, out / f"overlay_{_safe(name)}.png")
+
+
+def _spectrum(cmp: Comparison, name: str, out: Path) -> Path | None:
+    blk = cmp.result["channels"][name]
+    if blk["span_s"] is None:
+        return None
+    a, b = blk["span_s"]
+    off = cmp.offset_s
+    curves = []
+    for side, ch, shift, style in (("reference", cmp.reference[name], 0.0, REF_STYLE),
+                                   ("run", cmp.run[name], off, RUN_STYLE)):
+        t, y = _crop(ch.t - shift, ch.y, a, b)
+        try:
+            t, y = _uniform_record(t, y)
+            f, amp = _padded_spectrum(t, y)
+        except ValueError:
+            continue
+        curves.append((side, f, amp, style, blk[f"frequency_{side}_hz"], t.size))
+    if not curves:
+        return None
+    fig = Figure(figsize=(8.0, 4.2))
+    ax = fig.subplots()
+    peaks = [c[4] for c in curves if c[4] is not None]
+    nyq = min(c[1][-1] for c in curves)
+    fmax = min(nyq, max(30.0, 3.0 * max(peaks, default=10.0)))
+    lo_band, top = 0.0, 0.0
+    for side, f, amp, style, fpk, n in curves:
+        sel = f <= fmax
+        ax.plot(f[sel], amp[sel], **style)
+        fs = (n - 1) / (b - a) if b > a else 0.0
+        lo_band = max(lo_band, FREQ_MIN_BINS * fs / n if n else 0.0)
+        if fpk is not None:
+            apk = float(np.interp(fpk, f, amp))
+            ax.plot([fpk], [apk], marker="v", ms=9, color=style["color"], ls="none")
+            ax.annotate(f"{side}: {fpk:.5g} Hz", (fpk, apk), textcoords="offset points",
+                        xytext=(9, -4 if side == "run" else -16), fontsize=8,
+                        color=style["color"])
+            top = max(top, float(np.max(amp[sel])))
+    ax.axvspan(0.0, lo_band, color="0.9", zorder=-1, label="below 3 bins (not searched)")
+    ax.set_xlim(0.0, fmax)
+    if top > 0:
+        ax.set_ylim(0.0, 1.12 * top)
+    ax.set_xlabel(f"frequency [Hz] (resolution {_g(blk['frequency_resolution_hz'])} Hz, "
+                  f"bound ±{_g(blk['frequency_bound_hz'], digits=3)} Hz)")
+    ax.set_ylabel(f"amplitude [{blk['unit']}]")
+    ax.set_title(f"{name}: spectra over [{a:.4g}, {b:.4g}] s, frequency error "
+                 f"{_pct(blk['frequency_error'])}", fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, out / f"spectrum_{_safe(name)}.png")
+
+
+def _tip_path(cmp: Comparison, out: Path) -> Path | None:
+    run, ref = cmp.run, cmp.reference
+    if not all(n in cs for cs in (run, ref) for n in ("tip_x", "tip_y")):
+        return None
+    xs = [float(v) for cs in (run, ref) for v in (cs["tip_x"].y.min(), cs["tip_x"].y.max())]
+    ys = [float(v) for cs in (run, ref) for v in (cs["tip_y"].y.min(), cs["tip_y"].y.max())]
+    dx, dy = max(xs) - min(xs), max(ys) - min(ys)
+    ratio = min(max((dy + 0.2 * max(dx, dy)) / max(dx + 0.2 * max(dx, dy), 1e-9), 0.35), 1.5)
+    fig = Figure(figsize=(8.0, 1.4 + 6.6 * ratio))
+    ax = fig.subplots()
+    contact = cmp.result["contact"]
+    for cs, style, shift, t_imp in (
+            (ref, REF_STYLE, 0.0, contact["impact_time_reference_s"]),
+            (run, RUN_STYLE, cmp.offset_s, contact["impact_time_run_s"])):
+        x, y = cs["tip_x"], cs["tip_y"]
+        t = x.t
+        yy = np.interp(t, y.t, y.y)
+        ax.plot(x.y, yy, **style)
+        ax.plot([x.y[0]], [yy[0]], marker="o", color=style["color"], ls="none")
+        if t_imp is not None:
+            ax.plot([np.interp(t_imp, t, x.y)], [np.interp(t_imp, t, yy)], marker="x",
+                    ms=10, mew=2, color=style["color"], ls="none")
+    scene = run.scene if run.scene is not None else ref.scene
+    walls = list(getattr(scene, "walls", ()) or ())
+    span = max(max(xs) - min(xs), max(ys) - min(ys), 1e-3)
+    for k, w in enumerate(walls):
+        n = np.asarray(w.normal, float) / np.linalg.norm(w.normal)
+        d = np.array([-n[1], n[0]])
+        p = np.asarray(w.point, float)
+        s = np.array([-1.5, 1.5]) * span
+        mid = np.array([np.mean(xs), np.mean(ys)])
+        s0 = float(np.dot(mid - p, d))
+        ax.plot(p[0] + (s0 + s) * d[0], p[1] + (s0 + s) * d[1], color="C0", lw=2.5,
+                label="wall" if k == 0 else None)
+    ax.set_xlim(min(xs) - 0.1 * span, max(xs) + 0.1 * span)
+    ax.set_ylim(min(ys) - 0.1 * span, max(ys) + 0.1 * span)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("tip x [m]")
+    ax.set_ylabel("tip y [m]")
+    ax.set_title("tip path (o start, x impact)", fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, out / "tip_path.png")
+
+
+def _contact(cmp: Comparison, out: Path) -> Path | None:
+    run, ref = cmp.run, cmp.reference
+    have_f = [cs for cs in (ref, run) if "normal_force" in cs]
+    have_c = [cs for cs in (ref, run) if "contact" in cs]
+    if not have_f and not have_c:
+        return None
+    fig = Figure(figsize=(8.0, 5.0))
+    ax, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    res = cmp.result["contact"]
+    for cs, style, shift, t_imp in (
+            (ref, REF_STYLE, 0.0, res["impact_time_reference_s"]),
+            (run, RUN_STYLE, cmp.offset_s, res["impact_time_run_s"])):
+        if "normal_force" in cs:
+            ch = cs["normal_force"]
+            ax.plot(ch.t - shift, ch.y, **style)
+        if "contact" in cs:
+            ch = cs["contact"]
+            ax2.step(ch.t - shift, ch.y, where="post", color=style["color"], lw=1.0,
+                     label=style["label"])
+        if t_imp is not None:
+            for axis in (ax, ax2):
+                axis.axvline(t_imp - shift, color=style["color"], ls="--", lw=0.8)
+    ax.set_ylabel("normal force [N]")
+    ax.set_title(f"wall contact; dashed: impact ({res['impact_source'] or 'none'}) at "
+                 f"{_g(res['impact_time_reference_s'], 's')} (reference), "
+                 f"{_g(res['impact_time_run_s'], 's')} (run, own clock)", fontsize=10)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax2.set_ylabel("in contact")
+    ax2.set_yticks([0, 1])
+    ax2.set_yticklabels(["free", "contact"])
+    ax2.set_ylim(-0.2, 1.2)
+    ax2.set_xlabel("time, reference clock [s]")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, out / "contact.png")
+
+
+# ----------------------------------------------------------------------------- markdown
+
+def _markdown(cmp: Comparison, figs: dict) -> str:
+    r = cmp.result
+    thr = r["threshold"]
+    off = r["offset"]
+    run, ref = r["run"], r["reference"]
+    lines = [
+        f"# flexarm compare: {Path(run['path']).name} vs {Path(ref['path']).name}",
+        "",
+        f"**Result: {'PASS' if r['pass'] else 'FAIL'}** — criterion |relative error| ≤ "
+        f"{100 * thr:g} % (Gannon 1986, Ch. IV, after Petroka)"
+        + (f"; failed: {', '.join(r['failed'])}" if r["failed"] else "") + ".",
+        "",
+        "| | run (twin) | reference |",
+        "|---|---|---|",
+        f"| file | `{run['path']}` | `{ref['path']}` |",
+        f"| kind | {run['kind']} | {ref['kind']} |",
+        f"| scene | {run['scene'] or '—'} | {ref['scene'] or '—'} |",
+        f"| time span | {_g(run['start_s'])} … {_g(run['end_s'])} s | "
+        f"{_g(ref['start_s'])} … {_g(ref['end_s'])} s |",
+        f"| truncated | {run['truncated']} | {ref['truncated']} |",
+        "",
+        "## Time alignment",
+        "",
+        f"Offset **{off['offset_s']:+.9g} s** ({off['method']}): the run's times are "
+        f"shifted by −offset onto the reference clock, `run(t + offset) ≈ reference(t)` "
+        f"(a positive offset means the run lags).",
+    ]
+    if off["sample_period_s"] is not None:
+        lines.append(f"Finest sample period among the compared channels: "
+                     f"{off['sample_period_s']:.6g} s.")
+    if r["window"] is not None:
+        lines.append(f"Analysis window (reference clock): {r['window']['start_s']:g} … "
+                     f"{r['window']['end_s']:g} s.")
+    lines += [
+        "",
+        "## Channels",
+        "",
+        "| channel | unit | f run [Hz] | f ref [Hz] | resolution / bound [Hz] | "
+        "frequency error | amplitude error | relative RMS error | RMS error | peak error | "
+        "criteria | result |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    notes = []
+    for name in cmp.names:
+        b = r["channels"][name]
+        crit = ", ".join(k.replace("_error", "") for k in b["criteria"]) or "—"
+        lines.append(
+            f"| {name} | {b['unit']} | {_g(b['frequency_run_hz'])} | "
+            f"{_g(b['frequency_reference_hz'])} | {_g(b['frequency_resolution_hz'], digits=3)}"
+            f" / {_g(b['frequency_bound_hz'], digits=3)} | {_pct(b['frequency_error'])} | "
+            f"{_pct(b['amplitude_error'])} | {_pct(b['relative_rms_error'])} | "
+            f"{_g(b['rms_error'], digits=4)} | {_g(b['peak_error'], digits=4)} | {crit} | "
+            f"{_ok(b['pass'])} |")
+        for k, why in sorted(b["null_reasons"].items()):
+            notes.append(f"- {name}.{k}: {why}")
+    lines += [
+        "",
+        "Frequencies: dominant peak of the Hann-windowed, 4× zero-padded FFT of each record "
+        "over the analysed span, refined by Gaussian interpolation, searched from 3 bins "
+        "(3 fs/N) up to Nyquist. The resolution is the bin spacing fs/N of the span (≈ 1 / "
+        "span length); each frequency is stated to within the bound, 0.1 fs/N for clean "
+        "signals (one bin near DC or Nyquist), so a frequency error is resolved to about "
+        "2 × bound / f_ref. Amplitude error = signed peak-to-peak ratio − 1; errors are "
+        "run − reference, normalized by the reference (the experiment).",
+    ]
+    if notes:
+        lines += ["", "Figures not computed (null in the JSON):", ""] + notes
+    c = r["contact"]
+    lines += ["", "## Contact (seed 000: impact time and bounce)", ""]
+    if c["impact_source"] is None:
+        lines.append(f"Not evaluated: {c['null_reasons'].get('impact_time_run_s', '')}.")
+    else:
+        lines += [
+            f"Impact detected on `{c['impact_source']}`.",
+            "",
+            "| | run | reference | error |",
+            "|---|---|---|---|",
+            f"| impact time [s] | {_g(c['impact_time_run_s'], digits=6)} (run clock) | "
+            f"{_g(c['impact_time_reference_s'], digits=6)} | "
+            f"{_g(c['impact_time_error_s'], 's', 4)} (after alignment) |",
+            f"| bounce height within {c['bounce_window_s']:g} s [m] | "
+            f"{_g(c['bounce_height_run_m'], digits=4)} | "
+            f"{_g(c['bounce_height_reference_m'], digits=4)} | "
+            f"{_g(c['bounce_height_abs_error_m'], 'm', 4)} ({_pct(c['bounce_height_error'])}) |",
+        ]
+        for k, why in sorted(c["null_reasons"].items()):
+            lines.append(f"- {k}: {why}")
+    tp = r["tip"]
+    lines += ["", "## Tip (seed 002: Gannon's normalized tip errors)", ""]
+    lines += [
+        f"- arm length L = {_g(tp['arm_length_m'], 'm')}",
+        f"- normalized tip-amplitude error max|Δp| / L = "
+        f"{_pct(tp['normalized_amplitude_error'])} (RMS over the instants "
+        f"{_pct(tp['normalized_rms_amplitude_error'])})",
+        f"- tip frequency error ({tp['frequency_channel'] or '—'}) = "
+        f"{_pct(tp['frequency_error'])}",
+        f"- result: {_ok(tp['pass'])}",
+    ]
+    for k, why in sorted(tp["null_reasons"].items()):
+        lines.append(f"- {k}: {why}")
+    if r["warnings"]:
+        lines += ["", "## Warnings", ""] + [f"- {w}" for w in r["warnings"]]
+    lines += ["", "## Figures", ""]
+    for key, title in (("tip_path", "Tip path in the plane"),
+                       ("contact", "Contact normal force and phase")):
+        if figs.get(key):
+            lines += [f"### {title}", "", f"![{title}]({figs[key].name})", ""]
+    for name in cmp.names:
+        ov, sp = figs.get(f"overlay:{name}"), figs.get(f"spectrum:{name}")
+        if ov or sp:
+            lines.append(f"### {name}")
+            lines.append("")
+            if ov:
+                lines.append(f"![{name} time overlay]({ov.name})")
+            if sp:
+                lines.append(f"![{name} spectra]({sp.name})")
+            lines.append("")
+    lines += [
+        "## Reading this report",
+        "",
+        "Start from the failed criteria above. A frequency error on the accelerometers or "
+        "strain points at stiffness or mass (EI, tip bodies, the rung: `flexarm study`); an "
+        "amplitude error with matching frequencies at damping, drive gains or sensor "
+        "sensitivities; an impact-time error at the drive model (motor constants, "
+        "resistance) or the wall position. Check the overlays for a bad alignment first "
+        "(a wrong offset inflates every RMS error; set `--offset` by hand if needed) and the "
+        "spectra for peaks near the resolution (a short span cannot separate close "
+        "modes: use a longer record or `--window`). Edit the scene, rerun `flexarm run`, "
+        "compare again.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_report(cmp: Comparison, directory) -> Path:
+    """Write ``report.md`` and the figures into ``directory`` (created); return the
+    Markdown path."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    figs: dict = {}
+    for name in cmp.names:
+        figs[f"overlay:{name}"] = _overlay(cmp, name, out)
+        if cmp.result["channels"][name]["frequency_run_hz"] is not None or \
+                cmp.result["channels"][name]["frequency_reference_hz"] is not None:
+            figs[f"spectrum:{name}"] = _spectrum(cmp, name, out)
+    figs["tip_path"] = _tip_path(cmp, out)
+    figs["contact"] = _contact(cmp, out)
+    md = out / "report.md"
+    md.write_text(_markdown(cmp, figs), encoding="utf-8")
+    return md

@@ -1,0 +1,14 @@
+"""Views of recorded twin bags: :mod:`.bag_view` extracts what to draw (numpy, no
+viewer), :mod:`.rerun_view` logs it to rerun (optional dependency rerun-sdk, the
+``viz`` extra: ``pip install -e .[viz]``; imported only when used). See docs/viewing.md.
+"""
+
+from .bag_view import BagView, expand_batch, thin
+
+__all__ = ["BagView", "bag_to_rerun", "expand_batch", "thin"]
+
+
+def bag_to_rerun(*args, **kwargs):
+    """:func:`flexarm_ros.viz.rerun_view.bag_to_rerun` (imports rerun on first use)."""
+    from .rerun_view import bag_to_rerun as convert
+    return convert(*args, **kwargs)

@@ -1,0 +1,309 @@
+"""What a recorded twin bag shows, as plain numpy arrays on the simulation time (ns):
+the deformed arm, the wall, the tool and its contact force, the tip path and the sensor
+traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to rerun.
+
+The model comes from the bag itself: the recorder stores the scene YAML in the MCAP
+metadata ``flexarm_ros`` → ``scene_yaml``; :class:`~flexarm_ros.model.chain.Chain` of
+that scene turns the full coordinate vector of ``ground_truth/coordinates`` (mapped by
+name onto ``Chain.names``) into beam centerlines (``Chain.centerlines``). Time is the
+log time of each message, which the recorder sets to the simulation time.
+
+Sensor batches (``accelerometers/batch``, ``strain/batch``, ``potentiometer/batch``) are
+``std_msgs/Float64MultiArray`` with layout [sample, channel]: n uniform samples 1/fs
+apart, the last at the message's log time; channels are the scene's sensors of that
+kind in scene order, fs their ``rate_hz``. :meth:`BagView.batch_series` expands them to
+one time stamp per sample.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import yaml
+
+from ..bag.reader import Bag, BagError, read_bag
+from ..twin import topics as T
+
+__all__ = ["BATCH_KINDS", "BagView", "ShapeFrame", "Trace", "expand_batch", "thin"]
+
+BATCH_KINDS = {T.ACCEL_BATCH: "accelerometer", T.STRAIN_BATCH: "strain",
+               T.POT_BATCH: "potentiometer"}
+"""Batch topic → sensor kind whose channels it carries."""
+
+
+@dataclass
+class Trace:
+    """One scalar signal: ``t_ns`` (int64, simulation time) and ``values`` (float64)."""
+    name: str
+    t_ns: np.ndarray
+    values: np.ndarray
+
+
+@dataclass
+class ShapeFrame:
+    """The arm at one instant: one (samples, 2) world-frame centerline per link (m), the
+    tool point (m) and the full coordinate vector q in ``Chain.names`` order."""
+    t_ns: int
+    centerlines: list
+    tool: np.ndarray
+    q: np.ndarray
+
+
+def expand_batch(layout_dims, data, log_time_ns: int, rate_hz: float,
+                 where: str = "batch", data_offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(sample times ns (n,), values (n, channels)) of one [sample, channel] batch
+    (``value[i, j] = data[data_offset + dim[1].stride·i + j]``): n samples 1/rate_hz
+    apart, the last at ``log_time_ns`` (times rounded to the ns)."""
+    dims = list(layout_dims)
+    arr = np.asarray(data, dtype=np.float64)
+    if len(dims) == 2:
+        n, c = int(dims[0]["size"]), int(dims[1]["size"])
+    elif len(dims) == 1:                 # a single sample of c channels
+        n, c = 1, int(dims[0]["size"])
+    else:
+        raise BagError(f"{where}: got a layout of {len(dims)} dims, expected [sample, channel]")
+    stride = int(dims[1]["stride"]) if len(dims) == 2 and int(dims[1]["stride"]) else c
+    idx = data_offset + stride * np.arange(n)[:, None] + np.arange(c)[None, :]
+    if n * c and idx.max() >= arr.size:
+        raise BagError(f"{where}: layout says {n} samples x {c} channels (stride {stride}, "
+                       f"offset {data_offset}), the data has only {arr.size} values")
+    values = arr[idx]
+    back = np.rint((n - 1 - np.arange(n)) * 1e9 / rate_hz).astype(np.int64)
+    return np.int64(log_time_ns) - back, values
+
+
+def thin(t_ns, rate_hz: float) -> list[int]:
+    """Indices into the sorted times ``t_ns`` keeping at most ``rate_hz`` per second: the
+    first, then the first at or after each 1/rate_hz step, and always the last
+    (``rate_hz`` ≤ 0: all)."""
+    if len(t_ns) == 0:
+        return []
+    step = 0 if rate_hz <= 0 else int(round(1e9 / rate_hz))
+    out, due = [], None
+    for k, t in enumerate(t_ns):
+        if due is None or t >= due:
+            out.append(k)
+            due = int(t) + step
+    if out[-1] != len(t_ns) - 1:
+        out.append(len(t_ns) - 1)
+    return out
+
+
+def _dims(layout) -> list:
+    return [{"size": d.size, "stride": d.stride} for d in layout.dim]
+
+
+
+class BagView:
+    """The drawable content of one twin bag (a path or a :class:`~flexarm_ros.bag.Bag`).
+
+    ``namespace``: where the twin's topics are (default: the bag's metadata
+    ``flexarm_ros.namespace``, else ``/flexarm``). A bag without the scene metadata
+    still gives its traces and tip path, but no arm, wall or channel names.
+    """
+
+    def __init__(self, bag, namespace: str | None = None):
+        self.bag: Bag = bag if isinstance(bag, Bag) else read_bag(bag)
+        info = self.bag.metadata.get("flexarm_ros", {})
+        self.namespace = namespace or info.get("namespace") or "/flexarm"
+        self.scene = self.chain = None
+        text = info.get("scene_yaml")
+        if text:
+            from ..model.chain import Chain
+            from ..model.errors import SceneError
+            from ..model.scene import load_scene_dict
+            try:
+                self.scene = load_scene_dict(yaml.safe_load(text))
+            except (SceneError, yaml.YAMLError) as err:
+                raise BagError(f"{self.bag.path}: metadata flexarm_ros.scene_yaml is not a "
+                               f"valid scene: {err}") from err
+            self.chain = Chain(self.scene, backend="numpy")
+        self._index: dict = {}
+        self._tips: dict | None = None
+
+    # ------------------------------------------------------------------ access
+    @property
+    def path(self) -> str:
+        return self.bag.path
+
+    def topic(self, name: str) -> str:
+        """Absolute name of a twin topic in this bag."""
+        return T.resolve(self.namespace, name)
+
+    def messages(self, name: str) -> list:
+        """[(log time ns, decoded message)] of a twin topic (empty when absent)."""
+        return self.bag.messages.get(self.topic(name), [])
+
+    @property
+    def link_names(self) -> list[str]:
+        return [lk.name for lk in self.scene.links] if self.scene else []
+
+    @property
+    def tool_at_tip(self) -> bool:
+        """The scene's tool point is the last beam's tip (ground_truth/tip is the tool)."""
+        return self.scene is None or not any(self.scene.tool.position)
+
+    # ------------------------------------------------------------------ geometry
+    def wall_normal_tangent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(unit inward normal n, tangent t = E·n, E the +90° rotation) of the wall."""
+        if self.scene is None or not self.scene.walls:
+            return None
+        n = np.asarray(self.scene.walls[0].normal, float)
+        n = n / np.hypot(*n)
+        return n, np.array([-n[1], n[0]])
+
+    def reach(self) -> float:
+        """Sum of the beam lengths (m), the scale of the drawing (1 m without a scene)."""
+        if self.scene is None:
+            return 1.0
+        return float(sum(lk.beam.length + lk.beam.hub_radius for lk in self.scene.links))
+
+    def wall_line(self, half_length: float | None = None) -> np.ndarray | None:
+        """(2, 2) end points of the wall: ``point ± half_length·t`` (default: the reach)."""
+        nt = self.wall_normal_tangent()
+        if nt is None:
+            return None
+        h = self.reach() if half_length is None else half_length
+        p = np.asarray(self.scene.walls[0].point, float)
+        return np.array([p - h * nt[1], p + h * nt[1]])
+
+    def _q_index(self, names: tuple) -> np.ndarray:
+        """Message index of every ``Chain.names`` entry (by name, not position)."""
+        idx = self._index.get(names)
+        if idx is None:
+            where = {n: i for i, n in enumerate(names)}
+            missing = [n for n in self.chain.names if n not in where]
+            if missing:
+                raise BagError(f"{self.path}: {self.topic(T.GT_COORDINATES)}: the model of "
+                               f"scene {self.scene.name!r} needs the coordinates "
+                               f"{self.chain.names}, the message lacks {missing} "
+                               f"(it has {list(names)})")
+            idx = self._index[names] = np.array([where[n] for n in self.chain.names], int)
+        return idx
+
+    def coordinates(self, msg) -> np.ndarray:
+        """Full q (``Chain.names`` order) of one ``ground_truth/coordinates`` message."""
+        return np.asarray(msg.position, float)[self._q_index(tuple(msg.name))]
+
+    def has_shape(self) -> bool:
+        return self.chain is not None and bool(self.messages(T.GT_COORDINATES))
+
+    def tool_position(self, q: np.ndarray, t_ns: int | None = None) -> np.ndarray:
+        """Tool point (m): ``ground_truth/tip`` at ``t_ns`` when the tool is at the tip
+        and that message exists, else the last tip frame o + A(ψ)·tool.position."""
+        if self.tool_at_tip and t_ns is not None:
+            tip = self.tips().get(int(t_ns))
+            if tip is not None:
+                return tip
+        fr = self.chain.kinematics(np.asarray(q, float), np.zeros(self.chain.n),
+                                   frames_only=True).tip_frames[-1]
+        c, s = np.cos(fr.psi), np.sin(fr.psi)
+        p = np.asarray(self.scene.tool.position, float)
+        return np.asarray(fr.o, float) + np.array([c * p[0] - s * p[1], s * p[0] + c * p[1]])
+
+    def tips(self) -> dict:
+        """{log time ns: ground_truth/tip (x, y)}."""
+        if self._tips is None:
+            self._tips = {int(t): np.array([m.point.x, m.point.y])
+                          for t, m in self.messages(T.GT_TIP)}
+        return self._tips
+
+    def tip_path(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t_ns (N,), xy (N, 2)) of ``ground_truth/tip``."""
+        msgs = self.messages(T.GT_TIP)
+        t = np.array([t for t, _ in msgs], np.int64)
+        xy = np.array([[m.point.x, m.point.y] for _, m in msgs], float).reshape(-1, 2)
+        return t, xy
+
+    def shape_frames(self, rate_hz: float = 100.0, samples: int = 21) -> list[ShapeFrame]:
+        """The arm at ``ground_truth/coordinates`` messages thinned to at most
+        ``rate_hz`` (the first message, then the first at or after each 1/rate_hz step;
+        the last message always), ``samples`` points per centerline."""
+        if not self.has_shape():
+            return []
+        msgs = self.messages(T.GT_COORDINATES)
+        chosen = thin(np.array([t for t, _ in msgs], np.int64), rate_hz)
+        out = []
+        for k in chosen:
+            t, m = msgs[k]
+            q = self.coordinates(m)
+            out.append(ShapeFrame(int(t), self.chain.centerlines(q, samples),
+                                  self.tool_position(q, t), q))
+        return out
+
+    # ------------------------------------------------------------------ contact
+    def contact_force(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(t_ns (N,), force on the tool in the world frame (N, 2) = F_n·n + F_t·t,
+        (F_n, F_t) (N, 2)) from ``tool/wrench`` (frame ``wall``: x normal, y tangent)."""
+        msgs = self.messages(T.TOOL_WRENCH)
+        nt = self.wall_normal_tangent()
+        if not msgs or nt is None:
+            return None
+        t = np.array([t for t, _ in msgs], np.int64)
+        f = np.array([[m.wrench.force.x, m.wrench.force.y] for _, m in msgs], float)
+        return t, f[:, :1] * nt[0] + f[:, 1:] * nt[1], f
+
+    # ------------------------------------------------------------------ traces
+    def batch_series(self, topic: str) -> list[Trace]:
+        """Per-sample traces of a batch topic, one per channel, named after the scene's
+        sensors of its kind (``ch0``, … when the counts differ or there is no scene)."""
+        msgs = self.messages(topic)
+        if not msgs:
+            return []
+        kind = BATCH_KINDS.get(topic)
+        sensors = [s for s in (self.scene.sensors if self.scene else ()) if s.kind == kind]
+        if not sensors:
+            warnings.warn(f"{self.path}: {self.topic(topic)}: not drawn, no {kind} sensor "
+                          "in the scene metadata gives the sample rate", stacklevel=2)
+            return []
+        rate = sensors[0].rate_hz
+        if any(s.rate_hz != rate for s in sensors):
+            warnings.warn(f"{self.path}: {kind} sensors have different rates "
+                          f"{[s.rate_hz for s in sensors]}; using {rate} Hz", stacklevel=2)
+        ts, vs = [], []
+        for t, m in msgs:
+            tt, vv = expand_batch(_dims(m.layout), m.data, t, rate,
+                                  where=f"{self.path}: {self.topic(topic)} at {t} ns",
+                                  data_offset=m.layout.data_offset)
+            ts.append(tt)
+            vs.append(vv)
+        t_all, v_all = np.concatenate(ts), np.concatenate(vs)
+        names = [s.name for s in sensors]
+        if len(names) != v_all.shape[1]:
+            warnings.warn(f"{self.path}: {self.topic(topic)} has {v_all.shape[1]} channels, "
+                          f"the scene {len(names)} {kind} sensors; naming them ch0, ch1, …",
+                          stacklevel=2)
+            names = [f"ch{j}" for j in range(v_all.shape[1])]
+        return [Trace(n, t_all, v_all[:, j].copy()) for j, n in enumerate(names)]
+
+    def joint_state_series(self, topic: str, field: str = "position") -> list[Trace]:
+        """One trace per joint name of a ``sensor_msgs/JointState`` topic (by name)."""
+        msgs = self.messages(topic)
+        series: dict[str, tuple[list, list]] = {}
+        for t, m in msgs:
+            for name, v in zip(m.name, getattr(m, field)):
+                ts, vs = series.setdefault(name, ([], []))
+                ts.append(t)
+                vs.append(v)
+        return [Trace(n, np.array(ts, np.int64), np.array(vs, float))
+                for n, (ts, vs) in series.items()]
+
+    def array_series(self, topic: str, names: list[str] | None = None) -> list[Trace]:
+        """One trace per element of a 1-D ``*MultiArray`` topic (e.g. commands)."""
+        msgs = self.messages(topic)
+        if not msgs:
+            return []
+        t = np.array([t for t, _ in msgs], np.int64)
+        width = min(len(m.data) for _, m in msgs)
+        v = np.array([list(m.data)[:width] for _, m in msgs], float).reshape(len(msgs), width)
+        names = names if names and len(names) == width else [f"{j}" for j in range(width)]
+        return [Trace(n, t, v[:, j].copy()) for j, n in enumerate(names)]
+
+    def contact_flag(self) -> Trace | None:
+        msgs = self.messages(T.TOOL_CONTACT)
+        if not msgs:
+            return None
+        return Trace("in_contact", np.array([t for t, _ in msgs], np.int64),
+                     np.array([float(bool(m.data)) for _, m in msgs]))

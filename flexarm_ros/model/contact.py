@@ -168,6 +168,20 @@ class WallContact:
         sol = _solve_kkt(A, np.concatenate([f, [-cn, -ct]]))
         return sol[:nf], sol[nf], sol[nf + 1]
 
+    def free_accelerations(self, t, x, mode, s=0.0) -> np.ndarray:
+        """q̈ of the free coordinates in a mode (compiled, :mod:`kernel_contact`, on the
+        numba backend for the impulse rung; else :meth:`rhs`)."""
+        nf = self.nf
+        if self.method != "compliant" and self.chain.backend == "numba":
+            if getattr(self, "_scratch", None) is None:
+                self._scratch = (kernel_contact.scratch(self), np.empty(len(x)))
+            sc, out = self._scratch
+            if kernel_contact.evaluate(float(t), np.asarray(x, float), int(mode), float(s),
+                                       out, self.model, self.ws,
+                                       kernel_contact.parameters(self), sc[8], sc):
+                return out[nf:2 * nf].copy()
+        return self.rhs(t, x, mode, s)[0][nf:2 * nf]
+
     def compliant_force(self, tm: Terms):
         """(F_n, F_t) of the compliant rung at the tool."""
         g = self.gap(tm)
@@ -261,8 +275,7 @@ class ContactRun:
 
     def accelerations(self, contact, k, t, x) -> np.ndarray:
         """q̈ of the free coordinates at sample k (the mode's constrained dynamics)."""
-        return contact.rhs(t, x, int(self.mode[k]), float(self.slip_sign[k]))[0][
-            contact.nf:2 * contact.nf]
+        return contact.free_accelerations(t, x, int(self.mode[k]), float(self.slip_sign[k]))
 
 
 class ContactStepper:

@@ -130,9 +130,13 @@ class SimulatorCore:
         tip = self.plant.tip_position()
         out.append((T.GT_TIP, T.TYPES[T.GT_TIP],
                     msg.point_stamped(t_ns, "world", (tip[0], tip[1], 0.0))))
-        qf, qdf = self.plant.chain.full_state(self.t, self.plant.x)
+        ch = self.plant.chain
+        qf, qdf = ch.full_state(self.t, self.plant.x)
+        applied = np.zeros(ch.n)          # input torque on each coordinate, 0 where none acts
+        for link, j in self.plant._act.items():
+            applied[ch.actuators[j].coord] = self.plant.torques[link]
         out.append((T.GT_COORDINATES, T.TYPES[T.GT_COORDINATES],
-                    msg.joint_state(t_ns, self.plant.chain.names, qf, qdf)))
+                    msg.joint_state(t_ns, ch.names, qf, qdf, applied)))
         return out
 
     def step(self, torques) -> None:

@@ -13,7 +13,7 @@ against the twin unchanged). Standard message types only.
 | ``tool/wrench`` | geometry_msgs/WrenchStamped | sim → ctrl | frame ``wall``: x = normal force on the tool (N, ≥ 0), y = friction force along the wall's tangent t = E·n |
 | ``ground_truth/joint_states`` | sensor_msgs/JointState | sim → analysis | exact link-side joint angles ``<link>_joint`` and drive coordinates ``<link>_drive`` (rad, rad/s) |
 | ``ground_truth/tip`` | geometry_msgs/PointStamped | sim → analysis | tip position (m, ``world``) |
-| ``ground_truth/coordinates`` | sensor_msgs/JointState | sim → analysis, views | every generalized coordinate of the model by name (``Chain.names``: joint/motor angles, beam coordinates ``<link>_w1``, …; SI) and its rate — with the scene embedded in the bag, enough to redraw the deformed arm (``Chain.centerlines``) |
+| ``ground_truth/coordinates`` | sensor_msgs/JointState | sim → analysis, views | every generalized coordinate of the model by name (``Chain.names``: joint/motor angles, beam coordinates ``<link>_w1``, …; SI) and its rate, effort = the input torque acting on it (N·m, 0 where none acts) — with the scene embedded in the bag, enough to redraw the deformed arm (``Chain.centerlines``) |
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |

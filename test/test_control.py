@@ -526,3 +526,21 @@ def test_sanding_closed_loop_on_the_rigid_arm():
     # the tool went up the wall and came back down (lagging the command through friction)
     i_top = int(np.argmax(tip_y))
     assert tip_y[i_top] > 1.25 and tip_y[i_top:][ph[i_top:] == "lift_off"][0] < 1.2
+
+
+def test_sanding_limits_from_the_scene_reach_the_task_and_bad_ones_are_named():
+    """The sanding task's limits are scene keys (control.sanding.*): given values reach
+    the controller's task; an invalid one is refused naming the key and the bound."""
+    from flexarm_ros.model.errors import SceneError
+    from flexarm_ros.model.scene import load_scene_dict, resolve_scene_path
+    from flexarm_ros.twin.cores import ControllerCore
+    data = yaml.safe_load(resolve_scene_path("two_link_sanding").read_text())
+    data["control"]["sanding"].update({"offset_max": 0.03, "press_timeout": 4.0,
+                                       "lift_distance": 0.08, "force_tolerance": 0.2})
+    task = ControllerCore(load_scene_dict(data)).task
+    assert (task.offset_max, task.press_timeout, task.lift_distance,
+            task.force_tolerance) == (0.03, 4.0, 0.08, 0.2)
+    assert task.offset_min == -0.03
+    data["control"]["sanding"]["press_timeout"] = -1.0
+    with pytest.raises(SceneError, match=r"press_timeout.*-1.*> 0"):
+        load_scene_dict(data)

@@ -392,6 +392,23 @@ class Sanding:
     kp_force: float = param(0.02, unit="m/(N·s)", gt=0.0,
                             doc="force-through-position gain")
     strokes: int = param(2, ge=1, doc="passes along the wall")
+    offset_max: float = param(0.05, unit="m", gt=0.0,
+                              doc="largest correction of the tool target beyond the wall line "
+                                  "(±) the force loop may make")
+    search_speed: float = param(0.02, unit="m/s", gt=0.0,
+                                doc="speed of the search towards the wall when the approach "
+                                    "ends without contact")
+    search_timeout: float = param(2.0, unit="s", ge=0.0,
+                                  doc="search time before the task stops with a status")
+    press_time: float = param(0.2, unit="s", ge=0.0,
+                              doc="time the force must stay within tolerance before sliding")
+    press_timeout: float = param(10.0, unit="s", gt=0.0,
+                                 doc="pressing time before the task stops with a status")
+    force_tolerance: float = param(0.1, gt=0.0,
+                                   doc="relative band around normal_force counted as reached")
+    reverse_time: float = param(0.1, unit="s", ge=0.0, doc="dwell at each stroke end")
+    lift_distance: float = param(0.05, unit="m", gt=0.0, doc="lift-off distance from the wall")
+    lift_time: float = param(1.0, unit="s", gt=0.0, doc="time of the lift-off move")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -325,7 +325,13 @@ class ControllerCore:
             start = self.arm.forward(q0)
             self.task = SandingTask(sd.wall_x, sd.y_start, sd.y_end, sd.speed,
                                     sd.normal_force, start, sd.approach_time, sd.kp_force,
-                                    strokes=sd.strokes)
+                                    strokes=sd.strokes, offset_max=sd.offset_max,
+                                    search_speed=sd.search_speed,
+                                    search_timeout=sd.search_timeout,
+                                    press_time=sd.press_time, press_timeout=sd.press_timeout,
+                                    force_tolerance=sd.force_tolerance,
+                                    reverse_time=sd.reverse_time,
+                                    lift_distance=sd.lift_distance, lift_time=sd.lift_time)
         self.phase = "position"
 
     def _ik(self, target, q_guess):

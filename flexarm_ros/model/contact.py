@@ -306,6 +306,7 @@ class ContactStepper:
         if self.compiled:
             self._sc = kernel_contact.scratch(contact)
             self._xdot = np.empty(len(self.x))
+            self._cp = kernel_contact.parameters(contact)
 
     # ------------------------------------------------------------------ internals
     def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
@@ -395,7 +396,7 @@ class ContactStepper:
         chain, h = self.chain, self.h
         t, x, mode, s = self.t, self.x, self.mode, self.s
         events_here = 0
-        cp = kernel_contact.parameters(self.contact) if self.compiled else None
+        cp = self._cp if self.compiled else None
         while t < t_target - 1e-15:
             if self.compiled:
                 hh = h if mode == FREE else min(h, self.h_contact)
@@ -477,8 +478,7 @@ class ContactStepper:
         if self.compiled:
             res = self._sc[8]
             if kernel_contact.evaluate(float(self.t), self.x, int(self.mode), float(self.s),
-                                       self._xdot, c.model, c.ws,
-                                       kernel_contact.parameters(c), res, self._sc):
+                                       self._xdot, c.model, c.ws, self._cp, res, self._sc):
                 ph = PHASE_CODE["impact"] if self.impact_pending else self.mode
                 self.impact_pending = False
                 R = kernel_contact

@@ -92,6 +92,7 @@ class Plant:
         self.guard = _Guard(ch, fid.max_deflection_ratio, "rk4", h)
         self.guard.check(0.0, self.x)
         self.ws = kernel.workspace(ch.kernel_args)
+        self._frames_at = None                       # (t, k) of the frames in self.ws
         self.stepper = (ContactStepper(ch, self.contact, self.x, h, self.guard)
                         if self.contact is not None else None)
         self.contact_sample = None
@@ -158,9 +159,7 @@ class Plant:
         if any(self.sensors[j].spec.kind == "accelerometer" for j in due):
             qdd = self.accelerations()
             if self._acc is not None:       # compiled: frames from one kernel evaluation
-                nf2 = 2 * len(ch.free)
-                kernel.forces(float(self.t), q.copy(), qd.copy(), self.x[nf2:],
-                              ch.kernel_args, self.ws)
+                self._frames_now()
                 kernel_sensors.readings(q, qd, qdd, ch.kernel_args, self.ws,
                                         *self._acc[1:], self._acc_out)
         out = []
@@ -214,11 +213,20 @@ class Plant:
         """(x, y) of the last beam tip (m) now (the compiled kernel's frame when available,
         else :meth:`Chain.tip_position`)."""
         ch = self.chain
-        q, qd = ch.full_state(self.t, self.x)
         if ch.backend != "numba":
-            return ch.tip_position(q)
-        kernel.forces(float(self.t), q, qd, self.x[2 * len(ch.free):], ch.kernel_args, self.ws)
+            return ch.tip_position(ch.full_state(self.t, self.x)[0])
+        self._frames_now()
         return self.ws[kernel.W_FR][-1, 1, 0:2].copy()
+
+    def _frames_now(self) -> None:
+        """The kernel's frames (``ws[W_FR]``, ``ws[W_FJ]``) at the current state, evaluated
+        once per state (the accelerometers and the tip of one instant share them)."""
+        if self._frames_at == (self.t, self.k):
+            return
+        ch = self.chain
+        q, qd = ch.full_state(self.t, self.x)
+        kernel.forces(float(self.t), q, qd, self.x[2 * len(ch.free):], ch.kernel_args, self.ws)
+        self._frames_at = (self.t, self.k)
 
     def contact_state(self) -> dict:
         """phase, normal/friction force (N), gap (m), tool position/velocity; phase 'free'

@@ -334,10 +334,16 @@ def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
     if vibration:
         if blk["frequency_error"] is not None:
             crit["frequency_error"] = M.passes(blk["frequency_error"], threshold)
+    return _verdict(blk, crit, why, "no criterion could be evaluated")
+
+
+def _verdict(blk: dict, crit: dict, why: dict, none_reason: str) -> dict:
+    """Close a result block: its criteria, pass = all of them (None, with ``none_reason``,
+    when none could be evaluated) and the reasons of its null figures."""
     blk["criteria"] = crit
     blk["pass"] = all(crit.values()) if crit else None
     if not crit:
-        why["pass"] = "no criterion could be evaluated"
+        why["pass"] = none_reason
     blk["null_reasons"] = why
     return blk
 
@@ -471,12 +477,7 @@ def _tip_block(run, ref, off, scene, names, blocks, window, threshold):
     else:
         why["frequency_channel"] = why["frequency_error"] = (
             "no compared tip_x / tip_y channel with a spectral peak")
-    blk["criteria"] = crit
-    blk["pass"] = all(crit.values()) if crit else None
-    if not crit:
-        why["pass"] = "no tip criterion could be evaluated"
-    blk["null_reasons"] = why
-    return blk
+    return _verdict(blk, crit, why, "no tip criterion could be evaluated")
 
 
 def _source(cs: ChannelSet) -> dict:

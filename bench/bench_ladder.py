@@ -20,10 +20,11 @@ import time
 import numpy as np
 
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.scene import load_scene
-from flexarm_ros.model.integrate import RK4_STABILITY
+from flexarm_ros.scene import load_scene
+from flexarm_ros.sim.integrate import RK4_STABILITY
 from flexarm_ros.model.linear import highest_rate
-from flexarm_ros.model.simulate import initial_state, simulate
+from flexarm_ros.model.statics import initial_state
+from flexarm_ros.sim.simulate import simulate
 
 CASES = [  # (label, scene, overrides, duration s, target real-time factor)
     ("seed 000 two-link, cubic, free flight", "two_link_free", {"rung": "cubic"}, 2.0, 200),

@@ -31,7 +31,7 @@ from pathlib import Path
 
 
 def plant_only(scene_name: str, ticks: int) -> float:
-    from flexarm_ros.model.scene import load_scene
+    from flexarm_ros.scene import load_scene
     from flexarm_ros.twin.cosim import Lockstep
     ls = Lockstep(load_scene(scene_name))
     ls.tick()                                     # compile / warm up
@@ -46,7 +46,7 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
     import numpy as np
     import rclpy
     from rclpy.context import Context
-    from flexarm_ros.model.scene import load_scene
+    from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes import _common as C
     from flexarm_ros.nodes._msgconv import to_msg
     from flexarm_ros.twin import topics as T

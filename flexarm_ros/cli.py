@@ -25,7 +25,7 @@ def _ros_env_defaults():
 
 
 def _fidelity_args(p):
-    from .model.scene import INTEGRATORS, RUNGS
+    from flexarm_ros.scene import INTEGRATORS, RUNGS
     g = p.add_argument_group("fidelity overrides (default: the scene's)")
     g.add_argument("--rung", choices=RUNGS, help="beam discretization rung")
     g.add_argument("--refine", type=int, help="modes / elements / FD segments")
@@ -38,7 +38,7 @@ def _fidelity_args(p):
 
 
 def _load(args):
-    from .model.scene import load_scene
+    from flexarm_ros.scene import load_scene
     scene = load_scene(args.scene or DEFAULT_SCENE)
     over = {k: getattr(args, k, None) for k in
             ("rung", "refine", "integrator", "rtol", "atol", "dt")}
@@ -57,8 +57,8 @@ def _progress(quiet):
 
 
 def cmd_simulate(args):
-    from .model.simulate import simulate
-    from .io.tables import write_table
+    from flexarm_ros.sim.simulate import simulate
+    from flexarm_ros.io.tables import write_table
     scene = _load(args)
     res = simulate(scene, args.duration, progress=_progress(args.quiet or args.json))
     if not (args.quiet or args.json):
@@ -92,9 +92,9 @@ def sensor_table_path(out, rate_hz) -> Path:
 
 
 def cmd_modes(args):
-    from .model.chain import Chain
-    from .model.linear import natural_modes
-    from .model.simulate import initial_state
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.linear import natural_modes
+    from flexarm_ros.model.statics import initial_state
     scene = _load(args)
     chain = Chain(scene)
     q0 = initial_state(chain)[0]
@@ -115,14 +115,14 @@ def cmd_modes(args):
 
 
 def cmd_linearize(args):
-    from .model.chain import Chain
-    from .model.statespace import linearize
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.statespace import linearize
     scene = _load(args)
     ss = linearize(Chain(scene))
     if args.out:
         out = Path(args.out)
         if out.suffix != ".npz":
-            from .model.errors import SceneError
+            from flexarm_ros.errors import SceneError
             raise SceneError(f"--out: got {str(out)!r}, expected a .npz file")
         np.savez(out, A=ss.A, B=ss.B, C=ss.C, D=ss.D, x0=ss.x0,
                  states=np.array(ss.states), inputs=np.array(ss.inputs),
@@ -141,13 +141,13 @@ def cmd_linearize(args):
 
 
 def cmd_explain(args):
-    from .model.explain import explain
+    from flexarm_ros.model.explain import explain
     print(explain(_load(args)))
     return 0
 
 
 def cmd_study(args):
-    from .model.study import run_study, plot_pareto
+    from flexarm_ros.studies.ladder import run_study, plot_pareto
     scene = _load(args)
     rows = run_study(scene, duration=args.duration, quick=args.quick,
                      progress=None if args.json else print)
@@ -156,21 +156,21 @@ def cmd_study(args):
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
-        from .model.study import format_table
+        from flexarm_ros.studies.ladder import format_table
         print(format_table(rows))
     return 0
 
 
 def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
-    from .run import DEFAULT_SCENE as RUN_SCENE
-    from .run import run
+    from flexarm_ros.run import DEFAULT_SCENE as RUN_SCENE
+    from flexarm_ros.run import run
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
               namespace=args.namespace, progress=not args.quiet)
     record = None if args.no_record else args.record
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
-        from .run import run_with_view
-        from .viz.rerun_view import RerunUnavailable
+        from flexarm_ros.run import run_with_view
+        from flexarm_ros.viz.rerun_view import RerunUnavailable
         try:
             res, view = run_with_view(args.rerun, args.rerun_spawn, record,
                                       scene=args.scene or RUN_SCENE, **kw)
@@ -191,13 +191,13 @@ def cmd_run(args):
 
 def cmd_replay(args):
     """Publish a bag on ROS 2 with /clock, and/or convert it to rerun; see flexarm_ros.replay."""
-    from .replay import command
+    from flexarm_ros.replay import command
     return command(args)
 
 
 def cmd_compare(args):
     """Twin run vs reference (docs/compare.md): 0 pass, 1 fail, 2 bad input."""
-    from .analysis.compare import run_cli
+    from flexarm_ros.analysis.compare import run_cli
     return run_cli(args)
 
 
@@ -333,7 +333,7 @@ def build_parser():
 
 def main(argv=None) -> int:
     _ros_env_defaults()
-    from .model.errors import SceneError, SimulationDiverged
+    from flexarm_ros.errors import SceneError, SimulationDiverged
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

@@ -28,8 +28,8 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .bag.reader import Bag, BagError, read_bag, to_dict
-from .twin import topics as T
+from flexarm_ros.bag.reader import Bag, BagError, read_bag, to_dict
+from flexarm_ros.twin import topics as T
 
 __all__ = ["ReplayPlan", "ReplayResult", "load_plan", "remap", "replay"]
 
@@ -135,8 +135,8 @@ def replay(plan: ReplayPlan, rate: float = 1.0, loop: bool = False,
     from rclpy.duration import Duration
     from rclpy.signals import SignalHandlerOptions
 
-    from .nodes._common import StopFlag, publisher
-    from .nodes._msgconv import msg_class, to_msg
+    from flexarm_ros.nodes._common import StopFlag, publisher
+    from flexarm_ros.nodes._msgconv import msg_class, to_msg
 
     res = ReplayResult()
     stop = StopFlag()
@@ -239,7 +239,7 @@ def command(args) -> int:
                     "possible)")
     options = None
     if args.rerun is not None:
-        from .viz.rerun_view import RerunUnavailable, ViewOptions, require_rerun
+        from flexarm_ros.viz.rerun_view import RerunUnavailable, ViewOptions, require_rerun
         try:
             require_rerun()
             options = ViewOptions(args.shape_rate, args.samples, args.force_scale)
@@ -251,7 +251,7 @@ def command(args) -> int:
         return fail(exc)
     out = {"bag": plan.path}
     if args.rerun is not None:
-        from .viz.rerun_view import bag_to_rerun
+        from flexarm_ros.viz.rerun_view import bag_to_rerun
         try:
             summ = bag_to_rerun(plan.bag, args.rerun, options=options)
         except (OSError, BagError) as exc:

@@ -100,8 +100,8 @@ class InProcessGraph:
         from rclpy.parameter import Parameter
         from rclpy.signals import SignalHandlerOptions
 
-        from .nodes import node_classes
-        from .nodes._common import make_executor
+        from flexarm_ros.nodes import node_classes
+        from flexarm_ros.nodes._common import make_executor
         env = ros_environment()
         self.context = Context()
         rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]),
@@ -222,8 +222,8 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL."""
-    from .model.scene import load_scene
-    from .nodes._common import MODES, StopFlag
+    from flexarm_ros.scene import load_scene
+    from flexarm_ros.nodes._common import MODES, StopFlag
     if mode not in MODES:
         raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
     name = load_scene(scene).name                      # fails early on a bad scene
@@ -268,7 +268,7 @@ def run_with_view(rerun=None, spawn=False, record=None, view_options=None, **kw)
     Returns (RunResult, RerunSummary)."""
     import tempfile
 
-    from .viz.rerun_view import bag_to_rerun, require_rerun, start_viewer
+    from flexarm_ros.viz.rerun_view import bag_to_rerun, require_rerun, start_viewer
     start_viewer() if spawn else require_rerun()      # fail before the run, not after
     with tempfile.TemporaryDirectory(prefix="flexarm_run_") as tmp:
         bag = Path(record) if record else Path(tmp) / "run.mcap"

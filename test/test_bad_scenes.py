@@ -9,8 +9,8 @@ import copy
 
 import pytest
 
-from flexarm_ros.model.errors import SceneError
-from flexarm_ros.model.scene import load_scene_dict
+from flexarm_ros.errors import SceneError
+from flexarm_ros.scene import load_scene_dict
 
 BASE = {
     "name": "base",
@@ -193,7 +193,7 @@ def test_scene_that_is_not_a_mapping(data, fragments):
 
 
 def test_yaml_file_error_names_the_file_and_the_key(tmp_path):
-    from flexarm_ros.model.scene import load_scene
+    from flexarm_ros.scene import load_scene
     p = tmp_path / "bad.yaml"
     p.write_text("name: bad\nlinks:\n  - name: l1\n    beam: {length: 1.0, EI: -3, "
                  "mass_per_length: 0.5}\n")

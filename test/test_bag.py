@@ -12,8 +12,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from flexarm_ros.bag import (KNOWN_TYPES, BagError, BagWriter, TruncatedBagWarning,
-                             iter_messages, read_bag, to_dict)
+from flexarm_ros.bag import (KNOWN_TYPES, BagError, BagWriter, TruncatedBagWarning, iter_messages, read_bag, to_dict)
 from flexarm_ros.bag import messages as m
 from flexarm_ros.bag.msgdefs import TYPE_HASHES, full_text
 from flexarm_ros.bag.writer import encode_cdr

@@ -1,4 +1,4 @@
-"""Tests of flexarm_ros.model.beam_theory against published numbers, limits and an
+"""Tests of flexarm_ros.testing.beam_theory against published numbers, limits and an
 independent Hermite-cubic finite-element model written here (not the project's model).
 
 The FEM gets its boundary conditions only by adding lumped inertia to nodal DOFs
@@ -11,7 +11,7 @@ import pytest
 import scipy.linalg
 from scipy.integrate import quad
 
-from flexarm_ros.model import beam_theory as bt
+from flexarm_ros.testing import beam_theory as bt
 
 # A realistic aluminium strip (SI): E = 70 GPa, 50 mm x 3 mm, rho = 2700 kg/m^3.
 EI = 70e9 * 0.05 * 0.003**3 / 12.0  # 7.875 N m^2

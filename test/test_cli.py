@@ -55,7 +55,7 @@ def test_fidelity_overrides_reach_the_model(capsys):
 
 
 def test_modes_json_matches_closed_form(capsys):
-    from flexarm_ros.model import beam_theory
+    from flexarm_ros.testing import beam_theory
     assert main(["modes", "link_tipmass", "--joints", "locked", "--json", "--rung", "fem",
                  "--refine", "12"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -103,7 +103,7 @@ def test_console_entry_point_runs_default_scene(tmp_path):
 
 def test_core_imports_without_rclpy():
     code = ("import sys; sys.modules['rclpy'] = None; "
-            "import flexarm_ros.model.chain, flexarm_ros.model.simulate, flexarm_ros.cli; "
+            "import flexarm_ros.model.chain, flexarm_ros.sim.simulate, flexarm_ros.cli; "
             "print('ok')")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0 and "ok" in r.stdout, r.stderr

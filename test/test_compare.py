@@ -23,8 +23,7 @@ from flexarm_ros.analysis.channels import ChannelSet, load_channels
 from flexarm_ros.analysis.report import write_report
 from flexarm_ros.bag.reader import TruncatedBagWarning
 from flexarm_ros.cli import main
-from flexarm_ros.io.experiment import (CompareInputError, load_channel_map,
-                                       read_experiment_csv, write_experiment_csv)
+from flexarm_ros.io.experiment import (CompareInputError, load_channel_map, read_experiment_csv, write_experiment_csv)
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "bags" / "golden_case1.mcap"

@@ -34,8 +34,7 @@ import pytest
 import yaml
 from scipy.integrate import solve_ivp
 
-from flexarm_ros.control import (EncoderVelocity, JointPD, JointPositionController,
-                                 MotorVoltageMap, PlanarTwoLink, SandingTask)
+from flexarm_ros.control import (EncoderVelocity, JointPD, JointPositionController, MotorVoltageMap, PlanarTwoLink, SandingTask)
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "two_link_case1.yaml"
 KP = np.array([60.0, 25.0])         # N·m/rad ("spring_i" of Eq. 5.16)
@@ -531,8 +530,8 @@ def test_sanding_closed_loop_on_the_rigid_arm():
 def test_sanding_limits_from_the_scene_reach_the_task_and_bad_ones_are_named():
     """The sanding task's limits are scene keys (control.sanding.*): given values reach
     the controller's task; an invalid one is refused naming the key and the bound."""
-    from flexarm_ros.model.errors import SceneError
-    from flexarm_ros.model.scene import load_scene_dict, resolve_scene_path
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.scene import load_scene_dict, resolve_scene_path
     from flexarm_ros.twin.cores import ControllerCore
     data = yaml.safe_load(resolve_scene_path("two_link_sanding").read_text())
     data["control"]["sanding"].update({"offset_max": 0.03, "press_timeout": 4.0,

@@ -19,12 +19,14 @@ import pytest
 import scipy.linalg
 from scipy.optimize import brentq
 
-from flexarm_ros.model import drives, kernel
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.errors import SceneError
-from flexarm_ros.model.integrate import integrate
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import initial_state, initial_x, simulate
+from flexarm_ros.errors import SceneError
+from flexarm_ros.sim.integrate import integrate
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.model.statics import initial_state, initial_x
+from flexarm_ros.sim.simulate import simulate
 
 # seed 001 motor
 K_T = K_B = 0.05        # N·m/A, V·s/rad
@@ -740,7 +742,7 @@ def _kernel_cases():
 @pytest.mark.parametrize("case", ["dc_motor", "hydraulic_gravity", "backlash"])
 def test_kernel_matches_numpy_reference_with_drives(case):
     pytest.importorskip("numba")
-    if not kernel.HAVE_NUMBA:
+    if not kchain.HAVE_NUMBA:
         pytest.skip("numba disabled (FLEXARM_NO_NUMBA)")
     scene = _kernel_cases()[case]
     ref_chain = Chain(scene, backend="numpy")
@@ -750,7 +752,7 @@ def test_kernel_matches_numpy_reference_with_drives(case):
     assert ref_chain.nz == fast_chain.nz == 1
     if case == "hydraulic_gravity":
         bias = ref_chain.actuators[0].par[7]
-        assert bias != 0.0 and fast_chain.kernel_args[kernel.M_APAR][0, 7] == bias
+        assert bias != 0.0 and fast_chain.kernel_args[kchain.M_APAR][0, 7] == bias
     nf = len(ref_chain.free)
     rng = np.random.default_rng(7)
     scale_z = {"dc_motor": 5.0, "hydraulic_gravity": 5e6, "backlash": 5.0}[case]

@@ -13,13 +13,14 @@ import re
 import numpy as np
 import pytest
 
-from flexarm_ros.model import kernel
-from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.errors import SceneError, SimulationDiverged, StepTooLarge
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import simulate
 
-BACKENDS = ["numpy"] + (["numba"] if kernel.HAVE_NUMBA else [])
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.sim.simulate import simulate
+
+BACKENDS = ["numpy"] + (["numba"] if kchain.HAVE_NUMBA else [])
 FIX = re.compile(r"\b(dt|integrator|rung|max_deflection_ratio)\b")
 
 # seed 001 link (EI 2000 N·m², ρA 1 kg/m, L 1 m, hub I_H 0.0174 kg·m²)

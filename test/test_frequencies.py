@@ -1,6 +1,6 @@
 """Natural frequencies of every rung against the closed-form frequency equations.
 
-Truth: :mod:`flexarm_ros.model.beam_theory` (characteristic equations of the clamped-free
+Truth: :mod:`flexarm_ros.testing.beam_theory` (characteristic equations of the clamped-free
 beam, the beam with a rigid tip body, and the beam on a free hub), which is derived from
 the beam equation alone and checked in ``test_beam_theory.py`` against an independent FEM.
 The model side is ``linear.natural_modes`` of a one-link chain built from a scene dict, so
@@ -22,10 +22,10 @@ Measured on this code (recorded for the report; relative errors):
 import numpy as np
 import pytest
 
-from flexarm_ros.model import beam_theory as bt
+from flexarm_ros.testing import beam_theory as bt
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import natural_modes
-from flexarm_ros.model.scene import load_scene_dict
+from flexarm_ros.scene import load_scene_dict
 
 # aluminium strip 50 mm x 3 mm, 1.2 m (the same beam test_beam_theory.py uses)
 EI = 70e9 * 0.05 * 0.003**3 / 12.0      # 7.875 N·m²

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from flexarm_ros.model.errors import SimulationDiverged, StepTooLarge
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import simulate
+from flexarm_ros.errors import SimulationDiverged, StepTooLarge
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.sim.simulate import simulate
 
 LINK = {"name": "link", "duration": 0.5,
         "links": [{"name": "l1", "beam": {"length": 1.0, "EI": 2000.0, "mass_per_length": 1.0,

@@ -3,12 +3,13 @@
 import numpy as np
 import pytest
 
-from flexarm_ros.model import kernel
-from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import simulate
 
-pytestmark = pytest.mark.skipif(not kernel.HAVE_NUMBA, reason="numba not installed")
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.sim.simulate import simulate
+
+pytestmark = pytest.mark.skipif(not kchain.HAVE_NUMBA, reason="numba not installed")
 
 # a scene that touches every term: gravity off-axis, hub radius, CG and joint offsets,
 # joint flexibility, beam damping, a torque program and a prescribed motion

@@ -13,7 +13,7 @@ import pytest
 
 from flexarm_ros.bag import read_bag, to_dict
 from flexarm_ros.bag.writer import encode_cdr
-from flexarm_ros.model.scene import load_scene
+from flexarm_ros.scene import load_scene
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 from flexarm_ros.twin.cosim import cosimulate
@@ -72,7 +72,7 @@ def test_core_packages_import_and_cosimulate_without_rclpy():
 
         sys.meta_path.insert(0, Block())
         import flexarm_ros.model, flexarm_ros.twin, flexarm_ros.control, flexarm_ros.bag
-        from flexarm_ros.model.scene import load_scene
+        from flexarm_ros.scene import load_scene
         from flexarm_ros.twin.cosim import cosimulate
         res = cosimulate(load_scene("link_motor"), 0.005)
         assert len(res.messages) > 10

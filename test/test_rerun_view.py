@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from flexarm_ros.bag import BagWriter, read_bag, to_dict
-from flexarm_ros.model.scene import load_scene, resolve_scene_path
+from flexarm_ros.scene import load_scene, resolve_scene_path
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cosim import cosimulate
 

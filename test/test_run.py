@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from flexarm_ros.bag import TruncatedBagWarning, read_bag, to_dict
 from flexarm_ros.bag.writer import encode_cdr
-from flexarm_ros.model.scene import load_scene
+from flexarm_ros.scene import load_scene
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cosim import Lockstep, cosimulate
 
@@ -106,7 +106,7 @@ def test_flexarm_run_writes_a_finalized_bag_with_metadata(tmp_path, capsys):
     assert meta["message_count"] == bag.message_count
     assert meta["duration"]["nanoseconds"] == 50_000_000
     assert meta["storage_identifier"] == "mcap"
-    from flexarm_ros.nodes._common import DEPTH       # what the nodes' publishers offer
+    from flexarm_ros.nodes._common import DEPTH  # what the nodes' publishers offer
     depths = {q["depth"] for t in meta["topics_with_message_count"]
               for q in t["topic_metadata"]["offered_qos_profiles"]}
     assert depths == {DEPTH}

@@ -5,8 +5,8 @@ import pytest
 
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import build_contact
-from flexarm_ros.model.scene import config_dir, load_scene
-from flexarm_ros.model.simulate import simulate
+from flexarm_ros.scene import config_dir, load_scene
+from flexarm_ros.sim.simulate import simulate
 
 SCENES = sorted(p.stem for p in config_dir().glob("*.yaml"))
 

@@ -17,8 +17,9 @@ import pytest
 from flexarm_ros.analysis.metrics import event_time
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import natural_modes
-from flexarm_ros.model.scene import load_scene
-from flexarm_ros.model.simulate import initial_state, simulate
+from flexarm_ros.scene import load_scene
+from flexarm_ros.model.statics import initial_state
+from flexarm_ros.sim.simulate import simulate
 
 TOOL = runpy.run_path(str(Path(__file__).resolve().parents[1] / "tools" /
                           "reproduce_seeds.py"))

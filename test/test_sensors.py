@@ -15,8 +15,9 @@ import math
 import numpy as np
 import pytest
 
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import simulate
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.sim.simulate import simulate
 
 G = 9.8066
 
@@ -151,15 +152,15 @@ def test_noise_is_seeded_and_adc_quantizes():
                                             ("fd", 4, True), ("modal", 2, False),
                                             ("rigid", None, True)])
 def test_compiled_accelerometers_equal_the_numpy_point_kinematics(rung, refine, fs):
-    """The plant's compiled read-out (kernel_sensors) against Chain.point_kinematics at
+    """The plant's compiled read-out (model.compiled.sensors) against Chain.point_kinematics at
     random states and accelerations, for sensors on beams, hub and tip bodies with offsets
     and oblique axes, in gravity."""
     import yaml
-    from flexarm_ros.model import kernel, kernel_sensors
+    from flexarm_ros.model.compiled import sensors as ksensors
     from flexarm_ros.model.chain import Chain
-    from flexarm_ros.model.scene import load_scene_dict, resolve_scene_path
+    from flexarm_ros.scene import load_scene_dict, resolve_scene_path
     from flexarm_ros.model.sensors import build_sensors, true_value
-    if not kernel.HAVE_NUMBA:
+    if not kchain.HAVE_NUMBA:
         pytest.skip("the compiled read-out needs numba (the numpy path is the reference)")
     data = yaml.safe_load(resolve_scene_path("two_link_case1").read_text())
     data["gravity"] = [0.3, -9.81]
@@ -176,8 +177,8 @@ def test_compiled_accelerometers_equal_the_numpy_point_kinematics(rung, refine, 
                                                 foreshortening=fs)
     ch = Chain(scene)
     sens = build_sensors(ch, scene)
-    idx, *arrs = kernel_sensors.pack(ch, sens)
-    ws = kernel.workspace(ch.kernel_args)
+    idx, *arrs = ksensors.pack(ch, sens)
+    ws = kchain.workspace(ch.kernel_args)
     out = np.empty(len(idx))
     rng = np.random.default_rng(7)
     worst = 0.0
@@ -185,8 +186,8 @@ def test_compiled_accelerometers_equal_the_numpy_point_kinematics(rung, refine, 
         q = rng.normal(0.0, 0.05, ch.n) + ch.initial_q()[0]
         qd = rng.normal(0.0, 2.0, ch.n)
         qdd = rng.normal(0.0, 50.0, ch.n)
-        kernel.forces(0.0, q.copy(), qd.copy(), np.zeros(max(ch.nz, 0)), ch.kernel_args, ws)
-        kernel_sensors.readings(q, qd, qdd, ch.kernel_args, ws, *arrs, out)
+        kchain.forces(0.0, q.copy(), qd.copy(), np.zeros(max(ch.nz, 0)), ch.kernel_args, ws)
+        ksensors.readings(q, qd, qdd, ch.kernel_args, ws, *arrs, out)
         kin = ch.kinematics(q, qd, frames_only=True)
         for r, j in enumerate(idx):
             ref = true_value(sens[j], ch, q, qd, qdd, None, kin)

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from flexarm_ros.model.errors import SimulationDiverged
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import simulate
+from flexarm_ros.errors import SimulationDiverged
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.sim.simulate import simulate
 
 # ----------------------------------------------------------------------------- spin-up
 L_S, EI_S, RHO_A_S = 10.0, 14000.0, 1.2

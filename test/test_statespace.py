@@ -16,9 +16,9 @@ import pytest
 from flexarm_ros.cli import main
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import natural_modes
-from flexarm_ros.model.scene import load_scene_dict
+from flexarm_ros.scene import load_scene_dict
 from flexarm_ros.model.sensors import build_sensors, measure, true_value
-from flexarm_ros.model.simulate import initial_state
+from flexarm_ros.model.statics import initial_state
 from flexarm_ros.model.statespace import linearize
 
 G = 9.8066

@@ -22,11 +22,12 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_simpson, solve_bvp
 
-from flexarm_ros.model import beam_theory as bt
+from flexarm_ros.testing import beam_theory as bt
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import reduced_coordinates
-from flexarm_ros.model.scene import config_dir, load_scene, load_scene_dict
-from flexarm_ros.model.simulate import simulate, static_equilibrium
+from flexarm_ros.scene import config_dir, load_scene, load_scene_dict
+from flexarm_ros.sim.simulate import simulate
+from flexarm_ros.model.statics import static_equilibrium
 
 # seed 002 arm
 L = 0.9985

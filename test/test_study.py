@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from flexarm_ros.model import study
-from flexarm_ros.model.beam_theory import tip_loaded_frequencies_hz
+from flexarm_ros.studies import ladder as study
+from flexarm_ros.testing.beam_theory import tip_loaded_frequencies_hz
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.scene import load_scene_dict
-from flexarm_ros.model.simulate import simulate
+from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.sim.simulate import simulate
 
 # a short stiff-ish link clamped to its hub (hub_radius 0), a tip body at the tip and a
 # torque pulse: first frequency 4.17 Hz, FEM 8 highest rate ~9e4 1/s

@@ -5,12 +5,12 @@
 
 from pathlib import Path
 
-from flexarm_ros.model.scene import Scene
-from flexarm_ros.model.schema import reference_markdown
+from flexarm_ros.scene import Scene
+from flexarm_ros.scene.schema import reference_markdown
 
 HEADER = """# Scene file reference
 
-Generated from `flexarm_ros/model/scene.py` by `python tools/gen_config_reference.py`;
+Generated from `flexarm_ros/scene/sections.py` by `python tools/gen_config_reference.py`;
 a test fails when this file is out of date. SI units; unknown keys are errors.
 
 """

@@ -23,8 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from flexarm_ros.analysis.spectra import dominant_frequency  # noqa: E402
-from flexarm_ros.model.scene import load_scene  # noqa: E402
-from flexarm_ros.model.simulate import simulate  # noqa: E402
+from flexarm_ros.scene import load_scene  # noqa: E402
+from flexarm_ros.sim.simulate import simulate  # noqa: E402
 
 DURATION = 3.5
 SOURCE = {  # experiment, author's simulation (Hz); seed 000 Sec. 5.6 / SEEDS.md

@@ -173,12 +173,12 @@ def motor_closed_form(t, volts_of_t, J, K=GEAR["K_m"], R=GEAR["R"], L=GEAR["L"],
 
 # ------------------------------------------------------------------------ helpers
 def _load(name):
-    from flexarm_ros.model.scene import load_scene
+    from flexarm_ros.scene import load_scene
     return load_scene(name)
 
 
 def _run(scene, duration=None):
-    from flexarm_ros.model.simulate import simulate
+    from flexarm_ros.sim.simulate import simulate
     return simulate(scene, duration=duration)
 
 
@@ -201,7 +201,7 @@ def with_backlash_width(scene, width):
 def motor_only(scene):
     """The link_motor scene with the link reduced to a light rigid stub: the seed's Fig. 8
     motor with its load shaft J alone (the light-beam rig of test/test_drives.py)."""
-    from flexarm_ros.model.scene import Beam, RigidBody
+    from flexarm_ros.scene import Beam, RigidBody
     lk = scene.links[0]
     lk = dataclasses.replace(lk, beam=Beam(length=1.0, EI=1e-3, mass_per_length=1e-9),
                              hub=RigidBody())
@@ -391,7 +391,7 @@ def seed002(rep: Report, plt):
     from flexarm_ros.analysis.spectra import dominant_frequency
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.linear import natural_modes
-    from flexarm_ros.model.simulate import initial_state
+    from flexarm_ros.model.statics import initial_state
     rep.heading("## Seed 002 — Gannon (1986), hydraulic flexible arm in a vertical plane")
     rep.text("Scenes `hydraulic_0kg`, `hydraulic_2kg`, `hydraulic_4kg`: servovalve + rotary "
              "actuator with the Appendix B program constants, 4.0 mA step at t = 0.1 s from "

@@ -10,8 +10,8 @@ import json
 import sys
 from pathlib import Path
 
-from flexarm_ros.model.scene import load_scene
-from flexarm_ros.model.study import format_table, plot_pareto, run_study
+from flexarm_ros.scene import load_scene
+from flexarm_ros.studies.ladder import format_table, plot_pareto, run_study
 
 SCENES = ["two_link_free", "link_tipmass", "hydraulic_2kg", "spin_up"]
 

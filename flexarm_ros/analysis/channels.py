@@ -43,10 +43,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..bag.reader import BagError, TruncatedBagWarning, read_bag
-from ..io.experiment import (ChannelMap, CompareInputError, MapEntry,
-                             read_experiment_csv)
-from ..twin import topics as T
+from flexarm_ros.bag.reader import BagError, TruncatedBagWarning, read_bag
+from flexarm_ros.io.experiment import ChannelMap, CompareInputError, MapEntry, read_experiment_csv
+from flexarm_ros.twin import topics as T
 
 __all__ = ["Channel", "ChannelSet", "add_wall_gap", "bag_channels", "load_channels",
            "mapped_bag_channels", "same_unit", "scene_of_bag"]
@@ -80,7 +79,7 @@ class ChannelSet:
     path: str
     kind: str                                   # 'mcap' or 'csv'
     channels: dict[str, Channel] = field(default_factory=dict)
-    scene: Any = None                           # flexarm_ros.model.scene.Scene or None
+    scene: Any = None                           # flexarm_ros.scene.Scene or None
     scene_name: str | None = None
     truncated: bool = False
     warnings: list[str] = field(default_factory=list)
@@ -134,7 +133,7 @@ def _channel(name, unit, t, y, source, vibration=False) -> Channel | None:
 def scene_of_bag(bag):
     """``(scene, problem)``: the scene embedded in a twin bag (``flexarm_ros`` metadata
     ``scene_yaml``), or ``(None, why)``."""
-    from ..model.scene import load_scene_dict
+    from flexarm_ros.scene import load_scene_dict
     text = bag.metadata.get("flexarm_ros", {}).get("scene_yaml")
     if not text:
         return None, "the bag has no embedded scene (flexarm_ros metadata scene_yaml)"
@@ -321,7 +320,7 @@ def add_wall_gap(channels: dict[str, Channel], scene) -> str | None:
                 f"not at the recorded tip")
     tx, ty = channels["tip_x"], channels["tip_y"]
     if tx.t.shape != ty.t.shape or not np.array_equal(tx.t, ty.t):
-        from .spectra import resample
+        from flexarm_ros.analysis.spectra import resample
         lo, hi = max(tx.t[0], ty.t[0]), min(tx.t[-1], ty.t[-1])
         t = tx.t[(tx.t >= lo) & (tx.t <= hi)]
         if t.size < 2:

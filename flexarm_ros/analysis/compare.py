@@ -51,10 +51,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.experiment import CompareInputError, load_channel_map
-from . import metrics as M
-from .channels import ChannelSet, add_wall_gap, load_channels, same_unit
-from .spectra import MAX_JITTER, MIN_SAMPLES, dominant_frequency, uniform
+from flexarm_ros.io.experiment import CompareInputError, load_channel_map
+from flexarm_ros.analysis import metrics as M
+from flexarm_ros.analysis.channels import ChannelSet, add_wall_gap, load_channels, same_unit
+from flexarm_ros.analysis.spectra import MAX_JITTER, MIN_SAMPLES, dominant_frequency, uniform
 
 __all__ = ["BOUNCE_WINDOW_S", "CHANNEL_KEYS", "CONTACT_KEYS", "Comparison", "DEFAULT_MAX_SHIFT_S",
            "SCHEMA", "TIP_KEYS", "TOP_KEYS", "compare", "compare_files", "to_json"]
@@ -624,7 +624,7 @@ def run_cli(args) -> int:
         if not any(str(c.message) == w for c in caught):
             print(f"flexarm compare: warning: {w}", file=sys.stderr)
     if args.report:
-        from .report import write_report
+        from flexarm_ros.analysis.report import write_report
         md = write_report(cmp, args.report)
         if not args.json:
             print(f"report: {md}")

@@ -29,9 +29,8 @@ from matplotlib.figure import Figure
 
 from scipy import signal as _sig
 
-from .compare import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD, Comparison,
-                      _crop, _uniform_record)
-from .spectra import MIN_SAMPLES, _series
+from flexarm_ros.analysis.compare import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD, Comparison, _crop, _uniform_record)
+from flexarm_ros.analysis.spectra import MIN_SAMPLES, _series
 
 __all__ = ["write_report"]
 

@@ -6,10 +6,10 @@ See :mod:`.writer` for what "rosbag2-compatible" means and what a killed writer 
 :mod:`.reader` for how damaged files are read, :mod:`.msgdefs` for the message types.
 """
 
-from . import messages, msgdefs
-from .msgdefs import KNOWN_TYPES
-from .reader import Bag, BagError, BagMessage, TruncatedBagWarning, iter_messages, read_bag, to_dict
-from .writer import INFO_METADATA_NAME, ROSBAG2_METADATA_NAME, BagWriter
+from flexarm_ros.bag import messages, msgdefs
+from flexarm_ros.bag.msgdefs import KNOWN_TYPES
+from flexarm_ros.bag.reader import (Bag, BagError, BagMessage, TruncatedBagWarning, iter_messages, read_bag, to_dict)
+from flexarm_ros.bag.writer import INFO_METADATA_NAME, ROSBAG2_METADATA_NAME, BagWriter
 
 __all__ = [
     "Bag",

@@ -77,8 +77,8 @@ from mcap.writer import LIBRARY_IDENTIFIER as _MCAP_LIBRARY
 from mcap.writer import CompressionType, IndexType
 from mcap.writer import Writer as _McapWriter
 
-from .. import __version__
-from . import msgdefs
+from flexarm_ros import __version__
+from flexarm_ros.bag import msgdefs
 
 __all__ = ["BagWriter", "DEFAULT_QOS", "INFO_METADATA_NAME", "ROSBAG2_METADATA_NAME",
            "encode_cdr"]

@@ -3,9 +3,9 @@ static motor voltage map (Eq. 5.17), rigid two-link kinematics with Newton–Rap
 kinematics, and the sanding task. Components take time as an argument
 (``update(t, dt, ...)``) and never read a clock; ROS nodes are thin adapters over them."""
 
-from .joint_pd import EncoderVelocity, JointPD, JointPositionController, MotorVoltageMap
-from .kinematics import IKResult, PlanarTwoLink
-from .sanding import SandingTask
+from flexarm_ros.control.joint_pd import (EncoderVelocity, JointPD, JointPositionController, MotorVoltageMap)
+from flexarm_ros.control.kinematics import IKResult, PlanarTwoLink
+from flexarm_ros.control.sanding import SandingTask
 
 __all__ = ["EncoderVelocity", "IKResult", "JointPD", "JointPositionController",
            "MotorVoltageMap", "PlanarTwoLink", "SandingTask"]

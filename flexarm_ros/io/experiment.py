@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..model.errors import SceneError
+from flexarm_ros.errors import SceneError
 
 __all__ = [
     "CompareInputError",
@@ -70,7 +70,7 @@ _HEADER = re.compile(r"^\s*(?P<name>[^\[\]]*?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
 class CompareInputError(SceneError):
     """An input of ``flexarm compare`` (bag, CSV, map, option) is unusable; the message
     names the file, the column / channel / key, the value and the expectation. A
-    :class:`~flexarm_ros.model.errors.SceneError`, so the CLI exits with status 2."""
+    :class:`~flexarm_ros.errors.SceneError`, so the CLI exits with status 2."""
 
 
 # ------------------------------------------------------------------------------ CSV

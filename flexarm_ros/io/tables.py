@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.errors import SceneError
+from flexarm_ros.errors import SceneError
 
 
 def write_table(path, columns: dict) -> Path:

@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 import scipy.linalg
 
-from .errors import SceneError
+from flexarm_ros.errors import SceneError
 
 #: default refinement per rung (modes / elements / FD segments)
 DEFAULT_REFINE = {"rigid": 1, "cubic": 1, "modal": 4, "fem": 8, "fd": 20}

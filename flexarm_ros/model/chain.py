@@ -34,9 +34,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import beams, drives, kernel
-from .errors import SceneError
-from .programs import encode, eval_motion, eval_torque
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model import beams, drives
+from flexarm_ros.errors import SceneError
+from flexarm_ros.model.programs import encode, eval_motion, eval_torque
 
 E2 = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -97,10 +98,10 @@ class Chain:
     def __init__(self, scene, fidelity=None, backend: str = "auto"):
         if backend not in ("auto", "numpy", "numba"):
             raise SceneError(f"backend: got {backend!r}, expected auto, numpy or numba")
-        if backend == "numba" and not kernel.HAVE_NUMBA:
+        if backend == "numba" and not kchain.HAVE_NUMBA:
             raise SceneError("backend: got 'numba', but numba is not installed "
                              "(pip install -e .[fast]) or FLEXARM_NO_NUMBA is set")
-        self.backend = "numba" if backend == "auto" and kernel.HAVE_NUMBA else (
+        self.backend = "numba" if backend == "auto" and kchain.HAVE_NUMBA else (
             "numpy" if backend == "auto" else backend)
         self.scene = scene
         self.fidelity = fidelity or scene.fidelity
@@ -147,7 +148,7 @@ class Chain:
                          for lm in self.links if lm.link.joint.backlash is not None]
         # inputs: programs through the joint's drive act on the drive coordinate; motions
         # prescribe the joint angle
-        from .scene import Program
+        from flexarm_ros.scene import Program
         by_joint = {inp.joint: inp for inp in scene.inputs}
         self.actuators: list[Actuator] = []
         self.prescribed = []          # (coordinate index, program, theta0)
@@ -178,7 +179,7 @@ class Chain:
         self.presc_idx = np.array(presc, dtype=int)
         self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
         self.kernel_args = self._pack()
-        self._ws = kernel.workspace(self.kernel_args)
+        self._ws = kchain.workspace(self.kernel_args)
 
     def _pack(self) -> tuple:
         """The model as flat arrays for the compiled kernel (see :mod:`kernel`)."""
@@ -470,7 +471,7 @@ class Chain:
         """First-order right-hand side ẋ = f(t, x), x = [q_free, q̇_free] (compiled kernel
         when the backend is numba, else the numpy reference below)."""
         if self.backend == "numba":
-            return kernel.rhs(float(t), np.asarray(x, float), self.kernel_args, self._ws)
+            return kchain.rhs(float(t), np.asarray(x, float), self.kernel_args, self._ws)
         return self.rhs_numpy(t, x)
 
     def rhs_numpy(self, t, x):

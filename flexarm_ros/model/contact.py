@@ -40,14 +40,13 @@ unstable at k = 1e7 N/m — measured.)
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
-from . import kernel, kernel_contact
-from .errors import SceneError, SimulationDiverged
+from flexarm_ros.errors import SceneError
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import contact as kcontact
 
 FREE, SLIDING, STICKING = 0, 1, 2
 PHASES = ("free", "sliding", "sticking", "impact")
@@ -96,7 +95,7 @@ class WallContact:
         self.mus = wall.mu_static
         self.p = np.asarray(tool.position, float)
         self.model = chain.kernel_args
-        self.ws = kernel.workspace(self.model)
+        self.ws = kchain.workspace(self.model)
         self.free = chain.free
         self.nf = len(chain.free)
         self.c_contact = 0.0       # compliant damping, set from the start (set_start)
@@ -119,20 +118,20 @@ class WallContact:
         """One compiled force evaluation plus the tool kinematics from the last tip frame."""
         ch, ws, nf = self.chain, self.ws, self.nf
         q, qd = ch.full_state(t, x)
-        kernel.forces(float(t), q, qd, x[2 * nf:], self.model, ws)
+        kchain.forces(float(t), q, qd, x[2 * nf:], self.model, ws)
         fr = self.free
-        M = ws[kernel.W_M][np.ix_(fr, fr)]
-        f = ws[kernel.W_F][fr].copy()
-        zd = ws[kernel.W_ZD][:ch.nz].copy()
-        o = ws[kernel.W_TIP][0:2]
-        co = ws[kernel.W_TIP][2:4]
-        psi, psid = ws[kernel.W_TIP][4], ws[kernel.W_TIP][5]
+        M = ws[kchain.W_M][np.ix_(fr, fr)]
+        f = ws[kchain.W_F][fr].copy()
+        zd = ws[kchain.W_ZD][:ch.nz].copy()
+        o = ws[kchain.W_TIP][0:2]
+        co = ws[kchain.W_TIP][2:4]
+        psi, psid = ws[kchain.W_TIP][4], ws[kchain.W_TIP][5]
         cs, sn = math.cos(psi), math.sin(psi)
         ap = np.array([cs * self.p[0] - sn * self.p[1], sn * self.p[0] + cs * self.p[1]])
-        Jfull = ws[kernel.W_JO] + np.outer(_E @ ap, ws[kernel.W_JPSI])
+        Jfull = ws[kchain.W_JO] + np.outer(_E @ ap, ws[kchain.W_JPSI])
         c = co - psid * psid * ap
         if len(ch.presc_idx):
-            c = c + Jfull[:, ch.presc_idx] @ ws[kernel.W_PDD][:len(ch.presc_idx)]
+            c = c + Jfull[:, ch.presc_idx] @ ws[kchain.W_PDD][:len(ch.presc_idx)]
         return Terms(M, f, zd, o + ap, Jfull[:, fr].copy(), c, Jfull @ qd)
 
     def gap(self, tm: Terms) -> float:
@@ -169,16 +168,16 @@ class WallContact:
         return sol[:nf], sol[nf], sol[nf + 1]
 
     def free_accelerations(self, t, x, mode, s=0.0) -> np.ndarray:
-        """q̈ of the free coordinates in a mode (compiled, :mod:`kernel_contact`, on the
+        """q̈ of the free coordinates in a mode (compiled, :mod:`kcontact`, on the
         numba backend for the impulse rung; else :meth:`rhs`)."""
         nf = self.nf
         if self.method != "compliant" and self.chain.backend == "numba":
             if getattr(self, "_scratch", None) is None:
-                self._scratch = (kernel_contact.scratch(self), np.empty(len(x)))
+                self._scratch = (kcontact.scratch(self), np.empty(len(x)))
             sc, out = self._scratch
-            if kernel_contact.evaluate(float(t), np.asarray(x, float), int(mode), float(s),
+            if kcontact.evaluate(float(t), np.asarray(x, float), int(mode), float(s),
                                        out, self.model, self.ws,
-                                       kernel_contact.parameters(self), sc[8], sc):
+                                       kcontact.parameters(self), sc[8], sc):
                 return out[nf:2 * nf].copy()
         return self.rhs(t, x, mode, s)[0][nf:2 * nf]
 
@@ -258,272 +257,10 @@ class WallContact:
         return 0.5 * qd_free @ tm.M @ qd_free
 
 
-@dataclass
-class ContactRun:
-    """Samples of a contact run: per output time the phase code, forces, gap, tool state."""
-    phase: np.ndarray
-    normal_force: np.ndarray
-    friction_force: np.ndarray
-    gap: np.ndarray
-    tool: np.ndarray          # (N, 2)
-    tool_velocity: np.ndarray  # (N, 2)
-    impacts: list
-    max_drift: float
-    mode: np.ndarray          # smooth mode (free/sliding/sticking) after each sample
-    slip_sign: np.ndarray
-    normal_impulse: np.ndarray   # cumulative normal impulse from the wall (N·s)
-
-    def accelerations(self, contact, k, t, x) -> np.ndarray:
-        """q̈ of the free coordinates at sample k (the mode's constrained dynamics)."""
-        return contact.free_accelerations(t, x, int(self.mode[k]), float(self.slip_sign[k]))
 
 
-class ContactStepper:
-    """Fixed-step RK4 through the contact modes with located events (module doc), as an
-    object: ``advance(t_target)`` moves the state to ``t_target`` (a batch run and the ROS
-    simulator's plant both drive it); ``sample()`` reads the contact quantities."""
-
-    def __init__(self, chain, contact: WallContact, x0, h, guard, t0=0.0):
-        self.chain = chain
-        self.contact = contact
-        self.h = h
-        self.guard = guard
-        self.t = t0
-        self.x = np.array(x0, float)
-        self.mode, self.s = FREE, 0.0
-        self.last_sep = -math.inf
-        self.impacts: list[ImpactRecord] = []
-        self.impact_pending = False
-        self.calls = 0
-        self.steps = 0
-        self.max_drift = 0.0
-        self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
-        self.h_contact = h              # step while in contact (halved on excess drift)
-        self.compliant = contact.method == "compliant"
-        # smooth stretches of the impulse rung in compiled code (numba backend); events,
-        # impacts and retaken steps stay in the Python reference below
-        self.compiled = not self.compliant and chain.backend == "numba"
-        if self.compiled:
-            self._sc = kernel_contact.scratch(contact)
-            self._xdot = np.empty(len(self.x))
-            self._cp = kernel_contact.parameters(contact)
-
-    # ------------------------------------------------------------------ internals
-    def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
-        """One RK4 step; with ``want_impulse`` also the normal impulse ∫λ dt over it (the
-        stages' forces with the RK4 weights)."""
-        f = self.contact.rhs
-        k1, l1, _, _ = f(t0 + kernel.STAGE_EPS * dt, x0, md, sg)
-        k2, l2, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)
-        k3, l3, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)
-        k4, l4, _, _ = f(t0 + (1 - kernel.STAGE_EPS) * dt, x0 + dt * k3, md, sg)
-        self.calls += 4
-        x = self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
-        if want_impulse:
-            return x, (dt / 6.0) * (l1 + 2 * l2 + 2 * l3 + l4)
-        return x
-
-    def _indicators(self, tt, xx, md, sg):
-        """Event functions of a mode (positive while the mode holds)."""
-        if self.compliant:
-            return ()
-        _, ln, lt, tm = self.contact.rhs(tt, xx, md, sg)
-        if md == FREE:
-            return (self.contact.gap(tm),)
-        if md == SLIDING:
-            return (ln, sg * (self.contact.t @ tm.v))
-        return (ln, self.contact.mus * ln - abs(lt))
-
-    def _transition(self, tt, xx, which):
-        """New (x, mode, s) after event ``which`` of the current mode at time tt."""
-        c, nf = self.contact, self.contact.nf
-        if self.mode == FREE:                              # impact
-            tm = c.terms(tt, xx)
-            v = xx[nf:2 * nf]
-            vn = c.n @ tm.J @ v
-            ke0 = c.kinetic(tm, v)
-            v1, pn, pt, stick = c.impulse(tm, v)
-            xx = xx.copy()
-            xx[nf:2 * nf] = v1
-            new_mode = STICKING if stick else SLIDING
-            vt1 = c.t @ tm.J @ v1
-            sg = 0.0 if stick else (math.copysign(1.0, vt1) if vt1 != 0 else
-                                    -math.copysign(1.0, pt) if pt else 1.0)
-            if new_mode == SLIDING and abs(vt1) < 1e-12:
-                new_mode, sg = _stick_or_slip(c, tt, xx)
-            _, ln, _, _ = c.rhs(tt, xx, new_mode, sg)
-            outcome = "sticking" if new_mode == STICKING else "sliding"
-            if ln < 0 and tt - self.last_sep > MIN_FLIGHT:
-                new_mode, sg, outcome = FREE, 0.0, "bounce"
-                self.last_sep = tt
-            self.impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, c.kinetic(tm, v1),
-                                             outcome))
-            self.normal_impulse += pn
-            self.impact_pending = True
-            return xx, new_mode, sg
-        if which == 0:                                     # normal force turned pulling
-            self.last_sep = tt
-            return xx, FREE, 0.0
-        if self.mode == SLIDING:                           # slip speed reached zero
-            md, sg = _stick_or_slip(c, tt, xx)
-            return xx, md, sg
-        _, _, lt, _ = c.rhs(tt, xx, STICKING)              # static friction exceeded
-        return xx, SLIDING, -math.copysign(1.0, lt)
-
-    def _compliant_step(self, t, x):
-        """Largest stable RK4 step near or in a compliant contact: 1.5/|λ| of the contact's
-        spring–damper with the tool's effective mass at the current configuration (it can
-        be far lighter than at the start); the fixed step elsewhere."""
-        c = self.contact
-        tm = c.terms(t, x)
-        g = c.gap(tm)
-        vn = c.n @ tm.v
-        if g > 0.0 and g + min(vn, 0.0) * self.h > 0.0:
-            return self.h                       # cannot reach the wall within this step
-        jn = c.n @ tm.J
-        Gnn = float(jn @ np.linalg.solve(tm.M, jn))
-        w = c.wall
-        delta = max(-g, 1e-3)
-        k_eff = w.exponent * w.stiffness * delta ** (w.exponent - 1.0)
-        omega = math.sqrt(k_eff * Gnn)
-        zeta = 0.5 * c.c_contact * math.sqrt(Gnn / k_eff)
-        rate = omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
-        return min(self.h, 1.5 / rate)
-
-    # --------------------------------------------------------------------- public
-    def advance(self, t_target):
-        """Integrate to ``t_target`` (steps of at most h; events located and handled)."""
-        chain, h = self.chain, self.h
-        t, x, mode, s = self.t, self.x, self.mode, self.s
-        events_here = 0
-        cp = self._cp if self.compiled else None
-        while t < t_target - 1e-15:
-            if self.compiled:
-                hh = h if mode == FREE else min(h, self.h_contact)
-                code, t, x, dp, nst, calls, drift, x_bad = kernel_contact.span(
-                    x, float(t), float(t_target), hh, int(mode), float(s),
-                    chain.fidelity.max_deflection_ratio, chain.fidelity.contact_tolerance,
-                    self.contact.model, self.contact.ws, cp, self._sc)
-                self.normal_impulse += dp
-                self.steps += nst
-                self.calls += calls
-                self.max_drift = max(self.max_drift, drift)
-                if code == kernel.OK:
-                    break
-                if code in (kernel.NON_FINITE, kernel.DEFLECTION):
-                    self.guard.last = x
-                    self.guard.check(t + min(hh, t_target - t), x_bad)
-                # an event, excess drift or a singular constraint in the next step: the
-                # reference below takes that step
-            dt = min(h, t_target - t)
-            if self.compliant:
-                dt = min(dt, self._compliant_step(t, x))
-            elif mode != FREE:
-                dt = min(dt, self.h_contact)
-            x1, dp = self._rk4(t, x, dt, mode, s, want_impulse=True)
-            self.steps += 1
-            if not np.all(np.isfinite(x1)):
-                self.guard.check(t + dt, x1)
-            ind0 = self._indicators(t, x, mode, s)
-            ind1 = self._indicators(t + dt, x1, mode, s)
-            hit = [j for j, (a, b) in enumerate(zip(ind0, ind1)) if a >= 0.0 > b]
-            if hit:
-                best_tau, best_j = dt, hit[0]
-                for j in hit:                  # earliest crossing among the mode's events
-                    def fun(tau, j=j):
-                        return self._indicators(t + tau, self._rk4(t, x, tau, mode, s),
-                                                mode, s)[j]
-                    tau = brentq(fun, 0.0, dt, xtol=1e-14, rtol=1e-12) if fun(0.0) > 0 else 0.0
-                    if tau < best_tau:
-                        best_tau, best_j = tau, j
-                xe, dp = (self._rk4(t, x, best_tau, mode, s, want_impulse=True)
-                          if best_tau > 0 else (x, 0.0))
-                self.normal_impulse += dp
-                t += best_tau
-                self.mode, self.s = mode, s
-                x, mode, s = self._transition(t, xe, best_j)
-                events_here = events_here + 1 if best_tau <= 1e-12 else 0
-                if events_here > 50:
-                    raise SimulationDiverged(
-                        "contact events", t, float(self.contact.gap(self.contact.terms(t, x))),
-                        "use fidelity.contact: compliant, or a finer --dt",
-                        detail="more than 50 contact events at one instant (Zeno)")
-                continue
-            if mode != FREE and not self.compliant:
-                x1p, drift = self.contact.project(t + dt, x1, mode)
-                tol = chain.fidelity.contact_tolerance
-                if drift > tol:
-                    # the step drifted the tool off the wall by more than the tolerance:
-                    # retake it with smaller steps while in contact
-                    self.h_contact = 0.5 * min(self.h_contact, dt)
-                    if self.h_contact < 1e-6 * h:
-                        raise SimulationDiverged(
-                            "tool drift off the wall", t + dt, drift,
-                            f"reduce the step (--dt, now {h:.3g} s) or raise "
-                            f"fidelity.contact_tolerance", detail=f"drift {drift:.3g} m in "
-                            f"one step exceeds fidelity.contact_tolerance = {tol:.3g} m even "
-                            f"at a step of {self.h_contact:.3g} s")
-                    continue
-                self.max_drift = max(self.max_drift, drift)
-                x1 = x1p
-            x, t = x1, t + dt
-            self.normal_impulse += dp
-            self.guard.check(t, x)
-        self.t, self.x, self.mode, self.s = t_target, x, mode, s
-
-    def sample(self):
-        """(phase code, λ_n, λ_t, gap, tool r, tool ṙ, q̈_free) at the current state; the
-        phase is 'impact' once after an impact."""
-        c = self.contact
-        if self.compiled:
-            res = self._sc[8]
-            if kernel_contact.evaluate(float(self.t), self.x, int(self.mode), float(self.s),
-                                       self._xdot, c.model, c.ws, self._cp, res, self._sc):
-                ph = PHASE_CODE["impact"] if self.impact_pending else self.mode
-                self.impact_pending = False
-                R = kernel_contact
-                return (ph, res[R.R_LN], res[R.R_LT], res[R.R_GAP],
-                        np.array([res[R.R_RX], res[R.R_RY]]),
-                        np.array([res[R.R_VX], res[R.R_VY]]), self._xdot[c.nf:2 * c.nf].copy())
-        xd, ln, lt, tm = c.rhs(self.t, self.x, self.mode, self.s)
-        ph = self.mode
-        if self.compliant:
-            ph = FREE if ln <= 0 else (STICKING if abs(c.t @ tm.v) < c.wall.slip_velocity
-                                       else SLIDING)
-        if self.impact_pending:
-            ph = PHASE_CODE["impact"]
-            self.impact_pending = False
-        return ph, ln, lt, c.gap(tm), tm.r.copy(), tm.v.copy(), xd[c.nf:2 * c.nf]
 
 
-def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
-                      progress=None):
-    """Run a :class:`ContactStepper` over [0, t_end], sampling every ``output_dt``.
-
-    Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
-    n_out = int(np.floor(t_end / output_dt + 1e-9))
-    N = n_out + 1
-    xs = np.empty((N, len(x0)))
-    phase = np.zeros(N, dtype=np.int64)
-    fn_out, ft_out, gap = np.zeros(N), np.zeros(N), np.zeros(N)
-    tool, tvel = np.zeros((N, 2)), np.zeros((N, 2))
-    modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
-    impulse = np.zeros(N)
-    st = ContactStepper(chain, contact, x0, h, guard)
-    last_report = time.perf_counter()
-    for k in range(N):
-        if k:
-            st.advance(k * output_dt)
-        xs[k] = st.x
-        phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], _ = st.sample()
-        modes[k], signs[k] = st.mode, st.s
-        impulse[k] = st.normal_impulse
-        now = time.perf_counter()
-        if progress is not None and now - last_report > 1.0:
-            progress(k * output_dt / t_end)
-            last_report = now
-    return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
-                          modes, signs, impulse), st.steps, st.calls
 
 
 def _solve_kkt(A, b):

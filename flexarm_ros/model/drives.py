@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from .compiled import jit
+from flexarm_ros.model.compiled import jit
 
 IDEAL, DC_QUASI_STATIC, DC_CURRENT, HYDRAULIC = 0, 1, 2, 3
 N_PAR = 8

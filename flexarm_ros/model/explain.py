@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .chain import Chain
-from .linear import natural_modes
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.model.linear import natural_modes
 
 
 def explain(scene) -> str:
@@ -72,7 +72,7 @@ def explain(scene) -> str:
         omitted.append("sensors (none declared)")
     lines.append("modelled: " + "; ".join(kept))
     lines.append("left out: " + "; ".join(omitted))
-    from .simulate import initial_state
+    from flexarm_ros.model.statics import initial_state
     m = natural_modes(chain, initial_state(chain)[0], joints="locked")
     f = ", ".join(f"{v:.4g}" for v in m.frequencies_hz[:4])
     where = " at the static deflection" if scene.initial.static_equilibrium else ""

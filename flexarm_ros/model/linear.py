@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from .errors import SceneError
+from flexarm_ros.errors import SceneError
 
 
 @dataclass(frozen=True)

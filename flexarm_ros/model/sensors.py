@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SceneError
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.errors import SceneError
 
 #: sample times are integer multiples of this grid (ns) so every rate falls on it
 TIME_QUANTUM_NS = 1
@@ -157,18 +158,18 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None
         acc_vals = {sm.name: np.empty(len(idx)) for sm in acc}
         compiled = None
         if acc and chain.backend == "numba":     # read-out from the kernel's frames
-            from . import kernel, kernel_sensors
-            _, *arrs = kernel_sensors.pack(chain, acc)
-            ws = kernel.workspace(chain.kernel_args)
+            from flexarm_ros.model.compiled import sensors as ksensors
+            _, *arrs = ksensors.pack(chain, acc)
+            ws = kchain.workspace(chain.kernel_args)
             compiled = np.empty(len(acc))
         for j, k in enumerate(idx if acc else ()):
             x = np.concatenate([run.q[k, chain.free], run.qd[k, chain.free], run.z[k]])
             qdd = (qdd_fn(k, float(run.t[k]), x) if qdd_fn is not None
                    else chain.full_qdd(float(run.t[k]), x))
             if compiled is not None:
-                kernel.forces(float(run.t[k]), run.q[k].copy(), run.qd[k].copy(), run.z[k],
+                kchain.forces(float(run.t[k]), run.q[k].copy(), run.qd[k].copy(), run.z[k],
                               chain.kernel_args, ws)
-                kernel_sensors.readings(run.q[k], run.qd[k], qdd, chain.kernel_args, ws,
+                ksensors.readings(run.q[k], run.qd[k], qdd, chain.kernel_args, ws,
                                         *arrs, compiled)
                 for r, sm in enumerate(acc):
                     acc_vals[sm.name][j] = compiled[r]

@@ -27,11 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import drives
-from .errors import SceneError
-from .linear import tangent_stiffness
-from .sensors import build_sensors
-from .simulate import initial_state
+from flexarm_ros.model import drives
+from flexarm_ros.errors import SceneError
+from flexarm_ros.model.linear import tangent_stiffness
+from flexarm_ros.model.sensors import build_sensors
+from flexarm_ros.model.statics import initial_state
 
 
 @dataclass
@@ -141,8 +141,8 @@ def linearize(chain) -> StateSpace:
 def _qdd_zero_input(chain, q0, z0):
     """q̈ at the initial state with every actuator input at zero."""
     saved = [(a.enc, a.program) for a in chain.actuators]
-    from .programs import encode
-    from .scene import Program
+    from flexarm_ros.model.programs import encode
+    from flexarm_ros.scene import Program
     for a in chain.actuators:
         a.enc = encode(Program(type="constant", value=0.0))
     try:

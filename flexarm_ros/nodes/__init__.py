@@ -26,9 +26,9 @@ __all__ = ["node_classes"]
 
 def node_classes() -> dict:
     """{executable name: Node class} (imports rclpy)."""
-    from .controller import ControllerNode
-    from .motor_driver import MotorDriverNode
-    from .recorder import RecorderNode
-    from .simulator import SimulatorNode
+    from flexarm_ros.nodes.controller import ControllerNode
+    from flexarm_ros.nodes.motor_driver import MotorDriverNode
+    from flexarm_ros.nodes.recorder import RecorderNode
+    from flexarm_ros.nodes.simulator import SimulatorNode
     return {"simulator": SimulatorNode, "motor_driver": MotorDriverNode,
             "controller": ControllerNode, "recorder": RecorderNode}

@@ -25,7 +25,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..twin.cores import _ns, control_period
+from flexarm_ros.twin.cores import _ns, control_period
 
 MODES = ("lockstep", "realtime", "fast")
 DEFAULT_SCENE = "two_link_case1"
@@ -40,7 +40,7 @@ is dropped while a subscriber lags by less than 1000 messages per topic)."""
 def publisher(node, msgtype: str, topic: str):
     """A publisher with :data:`QOS` and no QoS-event handlers: rclpy's default handlers
     add waitables that every executor wait has to scan (a third of a lockstep tick)."""
-    from ._msgconv import msg_class
+    from flexarm_ros.nodes._msgconv import msg_class
     return node.create_publisher(msg_class(msgtype), topic, QOS,
                                  event_callbacks=PublisherEventCallbacks(
                                      use_default_callbacks=False))
@@ -48,7 +48,7 @@ def publisher(node, msgtype: str, topic: str):
 
 def subscription(node, msgtype: str, topic: str, callback):
     """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`)."""
-    from ._msgconv import msg_class
+    from flexarm_ros.nodes._msgconv import msg_class
     return node.create_subscription(msg_class(msgtype), topic, callback, QOS,
                                     event_callbacks=SubscriptionEventCallbacks(
                                         use_default_callbacks=False))
@@ -76,7 +76,7 @@ def declare(node, params: dict) -> dict:
 
 def load(node, params: dict) -> tuple:
     """Common parameters → (values, scene, end tick count or None)."""
-    from ..model.scene import load_scene
+    from flexarm_ros.scene import load_scene
     p = declare(node, {**COMMON, **params})
     if p["mode"] not in MODES:
         raise ValueError(f"parameter mode: got {p['mode']!r}, expected one of {MODES}")
@@ -102,7 +102,7 @@ class SimTime:
     lockstep run equals :func:`~flexarm_ros.twin.cosim.cosimulate` exactly."""
 
     def __init__(self, scene):
-        from ..model.sensors import sample_grid_ns
+        from flexarm_ros.model.sensors import sample_grid_ns
         self.grid = sample_grid_ns([1.0 / s.rate_hz for s in scene.sensors])
         self.period = control_period(scene)
         self.per_tick = int(round(self.period * 1e9 / self.grid)) if self.grid else 0
@@ -214,7 +214,7 @@ def node_main(cls, args=None) -> int:
         epilog=epilog + f"\n\nexample: ros2 run flexarm_ros {cls.EXECUTABLE} --ros-args "
                         "-r __ns:=/flexarm -p scene:=two_link_position -p mode:=realtime")
     ap.parse_args(remove_ros_args(argv)[1:])
-    from ..cli import _ros_env_defaults
+    from flexarm_ros.cli import _ros_env_defaults
     _ros_env_defaults()
     ctx = Context()
     rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)

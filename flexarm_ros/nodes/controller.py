@@ -20,11 +20,11 @@ from collections import deque
 
 from rclpy.node import Node
 
-from ..bag import messages as msg
-from ..twin import topics as T
-from ..twin.cores import ControllerCore
-from . import _common as C
-from ._msgconv import to_msg
+from flexarm_ros.bag import messages as msg
+from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.cores import ControllerCore
+from flexarm_ros.nodes import _common as C
+from flexarm_ros.nodes._msgconv import to_msg
 
 
 class ControllerNode(Node):

@@ -22,11 +22,11 @@ from collections import deque
 
 from rclpy.node import Node
 
-from ..bag import messages as msg
-from ..twin import topics as T
-from ..twin.cores import DriverCore
-from . import _common as C
-from ._msgconv import to_msg
+from flexarm_ros.bag import messages as msg
+from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.cores import DriverCore
+from flexarm_ros.nodes import _common as C
+from flexarm_ros.nodes._msgconv import to_msg
 
 
 class MotorDriverNode(Node):

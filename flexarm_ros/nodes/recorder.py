@@ -34,13 +34,13 @@ from pathlib import Path
 
 from rclpy.node import Node
 
-from .. import __version__
-from ..bag import BagWriter
-from ..model.scene import resolve_scene_path
-from ..twin import topics as T
-from ..twin.cores import control_period
-from . import _common as C
-from ._msgconv import to_dict
+from flexarm_ros import __version__
+from flexarm_ros.bag import BagWriter
+from flexarm_ros.scene import resolve_scene_path
+from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.cores import control_period
+from flexarm_ros.nodes import _common as C
+from flexarm_ros.nodes._msgconv import to_dict
 
 _TICK_TOPICS = (T.ENCODER_COUNTS, T.TOOL_CONTACT, T.COMMANDS, T.EFFORTS)
 _BATCH_KIND = {T.ACCEL_BATCH: "accelerometer", T.STRAIN_BATCH: "strain",
@@ -59,7 +59,7 @@ class RecorderNode(Node):
         super().__init__("recorder", **kwargs)
         self.p, scene, _ = C.load(self, self.PARAMS)
         self.lockstep = self.p["mode"] == "lockstep"
-        from ..model.explain import explain
+        from flexarm_ros.model.explain import explain
         ns = self.get_namespace()
         info = {"scene": scene.name, "scene_yaml": resolve_scene_path(self.p["scene"]).read_text(),
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],

@@ -31,10 +31,10 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from ..twin import topics as T
-from ..twin.cores import SimulatorCore
-from . import _common as C
-from ._msgconv import to_msg
+from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.cores import SimulatorCore
+from flexarm_ros.nodes import _common as C
+from flexarm_ros.nodes._msgconv import to_msg
 
 
 class SimulatorNode(Node):

@@ -17,17 +17,17 @@ import math
 
 import numpy as np
 
-from ..bag import messages as msg
-from ..control.joint_pd import EncoderVelocity, JointPD, MotorVoltageMap
-from ..control.kinematics import PlanarTwoLink
-from ..control.sanding import SandingTask
-from ..model import drives
-from ..model.chain import Chain
-from ..model.errors import SceneError
-from ..model.plant import Plant
-from ..model.programs import encode, eval_torque
-from ..model.simulate import initial_state
-from . import topics as T
+from flexarm_ros.bag import messages as msg
+from flexarm_ros.control.joint_pd import EncoderVelocity, JointPD, MotorVoltageMap
+from flexarm_ros.control.kinematics import PlanarTwoLink
+from flexarm_ros.control.sanding import SandingTask
+from flexarm_ros.model import drives
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.errors import SceneError
+from flexarm_ros.sim.plant import Plant
+from flexarm_ros.model.programs import encode, eval_torque
+from flexarm_ros.model.statics import initial_state
+from flexarm_ros.twin import topics as T
 
 
 def _ns(t: float) -> int:

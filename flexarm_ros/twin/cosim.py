@@ -9,9 +9,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..bag import messages as msg
-from . import topics as T
-from .cores import ControllerCore, DriverCore, SimulatorCore, _ns
+from flexarm_ros.bag import messages as msg
+from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.cores import ControllerCore, DriverCore, SimulatorCore, _ns
 
 
 @dataclass

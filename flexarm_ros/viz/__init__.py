@@ -3,12 +3,12 @@ viewer), :mod:`.rerun_view` logs it to rerun (optional dependency rerun-sdk, the
 ``viz`` extra: ``pip install -e .[viz]``; imported only when used). See docs/viewing.md.
 """
 
-from .bag_view import BagView, expand_batch, thin
+from flexarm_ros.viz.bag_view import BagView, expand_batch, thin
 
 __all__ = ["BagView", "bag_to_rerun", "expand_batch", "thin"]
 
 
 def bag_to_rerun(*args, **kwargs):
     """:func:`flexarm_ros.viz.rerun_view.bag_to_rerun` (imports rerun on first use)."""
-    from .rerun_view import bag_to_rerun as convert
+    from flexarm_ros.viz.rerun_view import bag_to_rerun as convert
     return convert(*args, **kwargs)

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import yaml
 
-from ..bag.reader import Bag, BagError, read_bag
-from ..twin import topics as T
+from flexarm_ros.bag.reader import Bag, BagError, read_bag
+from flexarm_ros.twin import topics as T
 
 __all__ = ["BATCH_KINDS", "BagView", "ShapeFrame", "Trace", "expand_batch", "thin"]
 
@@ -111,9 +111,9 @@ class BagView:
         self.scene = self.chain = None
         text = info.get("scene_yaml")
         if text:
-            from ..model.chain import Chain
-            from ..model.errors import SceneError
-            from ..model.scene import load_scene_dict
+            from flexarm_ros.model.chain import Chain
+            from flexarm_ros.errors import SceneError
+            from flexarm_ros.scene import load_scene_dict
             try:
                 self.scene = load_scene_dict(yaml.safe_load(text))
             except (SceneError, yaml.YAMLError) as err:

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..twin import topics as T
-from .bag_view import BagView, thin
+from flexarm_ros.twin import topics as T
+from flexarm_ros.viz.bag_view import BagView, thin
 
 __all__ = ["TIMELINE", "RerunUnavailable", "ViewOptions", "bag_to_rerun", "blueprint",
            "log_view", "require_rerun", "spawn_check", "start_viewer"]

@@ -4,7 +4,7 @@
 Every run returns an :class:`Integration` result (like scipy's ``OdeResult``: ``status``,
 ``message``, call counters); the state is checked after every step and a non-finite or
 invalid state raises
-:class:`~flexarm_ros.model.errors.SimulationDiverged` naming what diverged, when, and what
+:class:`~flexarm_ros.errors.SimulationDiverged` naming what diverged, when, and what
 to change. Nothing non-finite is ever returned.
 
 The explicit step limit: RK4 is stable for h·|λ| below ≈ 2.78 on the negative real axis and
@@ -21,10 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
-from . import kernel
-from .errors import SceneError, SimulationDiverged, StepTooLarge
-from .linear import highest_rate
-from .programs import torque_breakpoints
+
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import loops as kloops
+from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
+from flexarm_ros.model.linear import highest_rate
+from flexarm_ros.model.programs import torque_breakpoints
 
 RK4_STABILITY = 2.78
 RK4_AUTO = 1.5
@@ -111,18 +113,18 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     xs[0] = x0
     guard.check(0.0, x0)
     if chain.backend == "numba":
-        kernel.warm_up(integrator, chain.kernel_args, x0, xs)   # compile outside the timing
+        kloops.warm_up(integrator, chain.kernel_args, x0, xs)   # compile outside the timing
     wall0 = time.perf_counter()
     last_report = wall0
     if integrator == "rk4" and chain.backend == "numba":
         per = int(round(output_dt / h))
-        ws = kernel.workspace(chain.kernel_args)
+        ws = kchain.workspace(chain.kernel_args)
         x, steps = np.array(x0, float), 0
         for k0, k1 in _chunks(n_out):
-            code, t_fail, st, x_last, x_bad = kernel.rk4_loop(
+            code, t_fail, st, x_last, x_bad = kloops.rk4_loop(
                 x, h, per, k0, k1, output_dt, max_deflection_ratio, xs, chain.kernel_args, ws)
             steps += st
-            if code != kernel.OK:
+            if code != kchain.OK:
                 guard.last = x_last
                 guard.check(t_fail, x_bad)
             x = x_last
@@ -140,10 +142,10 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t = t_out[k]
             for j in range(per):
                 tj = t + j * h
-                k1 = f(tj + kernel.STAGE_EPS * h, x)
+                k1 = f(tj + kchain.STAGE_EPS * h, x)
                 k2 = f(tj + 0.5 * h, x + 0.5 * h * k1)
                 k3 = f(tj + 0.5 * h, x + 0.5 * h * k2)
-                k4 = f(tj + (1.0 - kernel.STAGE_EPS) * h, x + h * k3)
+                k4 = f(tj + (1.0 - kchain.STAGE_EPS) * h, x + h * k3)
                 x = chain.clamp_states(x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
                 steps += 1
                 guard.check(tj + h, x)
@@ -246,14 +248,14 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     """(M + h/2·C + h²/4·K)⁻¹ on the free coordinates at state x, with K = −∂f/∂q and
     C = −∂f/∂q̇ of the generalized forces f (central differences of the compiled forces)."""
     model = chain.kernel_args
-    ws = kernel.workspace(model)
+    ws = kchain.workspace(model)
     free = chain.free
     nf = len(free)
     q, qd = chain.full_state(t, x)
 
     def force(qq, vv):
-        kernel.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
-        return ws[kernel.W_F][free].copy()
+        kchain.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
+        return ws[kchain.W_F][free].copy()
 
     K = np.zeros((nf, nf))
     C = np.zeros((nf, nf))
@@ -266,8 +268,8 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
             fp = force(ap, qd) if arr is q else force(q, ap)
             fm = force(am, qd) if arr is q else force(q, am)
             out[:, j] = -(fp - fm) / (2 * d)
-    kernel.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
-    M = ws[kernel.W_M][np.ix_(free, free)]
+    kchain.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
+    M = ws[kchain.W_M][np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 
 
@@ -275,27 +277,27 @@ def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progres
     """Drive the compiled trapezoidal loop, refreshing the iteration matrix when Newton
     stalls (fast rotation, large deflection change the tangent)."""
     model = chain.kernel_args
-    ws = kernel.workspace(model)
+    ws = kchain.workspace(model)
     nf = len(chain.free)
     per = int(round(output_dt / h))
     x = np.array(x0, float)
-    acc = kernel.rhs(kernel.STAGE_EPS * h, x, model, ws)[nf:]
+    acc = kchain.rhs(kchain.STAGE_EPS * h, x, model, ws)[nf:]
     k, steps, calls, refreshes, k_failed = 0, 0, 0, 0, -1
     Sinv = iteration_matrix(chain, 0.0, x, h)
     last_report = time.perf_counter()
     while True:
         k_end = min(n_out, k + max(1, n_out // 100))
-        code, k, st, it, x, acc = kernel.trapezoid_loop(
+        code, k, st, it, x, acc = kloops.trapezoid_loop(
             x, acc, h, per, k, k_end, output_dt, max_ratio, xs, model, ws, Sinv,
             TRAPEZOID_TOL, TRAPEZOID_MAX_ITER)
         steps += st
         calls += it
-        if code == kernel.OK:
+        if code == kchain.OK:
             last_report = _report(progress, last_report, k * output_dt / (n_out * output_dt))
             if k >= n_out:
                 return steps, calls
             continue
-        if code == kernel.DEFLECTION:
+        if code == kchain.DEFLECTION:
             guard.check((k + 1) * output_dt, x)
         # Newton stalled: refresh the iteration matrix where it stalled, once per place
         if k == k_failed or not np.all(np.isfinite(x)):

@@ -19,7 +19,7 @@ import types
 import typing
 from typing import Any, Mapping
 
-from .errors import SceneError
+from flexarm_ros.errors import SceneError
 
 _MISSING = dataclasses.MISSING
 

@@ -21,14 +21,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernel, kernel_sensors
-from .chain import Chain
-from .contact import PHASES, ContactStepper, build_contact, constrained_rate, contact_rate
-from .errors import SceneError
-from .integrate import RK4_AUTO, _Guard, choose_step
-from .scene import Input, Program
-from .sensors import build_sensors, measure, sample_grid_ns, true_value
-from .simulate import initial_state
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import loops as kloops
+from flexarm_ros.model.compiled import sensors as ksensors
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.model.contact import PHASES, build_contact, constrained_rate, contact_rate
+from flexarm_ros.sim.contact_stepper import ContactStepper
+from flexarm_ros.errors import SceneError
+from flexarm_ros.sim.integrate import RK4_AUTO, _Guard, choose_step
+from flexarm_ros.scene import Input, Program
+from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
+from flexarm_ros.model.statics import initial_state
 
 
 def plant_scene(scene):
@@ -75,7 +78,7 @@ class Plant:
         # accelerometers read by the compiled kernel (numba backend; else the numpy path)
         self._acc = None
         if ch.backend == "numba" and any(s.spec.kind == "accelerometer" for s in self.sensors):
-            self._acc = kernel_sensors.pack(ch, self.sensors)
+            self._acc = ksensors.pack(ch, self.sensors)
             self._acc_out = np.empty(len(self._acc[0]))
             self._acc_row = {int(j): r for r, j in enumerate(self._acc[0])}
         self.torques = np.zeros(len(ch.links))
@@ -91,7 +94,7 @@ class Plant:
         self.h = h
         self.guard = _Guard(ch, fid.max_deflection_ratio, "rk4", h)
         self.guard.check(0.0, self.x)
-        self.ws = kernel.workspace(ch.kernel_args)
+        self.ws = kchain.workspace(ch.kernel_args)
         self._frames_at = None                       # (t, k) of the frames in self.ws
         self.stepper = (ContactStepper(ch, self.contact, self.x, h, self.guard)
                         if self.contact is not None else None)
@@ -107,7 +110,7 @@ class Plant:
             raise SceneError(f"torques: got {tau!r}, expected {len(self.chain.links)} finite "
                              f"values (N·m, joint order)")
         self.torques = tau.copy()
-        tpar = self.chain.kernel_args[kernel.M_TPAR]
+        tpar = self.chain.kernel_args[kchain.M_TPAR]
         for link, j in self._act.items():
             tpar[j, 0] = tau[link]
             self.chain.actuators[j].enc[1][0] = tau[link]   # the numpy path's copy
@@ -138,10 +141,10 @@ class Plant:
             self.contact_sample = self.stepper.sample()
         else:
             n = max(1, int(math.ceil(dt / self.h - 1e-9)))
-            code, t_fail, x_last, x_bad = kernel.rk4_span(
+            code, t_fail, x_last, x_bad = kloops.rk4_span(
                 self.x, self.t, dt / n, n, self.chain.fidelity.max_deflection_ratio,
                 self.chain.kernel_args, self.ws)
-            if code != kernel.OK:
+            if code != kchain.OK:
                 self.guard.last = x_last
                 self.guard.check(t_fail, x_bad)
             self.x = x_last
@@ -160,7 +163,7 @@ class Plant:
             qdd = self.accelerations()
             if self._acc is not None:       # compiled: frames from one kernel evaluation
                 self._frames_now()
-                kernel_sensors.readings(q, qd, qdd, ch.kernel_args, self.ws,
+                ksensors.readings(q, qd, qdd, ch.kernel_args, self.ws,
                                         *self._acc[1:], self._acc_out)
         out = []
         for j in due:
@@ -216,7 +219,7 @@ class Plant:
         if ch.backend != "numba":
             return ch.tip_position(ch.full_state(self.t, self.x)[0])
         self._frames_now()
-        return self.ws[kernel.W_FR][-1, 1, 0:2].copy()
+        return self.ws[kchain.W_FR][-1, 1, 0:2].copy()
 
     def _frames_now(self) -> None:
         """The kernel's frames (``ws[W_FR]``, ``ws[W_FJ]``) at the current state, evaluated
@@ -225,7 +228,7 @@ class Plant:
             return
         ch = self.chain
         q, qd = ch.full_state(self.t, self.x)
-        kernel.forces(float(self.t), q, qd, self.x[2 * len(ch.free):], ch.kernel_args, self.ws)
+        kchain.forces(float(self.t), q, qd, self.x[2 * len(ch.free):], ch.kernel_args, self.ws)
         self._frames_at = (self.t, self.k)
 
     def contact_state(self) -> dict:

@@ -1,5 +1,5 @@
 """Compiled accelerometer read-out: :func:`sensors.true_value` for accelerometers, from the
-frames the kernel left in its workspace (``kernel.W_FR``/``W_FJ``) at the instant's state.
+frames the kernel left in its workspace (``kchain.W_FR``/``W_FJ``) at the instant's state.
 
 The equations are those of :meth:`chain.Chain.point_kinematics` (the numpy reference):
 on a beam at abscissa x, with the hub frame (o, J_o, c_o, ψ, J_ψ, ψ̇) and the basis
@@ -21,8 +21,9 @@ import math
 
 import numpy as np
 
-from . import kernel
-from .compiled import jit as _jit
+
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import jit as _jit
 
 HUB, TIP, BEAM = 0, 1, 2
 
@@ -58,12 +59,12 @@ def pack(chain, sensors) -> tuple:
 def readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
     """out[r] = specific force (m/s²) of accelerometer r on its axis, from the frames in
     ``ws`` (filled by a kernel evaluation at this (q, q̇)) and q̈ of every coordinate."""
-    n = model[kernel.M_N]
-    ne_all = model[kernel.M_NE]
+    n = model[kchain.M_N]
+    ne_all = model[kchain.M_NE]
     fs = model[15]
     g = model[14]
-    FR = ws[kernel.W_FR]
-    FJ = ws[kernel.W_FJ]
+    FR = ws[kchain.W_FR]
+    FJ = ws[kchain.W_FJ]
     for r in range(ints.shape[0]):
         k = ints[r, 0]
         body = ints[r, 1]

@@ -70,12 +70,13 @@ from typing import Callable, Iterable, Optional
 
 import numpy as np
 
-from .beams import DEFAULT_REFINE
-from .chain import Chain
-from .errors import SceneError, SimulationDiverged
-from .integrate import choose_step, integrate
-from .linear import natural_modes, reduced_coordinates, tangent_stiffness
-from .simulate import initial_state, initial_x, simulate
+from flexarm_ros.model.beams import DEFAULT_REFINE
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.sim.integrate import choose_step, integrate
+from flexarm_ros.model.linear import natural_modes, reduced_coordinates, tangent_stiffness
+from flexarm_ros.model.statics import initial_state, initial_x
+from flexarm_ros.sim.simulate import simulate
 
 #: duration cap of the study window when none is given, s
 DEFAULT_DURATION_S = 1.0
@@ -385,7 +386,7 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     modal basis, output sampling, deflection limit) stay the scene's.
     """
     if scene.walls:
-        from .contact_study import run_contact_study
+        from flexarm_ros.studies.contact import run_contact_study
         rows = run_contact_study(scene, duration, quick, progress)
         ok = [r for r in rows if r.get("status") == "ok"]
         front = pareto_front([(r["wall_s_per_sim_s"], r["tip_rms_error_m"]) for r in ok])
@@ -478,7 +479,7 @@ def _fmt(v, spec_):
 def format_table(rows) -> str:
     """A fixed-width text table of the rows (failed rows show their status at the end)."""
     if rows and "contact" in rows[0]:
-        from .contact_study import format_contact_table
+        from flexarm_ros.studies.contact import format_contact_table
         return format_contact_table(rows)
     cols = [("rung", 6, "s"), ("ref", 4, "d"), ("integrator", 10, "s"), ("n", 4, "d"),
             ("wall s/s", 9, ".3g"), ("RTF", 9, ".3g"), ("RHS evals", 10, "d"),

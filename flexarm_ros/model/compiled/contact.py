@@ -30,11 +30,12 @@ import math
 
 import numpy as np
 
-from . import kernel
-from .compiled import jit as _jit, jit_inline as _jit_inline
+
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
 
 FREE, SLIDING, STICKING = 0, 1, 2
-#: return codes of :func:`span` (kernel.OK / NON_FINITE / DEFLECTION shared)
+#: return codes of :func:`span` (kchain.OK / NON_FINITE / DEFLECTION shared)
 EVENT, DRIFT, SINGULAR = 10, 11, 12
 # contact parameters: wall normal, tangent, offset d (n·r = d on the wall), μ, μ_s, tool p
 CP_NX, CP_NY, CP_TX, CP_TY, CP_D, CP_MU, CP_MUS, CP_PX, CP_PY = range(9)
@@ -62,28 +63,28 @@ def scratch(contact) -> tuple:
 def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
     """ẋ of mode (``s`` the slip direction when sliding) into ``out``; the contact forces,
     gap and tool state into ``res`` (R_*). Returns False at a singular constraint."""
-    free = model[kernel.M_FREE]
-    presc = model[kernel.M_PRESC]
-    n = model[kernel.M_N]
-    nz = model[kernel.M_NZ]
+    free = model[kchain.M_FREE]
+    presc = model[kchain.M_PRESC]
+    n = model[kchain.M_N]
+    nz = model[kchain.M_NZ]
     nf = free.shape[0]
-    q = ws[kernel.W_Q]
-    qd = ws[kernel.W_QD]
+    q = ws[kchain.W_Q]
+    qd = ws[kchain.W_QD]
     jn, jt, y1, y2, y3, w, ff, acc, g2 = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], \
         sc[7], sc[8]
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    kernel.forces(t, q, qd, x[2 * nf:], model, ws)
-    M = ws[kernel.W_M]
-    f = ws[kernel.W_F]
-    Mff = ws[kernel.W_MFF]
-    L = ws[kernel.W_L]
-    yy = ws[kernel.W_Y]
-    tip = ws[kernel.W_TIP]
-    Jo = ws[kernel.W_JO]
-    Jpsi = ws[kernel.W_JPSI]
-    pdd = ws[kernel.W_PDD]
+    kchain.forces(t, q, qd, x[2 * nf:], model, ws)
+    M = ws[kchain.W_M]
+    f = ws[kchain.W_F]
+    Mff = ws[kchain.W_MFF]
+    L = ws[kchain.W_L]
+    yy = ws[kchain.W_Y]
+    tip = ws[kchain.W_TIP]
+    Jo = ws[kchain.W_JO]
+    Jpsi = ws[kchain.W_JPSI]
+    pdd = ws[kchain.W_PDD]
     nx, ny, tx, ty = cp[CP_NX], cp[CP_NY], cp[CP_TX], cp[CP_TY]
     c = math.cos(tip[4])
     s_ = math.sin(tip[4])
@@ -123,14 +124,14 @@ def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
     res[R_VY] = vy
     cn = nx * ccx + ny * ccy
     ct = tx * ccx + ty * ccy
-    ok = kernel._cholesky_solve(Mff, ff, nf, L, yy, y1)
+    ok = kchain._cholesky_solve(Mff, ff, nf, L, yy, y1)
     ln = 0.0
     lt = 0.0
     if ok and mode == SLIDING:
         mu = cp[CP_MU]
         for a in range(nf):
             w[a] = jn[a] - mu * s * jt[a]
-        kernel._cholesky_solve(Mff, w, nf, L, yy, y2)
+        kchain._cholesky_solve(Mff, w, nf, L, yy, y2)
         den = 0.0
         num = -cn
         nj = 0.0
@@ -148,8 +149,8 @@ def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
             for a in range(nf):
                 acc[a] = y1[a] + ln * y2[a]
     elif ok and mode == STICKING:
-        kernel._cholesky_solve(Mff, jn, nf, L, yy, y2)
-        kernel._cholesky_solve(Mff, jt, nf, L, yy, y3)
+        kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)
+        kchain._cholesky_solve(Mff, jt, nf, L, yy, y3)
         gnn = 0.0
         gnt = 0.0
         gtt = 0.0
@@ -174,7 +175,7 @@ def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
             acc[a] = y1[a]
     res[R_LN] = ln
     res[R_LT] = lt
-    zd = ws[kernel.W_ZD]
+    zd = ws[kchain.W_ZD]
     for a in range(nf):
         out[a] = x[nf + a]
         out[nf + a] = acc[a] if ok else np.nan
@@ -209,15 +210,15 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
     singular constraint.
 
     Returns (code, t, x, normal impulse ∫λ dt of the accepted steps, accepted steps,
-    evaluations, largest drift, offending state) with code kernel.OK (t_target reached),
-    EVENT, DRIFT, SINGULAR, kernel.NON_FINITE or kernel.DEFLECTION (t, x the last good
+    evaluations, largest drift, offending state) with code kchain.OK (t_target reached),
+    EVENT, DRIFT, SINGULAR, kchain.NON_FINITE or kchain.DEFLECTION (t, x the last good
     state; the offending state last).
     """
     m = x0.shape[0]
-    nf = model[kernel.M_FREE].shape[0]
-    nz = model[kernel.M_NZ]
-    zlo = model[kernel.M_ZLO]
-    zhi = model[kernel.M_ZHI]
+    nf = model[kchain.M_FREE].shape[0]
+    nz = model[kchain.M_NZ]
+    zlo = model[kchain.M_ZLO]
+    zhi = model[kchain.M_ZHI]
     res = sc[8]
     k1, k2, k3, k4, tmp, x1, xdot, x = sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], \
         sc[15], sc[16]
@@ -232,7 +233,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
     drift_max = 0.0
     have_ind0 = False
     mus = cp[CP_MUS]
-    eps = kernel.STAGE_EPS
+    eps = kchain.STAGE_EPS
     while t < t_target - 1e-15:
         dt = min(h, t_target - t)
         ok = _eval(t + eps * dt, x, mode, s, k1, model, ws, cp, res, sc)
@@ -261,7 +262,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
             i = m - nz + a
             x1[i] = min(max(x1[i], zlo[a]), zhi[a])
         if not finite:
-            return kernel.NON_FINITE, t, x.copy(), impulse, steps, calls, drift_max, x1.copy()
+            return kchain.NON_FINITE, t, x.copy(), impulse, steps, calls, drift_max, x1.copy()
         if not have_ind0:
             _eval(t, x, mode, s, xdot, model, ws, cp, res, sc)
             calls += 1
@@ -279,10 +280,10 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
             # M, j_n, j_t of the unprojected end state (the reference's `project`)
             gap = res[R_GAP]
             jn, jt, y2, y3 = sc[0], sc[1], sc[3], sc[4]
-            Mff = ws[kernel.W_MFF]
-            L = ws[kernel.W_L]
-            yy = ws[kernel.W_Y]
-            kernel._cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
+            Mff = ws[kchain.W_MFF]
+            L = ws[kchain.W_L]
+            yy = ws[kchain.W_Y]
+            kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
             gnn = 0.0
             vn = 0.0
             for a in range(nf):
@@ -295,7 +296,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
                 for a in range(nf):
                     x1[nf + a] -= y2[a] * (vn / gnn)
             else:
-                kernel._cholesky_solve(Mff, jt, nf, L, yy, y3)  # M⁻¹ j_t
+                kchain._cholesky_solve(Mff, jt, nf, L, yy, y3)  # M⁻¹ j_t
                 gnt = 0.0
                 gtt = 0.0
                 vt = 0.0
@@ -316,12 +317,12 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
         else:
             ind0[0] = ind1[0]           # free flight: the end state is the next start
             have_ind0 = True
-        if kernel._deflection_ratio(x1, model) > max_ratio:
-            return kernel.DEFLECTION, t, x.copy(), impulse, steps, calls, drift_max, \
+        if kchain._deflection_ratio(x1, model) > max_ratio:
+            return kchain.DEFLECTION, t, x.copy(), impulse, steps, calls, drift_max, \
                 x1.copy()
         for i in range(m):
             x[i] = x1[i]
         t = t + dt
         impulse += (dt / 6.0) * (l1 + 2.0 * l2 + 2.0 * l3 + l4)
         steps += 1
-    return kernel.OK, t_target, x.copy(), impulse, steps, calls, drift_max, x.copy()
+    return kchain.OK, t_target, x.copy(), impulse, steps, calls, drift_max, x.copy()

@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from .errors import SceneError, SimulationDiverged
-from .simulate import simulate
+from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.sim.simulate import simulate
 
 BOUNCE_WINDOW = 0.2          # s after the first impact
 STIFFNESSES = (1e4, 1e5, 1e6, 1e7)

@@ -1,0 +1,236 @@
+"""Compiled integration loops over :mod:`chain`'s right-hand side: fixed-step RK4 and the
+implicit trapezoidal rule (Newmark average acceleration), whole integrations in compiled code."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
+from flexarm_ros.model.compiled.chain import (
+    DEFLECTION, M_FREE, M_NZ, M_TCODE, M_TIDX, M_TLEN, M_TPAR, M_TTIMES, M_TVALUES, M_ZHI,
+    M_ZLO, NEWTON, NON_FINITE, OK, STAGE_EPS, W_F, W_H, W_M, W_Q, W_QD, W_QG, W_XDOT,
+    _deflection_ratio, eval_torque_c, forces, rhs, rhs_into, workspace)
+
+
+@_jit_inline
+def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+    """One RK4 step x → xn from time t; actuator states clamped to their bounds. Returns
+    False when xn is not finite."""
+    m = x.shape[0]
+    nz = model[M_NZ]
+    zlo = model[M_ZLO]
+    zhi = model[M_ZHI]
+    rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
+    for i in range(m):
+        tmp[i] = x[i] + 0.5 * h * k1[i]
+    rhs_into(t + 0.5 * h, tmp, k2, model, ws)
+    for i in range(m):
+        tmp[i] = x[i] + 0.5 * h * k2[i]
+    rhs_into(t + 0.5 * h, tmp, k3, model, ws)
+    for i in range(m):
+        tmp[i] = x[i] + h * k3[i]
+    rhs_into(t + (1.0 - STAGE_EPS) * h, tmp, k4, model, ws)
+    finite = True
+    for i in range(m):
+        xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        if not math.isfinite(xn[i]):
+            finite = False
+    for a in range(nz):     # actuator states held within their bounds
+        i = m - nz + a
+        xn[i] = min(max(xn[i], zlo[a]), zhi[a])
+    return finite
+
+
+@_jit
+def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
+    """Fixed-step RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt), storing
+    every ``per`` steps into xs[k + 1].
+
+    Returns (status, time, steps, last good state, offending state): status OK,
+    NON_FINITE or DEFLECTION.
+    """
+    m = x0.shape[0]
+    x = x0.copy()
+    xn = np.empty(m)
+    tmp = np.empty(m)
+    k1 = np.empty(m)
+    k2 = np.empty(m)
+    k3 = np.empty(m)
+    k4 = np.empty(m)
+    steps = 0
+    for k in range(k0, n_out):
+        t0 = k * out_dt
+        for j in range(per):
+            t = t0 + j * h
+            finite = _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws)
+            steps += 1
+            if not finite:
+                return NON_FINITE, t + h, steps, x, xn
+            if _deflection_ratio(xn, model) > max_ratio:
+                return DEFLECTION, t + h, steps, x, xn
+            for i in range(m):
+                x[i] = xn[i]
+        for i in range(m):
+            xs[k + 1, i] = x[i]
+    return OK, n_out * out_dt, steps, x, x
+
+
+@_jit
+def rk4_span(x0, t0, h, nsteps, max_ratio, model, ws):
+    """``nsteps`` fixed RK4 steps of size h from (t0, x0): the co-simulation plant's
+    advance. Returns (status, time, last good state, offending state)."""
+    m = x0.shape[0]
+    x = x0.copy()
+    xn = np.empty(m)
+    tmp = np.empty(m)
+    k1 = np.empty(m)
+    k2 = np.empty(m)
+    k3 = np.empty(m)
+    k4 = np.empty(m)
+    for j in range(nsteps):
+        t = t0 + j * h
+        if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+            return NON_FINITE, t + h, x, xn
+        if _deflection_ratio(xn, model) > max_ratio:
+            return DEFLECTION, t + h, x, xn
+        for i in range(m):
+            x[i] = xn[i]
+    return OK, t0 + nsteps * h, x, x
+
+
+@_jit
+def _torque_jumps(t, model):
+    """True when a torque program differs just before and just after time t."""
+    tidx = model[M_TIDX]
+    for j in range(tidx.shape[0]):
+        Lj = model[M_TLEN][j]
+        a = eval_torque_c(model[M_TCODE][j], model[M_TPAR][j], model[M_TTIMES][j, :Lj], model[M_TVALUES][j, :Lj],
+                          t - 1e-12)
+        b = eval_torque_c(model[M_TCODE][j], model[M_TPAR][j], model[M_TTIMES][j, :Lj], model[M_TVALUES][j, :Lj],
+                          t + 1e-12)
+        if a != b:
+            return True
+    return False
+
+
+@_jit
+def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws, Sinv, tol,
+                   max_iter):
+    """Implicit trapezoidal rule (Newmark average acceleration, β = 1/4, γ = 1/2) from output
+    interval k0; modified Newton on the new accelerations with the frozen iteration matrix
+    Sinv = (M + h/2·D + h²/4·K_t)⁻¹ of the free coordinates.
+
+    q₁ = q₀ + h v₀ + h²/4 (a₀ + a₁),  v₁ = v₀ + h/2 (a₀ + a₁),  M(q₁) a₁ = f(t₁, q₁, v₁).
+    Unconditionally stable, second order, no numerical damping (energy of a linear system
+    is conserved exactly). Returns (status, output interval, steps, iterations, x, a); on
+    NEWTON the state is the one at the start of that output interval, so the caller can
+    refresh Sinv there and resume.
+    """
+    free = model[M_FREE]
+    nf = free.shape[0]
+    q = ws[W_Q]
+    qd = ws[W_QD]
+    M = ws[W_M]
+    f = ws[W_F]
+    qf = x[:nf].copy()
+    vf = x[nf:].copy()
+    a0 = acc0.copy()
+    a1 = np.empty(nf)
+    r = np.empty(nf)
+    sc = np.empty(nf)
+    q1 = np.empty(nf)
+    v1 = np.empty(nf)
+    xk = np.empty(2 * nf)
+    steps = 0
+    iters = 0
+    for k in range(k0, n_out):
+        qs = qf.copy()
+        vs = vf.copy()
+        as_ = a0.copy()
+        t0 = k * out_dt
+        for j in range(per):
+            t = t0 + j * h
+            if _torque_jumps(t, model):     # right limit of the input at the step start
+                for i in range(nf):
+                    xk[i] = qf[i]
+                    xk[nf + i] = vf[i]
+                rhs_into(t + STAGE_EPS * h, xk, ws[W_XDOT], model, ws)
+                for i in range(nf):
+                    a0[i] = ws[W_XDOT][nf + i]
+            for i in range(nf):
+                a1[i] = a0[i]
+            converged = False
+            for it in range(max_iter):
+                for i in range(nf):
+                    q1[i] = qf[i] + h * vf[i] + 0.25 * h * h * (a0[i] + a1[i])
+                    v1[i] = vf[i] + 0.5 * h * (a0[i] + a1[i])
+                    q[free[i]] = q1[i]
+                    qd[free[i]] = v1[i]
+                forces(t + (1.0 - STAGE_EPS) * h, q, qd, x[:0], model, ws)
+                for i in range(nf):
+                    ma = 0.0
+                    for jj in range(nf):
+                        ma += M[free[i], free[jj]] * a1[jj]
+                    r[i] = ma - f[free[i]]
+                    # magnitude of the terms that cancel in the residual (round-off scale)
+                    sc[i] = (abs(ma) + abs(f[free[i]]) + abs(ws[W_H][free[i]])
+                             + abs(ws[W_QG][free[i]]))
+                dmax = 0.0
+                amax = 0.0
+                fscale = 0.0
+                for i in range(nf):
+                    d = 0.0
+                    fs_i = 0.0
+                    for jj in range(nf):
+                        d -= Sinv[i, jj] * r[jj]
+                        fs_i += abs(Sinv[i, jj]) * sc[jj]
+                    a1[i] += d
+                    dmax = max(dmax, abs(d))
+                    amax = max(amax, abs(a1[i]))
+                    fscale = max(fscale, fs_i)
+                iters += 1
+                if not math.isfinite(dmax):
+                    break
+                # relative to the accelerations and to the force terms that cancel in them,
+                # with an absolute floor: a correction that moves q by < 1e-14 is round-off
+                if dmax <= tol * (amax + fscale) or 0.25 * h * h * dmax < 1e-14:
+                    converged = True
+                    break
+            if not converged:
+                for i in range(nf):
+                    xk[i] = qs[i]
+                    xk[nf + i] = vs[i]
+                return NEWTON, k, steps, iters, xk, as_
+            steps += 1
+            for i in range(nf):
+                qf[i] = q1[i]
+                vf[i] = v1[i]
+                a0[i] = a1[i]
+                xk[i] = q1[i]
+                xk[nf + i] = v1[i]
+            if _deflection_ratio(xk, model) > max_ratio:
+                return DEFLECTION, k, steps, iters, xk, a0
+        for i in range(nf):
+            xs[k + 1, i] = qf[i]
+            xs[k + 1, nf + i] = vf[i]
+    for i in range(nf):
+        xk[i] = qf[i]
+        xk[nf + i] = vf[i]
+    return OK, n_out, steps, iters, xk, a0
+
+
+def warm_up(integrator, model, x0, xs):
+    """Compile (or load from cache) the loop of ``integrator`` with zero steps, so that
+    wall-time measurements count integration only."""
+    ws = workspace(model)
+    x = np.array(x0, float)
+    if integrator == "rk4":
+        rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
+    elif integrator == "trapezoid":
+        nf = model[M_FREE].shape[0]
+        trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,
+                       np.eye(nf), 1e-10, 1)
+    else:
+        rhs(0.0, x, model, ws)

@@ -1,0 +1,87 @@
+"""The initial state of a scene: its configuration, the static equilibrium under gravity
+when the scene starts there, and the stability check of that equilibrium."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flexarm_ros.errors import SceneError
+from flexarm_ros.model import drives
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.model.linear import reduced_coordinates, tangent_stiffness
+
+
+def static_equilibrium(chain: Chain, q0: np.ndarray, tol=1e-10, max_iter=50) -> np.ndarray:
+    """Static configuration under gravity with the drives held at their initial angles.
+
+    Solves f(q) = Q_grav(q) − K q = 0 for the free (non-drive) coordinates by Newton's
+    method with the tangent stiffness (seed 002 starts from this deflected state).
+    """
+    keep = reduced_coordinates(chain, "locked")
+    q = q0.copy()
+    if len(keep) == 0 or not chain.has_gravity:
+        return q
+    zero = np.zeros(chain.n)
+    for it in range(max_iter):
+        kin = chain.kinematics(q, zero)
+        res = (kin.Qg - kin.h - chain.K @ q)[keep]
+        Kt = tangent_stiffness(chain, q, keep)
+        dq = np.linalg.solve(Kt, res)
+        q[keep] += dq
+        if np.max(np.abs(dq)) < tol * max(1.0, np.max(np.abs(q[keep]))):
+            _check_stable(chain, q, keep)
+            return q
+    raise SceneError(f"initial.static_equilibrium: Newton did not converge in {max_iter} "
+                     f"iterations (last correction {np.max(np.abs(dq)):.3g}); the arm may be "
+                     f"too flexible for the small-deflection model under this load")
+
+
+def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:
+    """An equilibrium the arm cannot rest in (beyond buckling) is not a valid start."""
+    Kt = tangent_stiffness(chain, q, keep)
+    w, V = np.linalg.eigh(0.5 * (Kt + Kt.T))
+    if w[0] <= 0.0:
+        worst = chain.names[keep[int(np.argmax(np.abs(V[:, 0])))]]
+        raise SceneError(
+            f"initial.static_equilibrium: got an unstable equilibrium (tangent stiffness "
+            f"eigenvalue {w[0]:.3g} along {worst}: the load exceeds the buckling load of the "
+            f"small-deflection model), expected a stable one; stiffen the beam (EI), lighten "
+            f"the load, or start from another joint angle")
+
+
+def initial_state(chain: Chain):
+    """(q0, q̇0, z0) from the scene, optionally at static equilibrium.
+
+    Actuator states start at zero current; a hydraulic actuator starts at the load pressure
+    that holds the initial configuration, and (with ``null_bias``, the default) its valve
+    gets the null current that feeds the leakage at that pressure, so the arm rests until
+    the program moves it.
+    """
+    q0, qd0 = chain.initial_q()
+    if len(chain.presc_idx):
+        p = chain.prescribed_state(0.0)
+        q0[chain.presc_idx], qd0[chain.presc_idx] = p[0], p[1]
+    if chain.scene.initial.static_equilibrium:
+        q0 = static_equilibrium(chain, q0)
+    z0 = np.zeros(chain.nz)
+    hyd = [a for a in chain.actuators if a.kind == drives.HYDRAULIC]
+    if hyd:
+        f = chain.static_forces(q0)
+        for a in hyd:
+            p_hold, i_bias = drives.hydraulic_hold(a.par, -f[a.coord])
+            if not np.isfinite(i_bias):
+                lk = chain.scene.links[a.link]
+                raise SceneError(
+                    f"links[{a.link}].joint.drive.supply_pressure: got "
+                    f"{a.par[4]:.6g} Pa, expected more than the {abs(p_hold):.6g} Pa needed "
+                    f"to hold {lk.name} at its initial angle")
+            z0[a.state] = p_hold
+            drive = chain.scene.links[a.link].joint.drive
+            a.par[7] = i_bias if drive.null_bias in (None, True) else 0.0
+    return q0, qd0, z0
+
+
+def initial_x(chain: Chain) -> np.ndarray:
+    """The first-order initial state x0 = [q_free, q̇_free, z] (see :func:`initial_state`)."""
+    q0, qd0, z0 = initial_state(chain)
+    return np.concatenate([q0[chain.free], qd0[chain.free], z0])

@@ -1,0 +1,286 @@
+"""Integration through the contact modes: :class:`ContactStepper` steps RK4 within a smooth
+mode (the compiled fast lane between events) and locates and resolves the events of
+:mod:`flexarm_ros.model.contact` (impact, separation, stick and slip) on the step."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from flexarm_ros.errors import SimulationDiverged
+from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import contact as kcontact
+from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
+                                       ImpactRecord, WallContact, _stick_or_slip)
+
+
+@dataclass
+class ContactRun:
+    """Samples of a contact run: per output time the phase code, forces, gap, tool state."""
+    phase: np.ndarray
+    normal_force: np.ndarray
+    friction_force: np.ndarray
+    gap: np.ndarray
+    tool: np.ndarray          # (N, 2)
+    tool_velocity: np.ndarray  # (N, 2)
+    impacts: list
+    max_drift: float
+    mode: np.ndarray          # smooth mode (free/sliding/sticking) after each sample
+    slip_sign: np.ndarray
+    normal_impulse: np.ndarray   # cumulative normal impulse from the wall (N·s)
+
+    def accelerations(self, contact, k, t, x) -> np.ndarray:
+        """q̈ of the free coordinates at sample k (the mode's constrained dynamics)."""
+        return contact.free_accelerations(t, x, int(self.mode[k]), float(self.slip_sign[k]))
+
+
+class ContactStepper:
+    """Fixed-step RK4 through the contact modes with located events (module doc), as an
+    object: ``advance(t_target)`` moves the state to ``t_target`` (a batch run and the ROS
+    simulator's plant both drive it); ``sample()`` reads the contact quantities."""
+
+    def __init__(self, chain, contact: WallContact, x0, h, guard, t0=0.0):
+        self.chain = chain
+        self.contact = contact
+        self.h = h
+        self.guard = guard
+        self.t = t0
+        self.x = np.array(x0, float)
+        self.mode, self.s = FREE, 0.0
+        self.last_sep = -math.inf
+        self.impacts: list[ImpactRecord] = []
+        self.impact_pending = False
+        self.calls = 0
+        self.steps = 0
+        self.max_drift = 0.0
+        self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
+        self.h_contact = h              # step while in contact (halved on excess drift)
+        self.compliant = contact.method == "compliant"
+        # smooth stretches of the impulse rung in compiled code (numba backend); events,
+        # impacts and retaken steps stay in the Python reference below
+        self.compiled = not self.compliant and chain.backend == "numba"
+        if self.compiled:
+            self._sc = kcontact.scratch(contact)
+            self._xdot = np.empty(len(self.x))
+            self._cp = kcontact.parameters(contact)
+
+    # ------------------------------------------------------------------ internals
+    def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
+        """One RK4 step; with ``want_impulse`` also the normal impulse ∫λ dt over it (the
+        stages' forces with the RK4 weights)."""
+        f = self.contact.rhs
+        k1, l1, _, _ = f(t0 + kchain.STAGE_EPS * dt, x0, md, sg)
+        k2, l2, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)
+        k3, l3, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)
+        k4, l4, _, _ = f(t0 + (1 - kchain.STAGE_EPS) * dt, x0 + dt * k3, md, sg)
+        self.calls += 4
+        x = self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
+        if want_impulse:
+            return x, (dt / 6.0) * (l1 + 2 * l2 + 2 * l3 + l4)
+        return x
+
+    def _indicators(self, tt, xx, md, sg):
+        """Event functions of a mode (positive while the mode holds)."""
+        if self.compliant:
+            return ()
+        _, ln, lt, tm = self.contact.rhs(tt, xx, md, sg)
+        if md == FREE:
+            return (self.contact.gap(tm),)
+        if md == SLIDING:
+            return (ln, sg * (self.contact.t @ tm.v))
+        return (ln, self.contact.mus * ln - abs(lt))
+
+    def _transition(self, tt, xx, which):
+        """New (x, mode, s) after event ``which`` of the current mode at time tt."""
+        c, nf = self.contact, self.contact.nf
+        if self.mode == FREE:                              # impact
+            tm = c.terms(tt, xx)
+            v = xx[nf:2 * nf]
+            vn = c.n @ tm.J @ v
+            ke0 = c.kinetic(tm, v)
+            v1, pn, pt, stick = c.impulse(tm, v)
+            xx = xx.copy()
+            xx[nf:2 * nf] = v1
+            new_mode = STICKING if stick else SLIDING
+            vt1 = c.t @ tm.J @ v1
+            sg = 0.0 if stick else (math.copysign(1.0, vt1) if vt1 != 0 else
+                                    -math.copysign(1.0, pt) if pt else 1.0)
+            if new_mode == SLIDING and abs(vt1) < 1e-12:
+                new_mode, sg = _stick_or_slip(c, tt, xx)
+            _, ln, _, _ = c.rhs(tt, xx, new_mode, sg)
+            outcome = "sticking" if new_mode == STICKING else "sliding"
+            if ln < 0 and tt - self.last_sep > MIN_FLIGHT:
+                new_mode, sg, outcome = FREE, 0.0, "bounce"
+                self.last_sep = tt
+            self.impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, c.kinetic(tm, v1),
+                                             outcome))
+            self.normal_impulse += pn
+            self.impact_pending = True
+            return xx, new_mode, sg
+        if which == 0:                                     # normal force turned pulling
+            self.last_sep = tt
+            return xx, FREE, 0.0
+        if self.mode == SLIDING:                           # slip speed reached zero
+            md, sg = _stick_or_slip(c, tt, xx)
+            return xx, md, sg
+        _, _, lt, _ = c.rhs(tt, xx, STICKING)              # static friction exceeded
+        return xx, SLIDING, -math.copysign(1.0, lt)
+
+    def _compliant_step(self, t, x):
+        """Largest stable RK4 step near or in a compliant contact: 1.5/|λ| of the contact's
+        spring–damper with the tool's effective mass at the current configuration (it can
+        be far lighter than at the start); the fixed step elsewhere."""
+        c = self.contact
+        tm = c.terms(t, x)
+        g = c.gap(tm)
+        vn = c.n @ tm.v
+        if g > 0.0 and g + min(vn, 0.0) * self.h > 0.0:
+            return self.h                       # cannot reach the wall within this step
+        jn = c.n @ tm.J
+        Gnn = float(jn @ np.linalg.solve(tm.M, jn))
+        w = c.wall
+        delta = max(-g, 1e-3)
+        k_eff = w.exponent * w.stiffness * delta ** (w.exponent - 1.0)
+        omega = math.sqrt(k_eff * Gnn)
+        zeta = 0.5 * c.c_contact * math.sqrt(Gnn / k_eff)
+        rate = omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
+        return min(self.h, 1.5 / rate)
+
+    # --------------------------------------------------------------------- public
+    def advance(self, t_target):
+        """Integrate to ``t_target`` (steps of at most h; events located and handled)."""
+        chain, h = self.chain, self.h
+        t, x, mode, s = self.t, self.x, self.mode, self.s
+        events_here = 0
+        cp = self._cp if self.compiled else None
+        while t < t_target - 1e-15:
+            if self.compiled:
+                hh = h if mode == FREE else min(h, self.h_contact)
+                code, t, x, dp, nst, calls, drift, x_bad = kcontact.span(
+                    x, float(t), float(t_target), hh, int(mode), float(s),
+                    chain.fidelity.max_deflection_ratio, chain.fidelity.contact_tolerance,
+                    self.contact.model, self.contact.ws, cp, self._sc)
+                self.normal_impulse += dp
+                self.steps += nst
+                self.calls += calls
+                self.max_drift = max(self.max_drift, drift)
+                if code == kchain.OK:
+                    break
+                if code in (kchain.NON_FINITE, kchain.DEFLECTION):
+                    self.guard.last = x
+                    self.guard.check(t + min(hh, t_target - t), x_bad)
+                # an event, excess drift or a singular constraint in the next step: the
+                # reference below takes that step
+            dt = min(h, t_target - t)
+            if self.compliant:
+                dt = min(dt, self._compliant_step(t, x))
+            elif mode != FREE:
+                dt = min(dt, self.h_contact)
+            x1, dp = self._rk4(t, x, dt, mode, s, want_impulse=True)
+            self.steps += 1
+            if not np.all(np.isfinite(x1)):
+                self.guard.check(t + dt, x1)
+            ind0 = self._indicators(t, x, mode, s)
+            ind1 = self._indicators(t + dt, x1, mode, s)
+            hit = [j for j, (a, b) in enumerate(zip(ind0, ind1)) if a >= 0.0 > b]
+            if hit:
+                best_tau, best_j = dt, hit[0]
+                for j in hit:                  # earliest crossing among the mode's events
+                    def fun(tau, j=j):
+                        return self._indicators(t + tau, self._rk4(t, x, tau, mode, s),
+                                                mode, s)[j]
+                    tau = brentq(fun, 0.0, dt, xtol=1e-14, rtol=1e-12) if fun(0.0) > 0 else 0.0
+                    if tau < best_tau:
+                        best_tau, best_j = tau, j
+                xe, dp = (self._rk4(t, x, best_tau, mode, s, want_impulse=True)
+                          if best_tau > 0 else (x, 0.0))
+                self.normal_impulse += dp
+                t += best_tau
+                self.mode, self.s = mode, s
+                x, mode, s = self._transition(t, xe, best_j)
+                events_here = events_here + 1 if best_tau <= 1e-12 else 0
+                if events_here > 50:
+                    raise SimulationDiverged(
+                        "contact events", t, float(self.contact.gap(self.contact.terms(t, x))),
+                        "use fidelity.contact: compliant, or a finer --dt",
+                        detail="more than 50 contact events at one instant (Zeno)")
+                continue
+            if mode != FREE and not self.compliant:
+                x1p, drift = self.contact.project(t + dt, x1, mode)
+                tol = chain.fidelity.contact_tolerance
+                if drift > tol:
+                    # the step drifted the tool off the wall by more than the tolerance:
+                    # retake it with smaller steps while in contact
+                    self.h_contact = 0.5 * min(self.h_contact, dt)
+                    if self.h_contact < 1e-6 * h:
+                        raise SimulationDiverged(
+                            "tool drift off the wall", t + dt, drift,
+                            f"reduce the step (--dt, now {h:.3g} s) or raise "
+                            f"fidelity.contact_tolerance", detail=f"drift {drift:.3g} m in "
+                            f"one step exceeds fidelity.contact_tolerance = {tol:.3g} m even "
+                            f"at a step of {self.h_contact:.3g} s")
+                    continue
+                self.max_drift = max(self.max_drift, drift)
+                x1 = x1p
+            x, t = x1, t + dt
+            self.normal_impulse += dp
+            self.guard.check(t, x)
+        self.t, self.x, self.mode, self.s = t_target, x, mode, s
+
+    def sample(self):
+        """(phase code, λ_n, λ_t, gap, tool r, tool ṙ, q̈_free) at the current state; the
+        phase is 'impact' once after an impact."""
+        c = self.contact
+        if self.compiled:
+            res = self._sc[8]
+            if kcontact.evaluate(float(self.t), self.x, int(self.mode), float(self.s),
+                                       self._xdot, c.model, c.ws, self._cp, res, self._sc):
+                ph = PHASE_CODE["impact"] if self.impact_pending else self.mode
+                self.impact_pending = False
+                R = kcontact
+                return (ph, res[R.R_LN], res[R.R_LT], res[R.R_GAP],
+                        np.array([res[R.R_RX], res[R.R_RY]]),
+                        np.array([res[R.R_VX], res[R.R_VY]]), self._xdot[c.nf:2 * c.nf].copy())
+        xd, ln, lt, tm = c.rhs(self.t, self.x, self.mode, self.s)
+        ph = self.mode
+        if self.compliant:
+            ph = FREE if ln <= 0 else (STICKING if abs(c.t @ tm.v) < c.wall.slip_velocity
+                                       else SLIDING)
+        if self.impact_pending:
+            ph = PHASE_CODE["impact"]
+            self.impact_pending = False
+        return ph, ln, lt, c.gap(tm), tm.r.copy(), tm.v.copy(), xd[c.nf:2 * c.nf]
+
+
+def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
+                      progress=None):
+    """Run a :class:`ContactStepper` over [0, t_end], sampling every ``output_dt``.
+
+    Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
+    n_out = int(np.floor(t_end / output_dt + 1e-9))
+    N = n_out + 1
+    xs = np.empty((N, len(x0)))
+    phase = np.zeros(N, dtype=np.int64)
+    fn_out, ft_out, gap = np.zeros(N), np.zeros(N), np.zeros(N)
+    tool, tvel = np.zeros((N, 2)), np.zeros((N, 2))
+    modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
+    impulse = np.zeros(N)
+    st = ContactStepper(chain, contact, x0, h, guard)
+    last_report = time.perf_counter()
+    for k in range(N):
+        if k:
+            st.advance(k * output_dt)
+        xs[k] = st.x
+        phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], _ = st.sample()
+        modes[k], signs[k] = st.mode, st.s
+        impulse[k] = st.normal_impulse
+        now = time.perf_counter()
+        if progress is not None and now - last_report > 1.0:
+            progress(k * output_dt / t_end)
+            last_report = now
+    return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
+                          modes, signs, impulse), st.steps, st.calls

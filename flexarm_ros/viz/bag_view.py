@@ -3,7 +3,7 @@ the deformed arm, the wall, the tool and its contact force, the tip path and the
 traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to rerun.
 
 The model comes from the bag itself: the recorder stores the scene YAML in the MCAP
-metadata ``flexarm_ros`` → ``scene_yaml``; :class:`~flexarm_ros.model.chain.Chain` of
+metadata ``flexarm_ros`` → ``scene_yaml``; :class:`~flexarm_ros.model.Chain` of
 that scene turns the full coordinate vector of ``ground_truth/coordinates`` (mapped by
 name onto ``Chain.names``) into beam centerlines (``Chain.centerlines``). Time is the
 log time of each message, which the recorder sets to the simulation time.
@@ -111,7 +111,7 @@ class BagView:
         self.scene = self.chain = None
         text = info.get("scene_yaml")
         if text:
-            from flexarm_ros.model.chain import Chain
+            from flexarm_ros.model import Chain
             from flexarm_ros.errors import SceneError
             from flexarm_ros.scene import load_scene_dict
             try:

@@ -197,7 +197,7 @@ def cmd_replay(args):
 
 def cmd_compare(args):
     """Twin run vs reference (docs/compare.md): 0 pass, 1 fail, 2 bad input."""
-    from flexarm_ros.analysis.compare import run_cli
+    from flexarm_ros.analysis.compare_cli import run_cli
     return run_cli(args)
 
 

@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-
 from scipy import signal as _sig
 
-from flexarm_ros.analysis.compare import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD, Comparison, _crop, _uniform_record)
-from flexarm_ros.analysis.spectra import MIN_SAMPLES, _series
+from flexarm_ros.analysis.comparison import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW,
+                                             FREQ_ZERO_PAD, Comparison)
+from flexarm_ros.analysis.spectra import MIN_SAMPLES, _series, crop, uniform_record
 
 __all__ = ["write_report"]
 
@@ -93,8 +93,8 @@ def _overlay(cmp: Comparison, name: str, out: Path) -> Path | None:
     ax.grid(alpha=0.3)
     if blk["span_s"] is not None:
         a, b = blk["span_s"]
-        tr, yr = _crop(ref.t, ref.y, a, b)
-        tp, yp = _crop(run.t - off, run.y, a, b, pad=True)
+        tr, yr = crop(ref.t, ref.y, a, b)
+        tp, yp = crop(run.t - off, run.y, a, b, pad=True)
         if tr.size and tp.size >= 2:
             ax2.plot(tr, np.interp(tr, tp, yp) - yr, color="C0", lw=0.8)
         for axis in (ax, ax2):
@@ -116,9 +116,9 @@ def _spectrum(cmp: Comparison, name: str, out: Path) -> Path | None:
     curves = []
     for side, ch, shift, style in (("reference", cmp.reference[name], 0.0, REF_STYLE),
                                    ("run", cmp.run[name], off, RUN_STYLE)):
-        t, y = _crop(ch.t - shift, ch.y, a, b)
+        t, y = crop(ch.t - shift, ch.y, a, b)
         try:
-            t, y = _uniform_record(t, y)
+            t, y = uniform_record(t, y)
             f, amp = _padded_spectrum(t, y)
         except ValueError:
             continue

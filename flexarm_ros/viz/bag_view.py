@@ -5,7 +5,8 @@ traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to r
 The bag's conventions (embedded scene, namespace, sensor batch layout and timing) are
 read by :mod:`flexarm_ros.bag.twin_bag`, as ``flexarm compare`` reads them. The model
 comes from the bag itself: :class:`~flexarm_ros.model.chain.Chain` of the embedded scene
-(the model's public API, imported when a scene is present) turns the full coordinate
+(``from flexarm_ros.model import Chain``, the model's public API, imported when a scene
+is present; nothing of ``flexarm_ros.sim``) turns the full coordinate
 vector of ``ground_truth/coordinates`` (mapped by name onto ``Chain.names``) into beam
 centerlines (``Chain.centerlines``). Time is the log time of each message, which the
 recorder sets to the simulation time. :meth:`BagView.batch_series` expands the sensor
@@ -75,7 +76,7 @@ class BagView:
         self.scene = twin_bag.embedded_scene(self.bag)
         self.chain = None
         if self.scene is not None:
-            from flexarm_ros.model.chain import Chain
+            from flexarm_ros.model import Chain
             self.chain = Chain(self.scene, backend="numpy")
         self._index: dict = {}
         self._tips: dict | None = None

@@ -17,7 +17,8 @@ names and units from the scene embedded there):
 * ``<encoder sensor>`` — count, ``encoders/counts``;
 * ``<link>_joint_measured`` — rad, ``joint_states`` (the angle from the quantized encoder);
 * ``<coordinate>`` — ``<link>_joint``, ``<link>_motor``, ``<link>_tip_disp``,
-  ``<link>_tip_rot``, ``<link>_w1`` ..., rad or m, ``ground_truth/coordinates``
+  ``<link>_tip_rot``, ``<link>_w1`` ..., rad or m (:func:`flexarm_ros.io.units.coordinate_unit`),
+  ``ground_truth/coordinates``
   (``ground_truth/joint_states`` for bags without it);
 * ``<link>_drive`` — rad, ``ground_truth/joint_states``, only where it differs from
   ``<link>_joint`` (a compliant drive train);
@@ -28,10 +29,17 @@ names and units from the scene embedded there):
 * ``wall_gap`` — m, derived: ``min_k (p_tip - a_k) · n_k`` over the scene's walls (the tool
   at the tip).
 
+Channels of a CSV (:func:`flexarm_ros.io.experiment.read_experiment_csv`: an experiment,
+or ``flexarm simulate --out``): one per numeric column, by its header's name and unit; a
+``[text]`` column is no channel, but ``contact_phase`` (``flexarm simulate`` with a wall)
+gives ``contact`` — 1 unless the phase is ``free``, the rule of the twin's ``tool/contact``
+— when the file has no ``contact`` column.
+
 ``wall_gap`` is also derived for any input (a CSV, a mapped bag) that has ``tip_x`` and
 ``tip_y`` when the comparison supplies a scene with walls (:func:`add_wall_gap`).
 Channels flagged ``vibration`` (accelerometers, strain gauges, elastic beam coordinates,
-tip position) are the ones whose dominant frequency is a pass criterion.
+tip position; in a CSV by name: ``tip_x``, ``tip_y`` and the beam coordinates) are the
+ones whose dominant frequency is a pass criterion.
 """
 
 from __future__ import annotations
@@ -47,6 +55,7 @@ import numpy as np
 from flexarm_ros.bag import twin_bag
 from flexarm_ros.bag.reader import BagError, TruncatedBagWarning, read_bag
 from flexarm_ros.io.experiment import ChannelMap, CompareInputError, MapEntry, read_experiment_csv
+from flexarm_ros.io.units import TEXT, beam_coordinate, coordinate_unit
 from flexarm_ros.twin import topics as T
 
 __all__ = ["Channel", "ChannelSet", "add_wall_gap", "bag_channels", "load_channels",
@@ -54,7 +63,6 @@ __all__ = ["Channel", "ChannelSet", "add_wall_gap", "bag_channels", "load_channe
 
 _SI_UNIT = {"accelerometer": "m/s^2", "strain": "1", "potentiometer": "rad"}
 _DRIVE_UNIT = {"dc_motor": "V", "hydraulic": "A", None: "N*m"}
-_ELASTIC = re.compile(r"_(tip_disp|tip_rot|w\d+|th\d+|mode\d+)$")
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,15 +173,11 @@ def _batch_channels(bag, topic, scene, ns, notes) -> list[Channel]:
 
 
 def _coordinate_unit(name: str) -> str:
-    if re.search(r"_(tip_disp|w\d+)$", name):
-        return "m"
-    if re.search(r"_mode\d+$", name):
-        return ""            # modal amplitude: unit depends on the shape normalization
-    return "rad"
+    return coordinate_unit(name) or ""
 
 
 def _joint_state(messages, topic, rename=lambda n: n, unit=_coordinate_unit,
-                 vibration=lambda n: bool(_ELASTIC.search(n))) -> dict[str, Channel]:
+                 vibration=beam_coordinate) -> dict[str, Channel]:
     cols: dict[str, tuple[list, list]] = {}
     for log_ns, msg in messages:
         for name, pos in zip(msg.name, msg.position):
@@ -415,6 +419,12 @@ def mapped_bag_channels(bag, cmap: ChannelMap) -> dict[str, Channel]:
     return out
 
 
+def _vibration_name(name: str) -> bool:
+    """A channel whose frequency is a criterion, by its name: the tip position and the
+    elastic beam coordinates (:func:`flexarm_ros.io.units.beam_coordinate`)."""
+    return name in ("tip_x", "tip_y") or beam_coordinate(name)
+
+
 def _table_channels(path, columns, cmap: ChannelMap | None) -> dict[str, Channel]:
     renames = {} if cmap is None else {e.column: e for e in cmap.column_entries}
     if cmap is not None:
@@ -424,17 +434,31 @@ def _table_channels(path, columns, cmap: ChannelMap | None) -> dict[str, Channel
                                     f"channels.{renames[missing[0]].name}); columns: "
                                     f"{', '.join(columns)}")
     out = {}
+    labels = {}
     for col, (unit, t, y) in columns.items():
         e = renames.get(col)
+        if unit == TEXT:
+            if e is not None:
+                raise CompareInputError(f"{path}: column {col!r} holds text (unit [text]); "
+                                        f"map {cmap.path}, channels.{e.name} expects numbers")
+            labels[col] = (t, y)
+            continue
         if e is None:
-            ch = _channel(col, unit, t, y, f"column {col!r}")
+            ch = _channel(col, unit, t, y, f"column {col!r}", _vibration_name(col))
         else:
             ch = _channel(e.name, e.unit or unit, t, e.scale * y + e.offset,
-                          f"column {col!r} x {e.scale:g} + {e.offset:g}")
+                          f"column {col!r} x {e.scale:g} + {e.offset:g}",
+                          _vibration_name(e.name))
         if ch is not None:
             if ch.name in out:
                 raise CompareInputError(f"{path}: two columns give the channel {ch.name!r}")
             out[ch.name] = ch
+    if "contact_phase" in labels and "contact" not in out:
+        t, phase = labels["contact_phase"]
+        ch = _channel("contact", "1", t, (phase != "free").astype(float),
+                      "column 'contact_phase' (1 unless 'free')")
+        if ch is not None:
+            out["contact"] = ch
     return out
 
 

@@ -75,6 +75,9 @@ IMPACT_SOURCES = ("contact", "wall_gap", "normal_force")
 #: A wall gap below this counts as touching (m): well above the round-off the contact
 #: solver leaves on a resting tool (~1e-13 m), well below the ~mm approach per ms.
 IMPACT_GAP_M = 1e-6
+#: Why a 0/1 channel has no frequency figures (``null_reasons``).
+BOOLEAN_REASON = ("boolean channel (only 0 and 1): a step signal has no dominant frequency; "
+                  "see events (rises, falls, duty)")
 #: Default search range of the automatic offset, s.
 DEFAULT_MAX_SHIFT_S = 0.5
 
@@ -212,10 +215,42 @@ def _offset(run, ref, names, mode, max_shift, warnings_out):
     return off, info
 
 
+def _frequencies(blk, why, run_rec, ref_rec):
+    """The dominant frequencies of both records (over the span), their resolution, bound
+    and the frequency error into ``blk``; reasons for the null ones into ``why``."""
+    peaks = {}
+    for side, (t, y) in (("run", run_rec), ("reference", ref_rec)):
+        try:
+            peaks[side] = _peak(t, y)
+        except ValueError as exc:
+            why[f"frequency_{side}_hz"] = f"{side}: {exc}"
+    pr, pf = peaks.get("run"), peaks.get("reference")
+    _put(blk, "frequency_run_hz", pr.frequency_hz if pr else None, why,
+         why.get("frequency_run_hz"))
+    _put(blk, "frequency_reference_hz", pf.frequency_hz if pf else None, why,
+         why.get("frequency_reference_hz"))
+    got = [p for p in (pr, pf) if p is not None]
+    _put(blk, "frequency_resolution_hz", max((p.resolution_hz for p in got), default=None),
+         why, "no spectral peak in either record")
+    _put(blk, "frequency_bound_hz", max((p.bound_hz for p in got), default=None), why,
+         "no spectral peak in either record")
+    if pr and pf:
+        try:
+            blk["frequency_error"] = _num(M.frequency_error(pf.frequency_hz, pr.frequency_hz))
+        except ValueError as exc:
+            why["frequency_error"] = str(exc)
+    else:
+        why["frequency_error"] = why.get("frequency_reference_hz") or why.get(
+            "frequency_run_hz")
+
+
 def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
     blk = {k: None for k in CHANNEL_KEYS}
     why = {}
     blk["unit"] = ref_ch.unit or run_ch.unit
+    boolean = (same_unit(blk["unit"], "1") and M.is_boolean(run_ch.y)
+               and M.is_boolean(ref_ch.y))
+    blk["signal"] = "boolean" if boolean else "continuous"
     tr = run_ch.t - off
     a, b = max(ref_ch.t[0], tr[0]), min(ref_ch.t[-1], tr[-1])
     if window is not None:
@@ -252,31 +287,15 @@ def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
     _put(blk, "amplitude_error", errs.get("amplitude_error"), why,
          why.get("amplitude_error", "the reference does not vary over the span "
                                     "(peak-to-peak 0)"))
-    # dominant frequencies on the same span
-    peaks = {}
-    for side, (t, y) in (("run", (t_run, y_run)), ("reference", (t_ref, y_ref))):
-        try:
-            peaks[side] = _peak(t, y)
-        except ValueError as exc:
-            why[f"frequency_{side}_hz"] = f"{side}: {exc}"
-    pr, pf = peaks.get("run"), peaks.get("reference")
-    _put(blk, "frequency_run_hz", pr.frequency_hz if pr else None, why,
-         why.get("frequency_run_hz"))
-    _put(blk, "frequency_reference_hz", pf.frequency_hz if pf else None, why,
-         why.get("frequency_reference_hz"))
-    got = [p for p in (pr, pf) if p is not None]
-    _put(blk, "frequency_resolution_hz", max((p.resolution_hz for p in got), default=None),
-         why, "no spectral peak in either record")
-    _put(blk, "frequency_bound_hz", max((p.bound_hz for p in got), default=None), why,
-         "no spectral peak in either record")
-    if pr and pf:
-        try:
-            blk["frequency_error"] = _num(M.frequency_error(pf.frequency_hz, pr.frequency_hz))
-        except ValueError as exc:
-            why["frequency_error"] = str(exc)
+    if boolean:     # a flag: events and duty instead of a dominant frequency
+        blk["events"] = {side: M.step_events(t, y) if t.size else None
+                         for side, (t, y) in (("run", (t_run, y_run)),
+                                              ("reference", (t_ref, y_ref)))}
+        for k in ("frequency_run_hz", "frequency_reference_hz", "frequency_resolution_hz",
+                  "frequency_bound_hz", "frequency_error"):
+            why[k] = BOOLEAN_REASON
     else:
-        why["frequency_error"] = why.get("frequency_reference_hz") or why.get(
-            "frequency_run_hz")
+        _frequencies(blk, why, (t_run, y_run), (t_ref, y_ref))
     # criteria
     if blk["amplitude_error"] is not None:
         crit["amplitude_error"] = M.passes(blk["amplitude_error"], threshold)
@@ -468,7 +487,7 @@ def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=
     warn = list(run.warnings) + list(reference.warnings)
     off, off_info = _offset(run, reference, names, offset, float(max_shift_s), warn)
     blocks = {n: _channel_block(n, run[n], reference[n], off, window, threshold,
-                                run[n].vibration)
+                                run[n].vibration or reference[n].vibration)
               for n in names}
     contact = _contact_block(run, reference, off, scene)
     tip = _tip_block(run, reference, off, scene, names, blocks, window, threshold)

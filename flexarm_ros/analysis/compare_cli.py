@@ -35,6 +35,10 @@ def summary(cmp: Comparison) -> str:
     for n in cmp.names:
         b = r["channels"][n]
         res = {True: "pass", False: "FAIL", None: "-"}[b["pass"]]
+        if b["events"] is not None:          # a 0/1 flag: events, no frequency
+            run_ev, ref_ev = b["events"]["run"] or {}, b["events"]["reference"] or {}
+            res += (f"  (flag: rises {run_ev.get('rises', '-')} / "
+                    f"{ref_ev.get('rises', '-')})")
         lines.append(f"  {n:22s} {hz(b['frequency_run_hz']):>9s} "
                      f"{hz(b['frequency_reference_hz']):>9s} {pct(b['frequency_error']):>8s} "
                      f"{pct(b['amplitude_error']):>8s} {pct(b['relative_rms_error']):>8s}  "

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 from flexarm_ros.analysis.channels import ChannelSet
 
-__all__ = ["CHANNEL_KEYS", "CONTACT_KEYS", "Comparison", "FREQ_DETREND", "FREQ_MIN_BINS",
-           "FREQ_WINDOW", "FREQ_ZERO_PAD", "OFFSET_KEYS", "SCHEMA", "SOURCE_KEYS",
-           "TIP_KEYS", "TOP_KEYS"]
+__all__ = ["CHANNEL_KEYS", "CONTACT_KEYS", "Comparison", "EVENT_KEYS", "FREQ_DETREND",
+           "FREQ_MIN_BINS", "FREQ_WINDOW", "FREQ_ZERO_PAD", "OFFSET_KEYS", "SCHEMA",
+           "SIGNAL_KINDS", "SOURCE_KEYS", "TIP_KEYS", "TOP_KEYS"]
 
 SCHEMA = "flexarm-compare/1"
 
@@ -28,11 +28,15 @@ TOP_KEYS = ("schema", "run", "reference", "threshold", "offset", "window", "freq
             "channels", "contact", "tip", "pass", "failed", "warnings")
 SOURCE_KEYS = ("path", "kind", "scene", "truncated", "channels", "start_s", "end_s")
 OFFSET_KEYS = ("mode", "offset_s", "method", "max_shift_s", "estimates_s", "sample_period_s")
-CHANNEL_KEYS = ("unit", "span_s", "samples_run", "samples_reference", "sample_rate_run_hz",
-                "sample_rate_reference_hz", "frequency_run_hz", "frequency_reference_hz",
-                "frequency_resolution_hz", "frequency_bound_hz", "frequency_error",
-                "rms_error", "peak_error", "relative_rms_error", "amplitude_error",
-                "criteria", "pass", "null_reasons")
+CHANNEL_KEYS = ("unit", "signal", "span_s", "samples_run", "samples_reference",
+                "sample_rate_run_hz", "sample_rate_reference_hz", "frequency_run_hz",
+                "frequency_reference_hz", "frequency_resolution_hz", "frequency_bound_hz",
+                "frequency_error", "events", "rms_error", "peak_error", "relative_rms_error",
+                "amplitude_error", "criteria", "pass", "null_reasons")
+#: ``signal`` of a channel block: a 0/1 flag (``contact``) has events, not a frequency.
+SIGNAL_KINDS = ("continuous", "boolean")
+#: Keys of ``events.run`` / ``events.reference`` (:func:`flexarm_ros.analysis.metrics.step_events`).
+EVENT_KEYS = ("rises", "falls", "duty", "first_rise_s")
 CONTACT_KEYS = ("impact_source", "impact_time_run_s", "impact_time_reference_s",
                 "impact_time_error_s", "bounce_window_s", "bounce_height_run_m",
                 "bounce_height_reference_m", "bounce_height_abs_error_m",

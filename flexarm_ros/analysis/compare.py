@@ -22,9 +22,13 @@ Steps (every number in the result comes from :mod:`.metrics` and :mod:`.spectra`
    Nyquist) with resolution ``fs / N`` and stated bound ``0.1 fs / N`` (one bin outside
    the validity domain); ``frequency_error = (f_run - f_ref) / f_ref`` (seed 000 Fig. 5.8
    compares FFT peaks; seed 002 Gannon Tables 4.3 / 4.5 normalize by the experiment).
+   A dimensionless channel taking only 0 and 1 in both records (``contact``) is a flag:
+   no frequency (null, :data:`BOOLEAN_REASON`), its ``events`` instead
+   (:func:`~flexarm_ros.analysis.metrics.step_events`: rises, falls, duty, first rise).
 4. Pass/fail (Gannon 1986 Ch. IV after Petroka: |relative error| <= 10 %): a channel
    passes when ``|amplitude_error| <= threshold`` and, for the twin's vibration channels
-   (accelerometers, strain gauges, elastic beam coordinates, tip position),
+   (accelerometers, strain gauges, elastic beam coordinates, tip position; flagged in
+   either record),
    ``|frequency_error| <= threshold``. The tip block adds Gannon's normalized tip-amplitude
    error ``max_i |p_run(t_i) - p_ref(t_i)| / L`` (Table 4.2; L = the arm length, the sum of
    the scene's hub radii and beam lengths) and the tip frequency error, both against the

@@ -59,18 +59,19 @@ def _progress(quiet):
 def cmd_simulate(args):
     from flexarm_ros.sim.simulate import simulate
     from flexarm_ros.io.tables import write_table
+    from flexarm_ros.io.units import table_units
     scene = _load(args)
     res = simulate(scene, args.duration, progress=_progress(args.quiet or args.json))
     if not (args.quiet or args.json):
         print("\r" + " " * 12 + "\r", end="", file=sys.stderr, flush=True)
     summ = res.summary()
     if args.out:
-        write_table(args.out, res.columns)
+        write_table(args.out, res.columns, table_units(res.columns, scene))
         summ["out"] = str(args.out)
         summ["sensor_tables"] = {}
         for rate, table in (res.sensor_tables or {}).items():
             path = sensor_table_path(args.out, rate)
-            write_table(path, table)
+            write_table(path, table, table_units(table, scene))
             summ["sensor_tables"][f"{rate:g}"] = str(path)
     if args.json:
         print(json.dumps(summ, indent=2))
@@ -197,7 +198,7 @@ def cmd_replay(args):
 
 def cmd_compare(args):
     """Twin run vs reference (docs/compare.md): 0 pass, 1 fail, 2 bad input."""
-    from flexarm_ros.analysis.compare import run_cli
+    from flexarm_ros.analysis.compare_cli import run_cli
     return run_cli(args)
 
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from flexarm_ros.bag.reader import Bag, BagError, read_bag, to_dict
+from flexarm_ros.bag.twin_bag import recorded_namespace
 from flexarm_ros.twin import topics as T
 
 __all__ = ["ReplayPlan", "ReplayResult", "load_plan", "remap", "replay"]
@@ -93,7 +94,7 @@ def load_plan(path, topics=None, namespace: str | None = None) -> ReplayPlan:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
     bag = read_bag(path)
-    rec_ns = bag.metadata.get("flexarm_ros", {}).get("namespace", "")
+    rec_ns = recorded_namespace(bag) or ""
     names = [t for t in bag.topics if t != T.CLOCK]
     if topics:
         keep = []

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from flexarm_ros.analysis import compare as C
-from flexarm_ros.analysis.channels import ChannelSet, load_channels
+from flexarm_ros.analysis.channels import Channel, ChannelSet, load_channels
 from flexarm_ros.analysis.report import write_report
 from flexarm_ros.bag.reader import TruncatedBagWarning
 from flexarm_ros.cli import main
@@ -145,7 +145,8 @@ def test_self_comparison_is_exactly_zero_and_passes(self_cmp):
             else:
                 assert v == 0.0, (k, v)
                 checked += 1
-    # five error figures per channel; the two constant commands have no frequency
+    # five error figures per channel; the two constant commands and the contact flag have
+    # no frequency
     assert checked >= 5 * (len(r["channels"]) - 2)
     for n in ACC:
         assert r["channels"][n]["criteria"] == {"amplitude_error": True,
@@ -211,11 +212,11 @@ def test_scaled_copy_amplitude_error(golden):
 
 TOP = ["channels", "contact", "failed", "frequency_method", "offset", "pass", "reference",
        "run", "schema", "threshold", "tip", "warnings", "window"]
-CHANNEL = ["amplitude_error", "criteria", "frequency_bound_hz", "frequency_error",
+CHANNEL = ["amplitude_error", "criteria", "events", "frequency_bound_hz", "frequency_error",
            "frequency_reference_hz", "frequency_resolution_hz", "frequency_run_hz",
            "null_reasons", "pass", "peak_error", "relative_rms_error", "rms_error",
            "sample_rate_reference_hz", "sample_rate_run_hz", "samples_reference",
-           "samples_run", "span_s", "unit"]
+           "samples_run", "signal", "span_s", "unit"]
 CONTACT = ["bounce_height_abs_error_m", "bounce_height_error", "bounce_height_reference_m",
            "bounce_height_run_m", "bounce_window_s", "impact_source",
            "impact_time_error_s", "impact_time_reference_s", "impact_time_run_s",
@@ -262,7 +263,8 @@ def test_report_renders(golden, tmp_path):
     md = write_report(cmp, tmp_path / "rep")
     text = md.read_text()
     pngs = sorted(p.name for p in md.parent.glob("*.png"))
-    expected = ({f"overlay_{n}.png" for n in names} | {f"spectrum_{n}.png" for n in names}
+    spectra = [n for n in names if n != "contact"]     # a 0/1 flag has no spectrum
+    expected = ({f"overlay_{n}.png" for n in names} | {f"spectrum_{n}.png" for n in spectra}
                 | {"tip_path.png", "contact.png"})
     assert set(pngs) == expected
     for p in pngs:
@@ -508,3 +510,123 @@ def test_window_restricts_the_span(golden):
 def test_golden_bag_size():
     """The golden bag: 2.5 s of every topic, about 1.5 MB."""
     assert 1_000_000 < GOLDEN.stat().st_size < 2_500_000
+
+
+# ------------------------------------------------------------------ boolean channels
+
+def _flag_set(path, t, flag, extra=None):
+    chans = {"contact": Channel("contact", "1", t, flag, "test flag")}
+    for name, (unit, y) in (extra or {}).items():
+        chans[name] = Channel(name, unit, t, y, "test")
+    return ChannelSet(path=path, kind="csv", channels=chans)
+
+
+def test_boolean_channel_has_events_not_a_frequency():
+    """A 0/1 flag on [0, 1] s at 1 kHz, set on [0.2, 0.3) and [0.5, 0.8) s (run) or
+    [0.5, 0.9) s (reference): by hand, rises 2 / 1, falls 2 / 1, duty 0.4 / 0.4 of the
+    second, first rise 0.2 / 0.5 s; no dominant frequency, with the reason stated."""
+    t = np.round(np.arange(1001) * 1e-3, 12)
+    run_flag = (((t >= 0.2) & (t < 0.3)) | ((t >= 0.5) & (t < 0.8))).astype(float)
+    ref_flag = ((t >= 0.5) & (t < 0.9)).astype(float)
+    # 0/1 data that is not dimensionless, or dimensionless data with other values:
+    # ordinary channels with a frequency
+    extra = {"pulse_force": ("N", run_flag), "ratio": ("1", np.sin(2 * np.pi * 5 * t))}
+    r = C.compare(_flag_set("run.csv", t, run_flag, extra),
+                  _flag_set("ref.csv", t, ref_flag, extra), offset="none").result
+    b = r["channels"]["contact"]
+    assert b["signal"] == "boolean"
+    for k in ("frequency_run_hz", "frequency_reference_hz", "frequency_resolution_hz",
+              "frequency_bound_hz", "frequency_error"):
+        assert b[k] is None and "boolean channel" in b["null_reasons"][k]
+    assert b["events"]["run"] == {"rises": 2, "falls": 2, "duty": pytest.approx(0.4),
+                                  "first_rise_s": pytest.approx(0.2)}
+    assert b["events"]["reference"] == {"rises": 1, "falls": 1, "duty": pytest.approx(0.4),
+                                        "first_rise_s": pytest.approx(0.5)}
+    for name in ("pulse_force", "ratio"):
+        blk = r["channels"][name]
+        assert blk["signal"] == "continuous" and blk["events"] is None
+        assert blk["frequency_run_hz"] is not None
+    assert r["channels"]["ratio"]["frequency_run_hz"] == pytest.approx(5.0, abs=0.1)
+    json.loads(C.to_json(r), parse_constant=_no_nan)
+
+
+def test_golden_contact_flag_is_boolean(self_cmp):
+    b = self_cmp.result["channels"]["contact"]
+    assert b["signal"] == "boolean" and b["frequency_run_hz"] is None
+    ev = b["events"]["run"]
+    assert ev == b["events"]["reference"] and ev["rises"] >= 1
+    assert ev["first_rise_s"] == pytest.approx(2.101, abs=1e-9)   # the 1 ms sample after 2.1005
+    assert self_cmp.result["channels"]["acc_A"]["signal"] == "continuous"
+
+
+# ------------------------------------------------------------------ flexarm simulate CSVs
+
+@pytest.fixture(scope="module")
+def rung_csvs(tmp_path_factory):
+    """``flexarm simulate two_link_free`` for 0.5 s, cubic (shipped) and rigid rungs."""
+    d = tmp_path_factory.mktemp("simulate")
+    a, b = d / "a.csv", d / "b.csv"
+    assert main(["simulate", "two_link_free", "--duration", "0.5", "--out", str(a),
+                 "--quiet"]) == 0
+    assert main(["simulate", "two_link_free", "--rung", "rigid", "--duration", "0.5",
+                 "--out", str(b), "--quiet"]) == 0
+    return a, b
+
+
+def test_simulate_csv_follows_the_compare_convention(rung_csvs):
+    header = rung_csvs[0].read_text().splitlines()[0].split(",")
+    assert header[0] == "t [s]" and "tip_x [m]" in header and "energy [J]" in header
+    cols, _ = read_experiment_csv(rung_csvs[0])          # every header has its unit
+    assert cols["link1_joint"][0] == "rad" and cols["link1_joint_rate"][0] == "rad/s"
+
+
+def test_simulate_csv_compared_with_itself_is_zero(rung_csvs, capsys):
+    code, out, _ = _cli(capsys, rung_csvs[0], rung_csvs[0], "--json")
+    r = json.loads(out, parse_constant=_no_nan)
+    assert code == 0 and r["pass"] is True and r["failed"] == []
+    assert {"link1_joint", "link2_tip_disp", "tip_x", "tip_y", "energy"} <= set(r["channels"])
+    for b in r["channels"].values():
+        for k, v in _error_items(b):
+            assert v is None or v == 0.0, (k, v)
+    assert r["channels"]["link2_tip_disp"]["criteria"]["frequency_error"] is True
+
+
+def test_two_rungs_of_one_scene_in_one_command(rung_csvs, capsys):
+    """Cubic vs rigid beams: the tip error is the largest distance between the two tip
+    x-coordinates at the common instants, read here from the two files (same 1 ms grid):
+    non-zero, and small against the 1.3 m arm."""
+    from flexarm_ros.io.tables import read_table
+    a, b = (read_table(p) for p in rung_csvs)
+    assert np.array_equal(a["t"], b["t"])
+    dx = np.abs(a["tip_x"] - b["tip_x"])
+    code, out, _ = _cli(capsys, *rung_csvs, "--offset", "none", "--json")
+    r = json.loads(out, parse_constant=_no_nan)
+    assert code in (0, 1)
+    tip = r["channels"]["tip_x"]
+    assert tip["peak_error"] == pytest.approx(dx.max(), rel=1e-9, abs=1e-12)
+    assert tip["rms_error"] == pytest.approx(np.sqrt(np.mean(dx ** 2)), rel=1e-9)
+    assert 1e-4 < tip["peak_error"] < 0.05
+    # the rigid rung has no tip_disp coordinate: only the common channels are compared
+    assert "link1_tip_disp" not in r["channels"] and "link1_joint" in r["channels"]
+    code, out, err = _cli(capsys, *rung_csvs)            # the plain command works too
+    assert code in (0, 1) and "tip_x" in out and "flexarm: error" not in err
+
+
+def test_simulate_csv_with_a_wall_gives_the_contact_flag(tmp_path, capsys):
+    """contact_phase [text] -> contact = 1 unless 'free' (the rule of tool/contact): the
+    impact time is the crossing of 0.5 between the last 'free' row and the next one."""
+    out = tmp_path / "c.csv"
+    assert main(["simulate", "two_link_case1", "--duration", "2.3", "--out", str(out),
+                 "--quiet"]) == 0
+    cols, _ = read_experiment_csv(out)
+    unit, t, phase = cols["contact_phase"]
+    assert unit == "text" and set(phase) >= {"free", "impact"}
+    k = int(np.flatnonzero(phase != "free")[0])
+    cs = load_channels(out)
+    assert "contact_phase" not in cs and cs["contact"].unit == "1"
+    assert np.array_equal(cs["contact"].y, (phase != "free").astype(float))
+    r = C.compare(cs, cs, offset="none", channels=["contact", "tip_x"]).result
+    assert r["contact"]["impact_source"] == "contact"
+    assert r["contact"]["impact_time_run_s"] == pytest.approx((t[k - 1] + t[k]) / 2,
+                                                              abs=1e-12)
+

@@ -4,5 +4,12 @@
 :mod:`flexarm_ros.analysis.metrics` aligns two records in time and computes the error
 measures the source papers used by hand (impact time, bounce height, RMS / peak /
 amplitude errors, Gannon's normalized tip-amplitude and frequency errors, the 10 % test).
-Nothing here imports rclpy or the physics core.
+:mod:`flexarm_ros.analysis.channels` reads the inputs (twin bags through
+:mod:`flexarm_ros.bag.twin_bag`, mapped foreign bags, CSV tables) into named channels;
+:mod:`flexarm_ros.analysis.compare` computes a
+:class:`~flexarm_ros.analysis.comparison.Comparison` (result schema in
+:mod:`flexarm_ros.analysis.comparison`), :mod:`flexarm_ros.analysis.report` draws it and
+:mod:`flexarm_ros.analysis.compare_cli` is the ``flexarm compare`` command that calls both.
+Nothing here imports rclpy or the physics core (``flexarm_ros.model``, ``flexarm_ros.sim``);
+scenes come from :mod:`flexarm_ros.scene`.
 """

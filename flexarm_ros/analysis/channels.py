@@ -10,12 +10,15 @@ names and units from the scene embedded there):
 
 * ``<sensor>`` — accelerometers, strain gauges, potentiometers by their scene names; V with
   a ``sensitivity``, else m/s² / 1 / rad; from ``accelerometers/batch``, ``strain/batch``,
-  ``potentiometer/batch``: row i of a batch of n rows logged at t_m is the sample at
-  ``t_m - (n - 1 - i) / rate_hz``;
+  ``potentiometer/batch``, one time per sample (layout, stride, offset and timing as
+  :mod:`flexarm_ros.bag.twin_bag` reads them: row i of a batch of n rows logged at t_m is
+  the sample at ``t_m - (n - 1 - i) / rate_hz``); without sensors of that kind in the
+  scene ``<kind>_<j>``, unit unknown;
 * ``<encoder sensor>`` — count, ``encoders/counts``;
 * ``<link>_joint_measured`` — rad, ``joint_states`` (the angle from the quantized encoder);
 * ``<coordinate>`` — ``<link>_joint``, ``<link>_motor``, ``<link>_tip_disp``,
-  ``<link>_tip_rot``, ``<link>_w1`` ..., rad or m, ``ground_truth/coordinates``
+  ``<link>_tip_rot``, ``<link>_w1`` ..., rad or m (:func:`flexarm_ros.io.units.coordinate_unit`),
+  ``ground_truth/coordinates``
   (``ground_truth/joint_states`` for bags without it);
 * ``<link>_drive`` — rad, ``ground_truth/joint_states``, only where it differs from
   ``<link>_joint`` (a compliant drive train);
@@ -26,10 +29,17 @@ names and units from the scene embedded there):
 * ``wall_gap`` — m, derived: ``min_k (p_tip - a_k) · n_k`` over the scene's walls (the tool
   at the tip).
 
+Channels of a CSV (:func:`flexarm_ros.io.experiment.read_experiment_csv`: an experiment,
+or ``flexarm simulate --out``): one per numeric column, by its header's name and unit; a
+``[text]`` column is no channel, but ``contact_phase`` (``flexarm simulate`` with a wall)
+gives ``contact`` — 1 unless the phase is ``free``, the rule of the twin's ``tool/contact``
+— when the file has no ``contact`` column.
+
 ``wall_gap`` is also derived for any input (a CSV, a mapped bag) that has ``tip_x`` and
 ``tip_y`` when the comparison supplies a scene with walls (:func:`add_wall_gap`).
 Channels flagged ``vibration`` (accelerometers, strain gauges, elastic beam coordinates,
-tip position) are the ones whose dominant frequency is a pass criterion.
+tip position; in a CSV by name: ``tip_x``, ``tip_y`` and the beam coordinates) are the
+ones whose dominant frequency is a pass criterion.
 """
 
 from __future__ import annotations
@@ -41,20 +51,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from flexarm_ros.bag import twin_bag
 from flexarm_ros.bag.reader import BagError, TruncatedBagWarning, read_bag
 from flexarm_ros.io.experiment import ChannelMap, CompareInputError, MapEntry, read_experiment_csv
+from flexarm_ros.io.units import TEXT, beam_coordinate, coordinate_unit
 from flexarm_ros.twin import topics as T
 
 __all__ = ["Channel", "ChannelSet", "add_wall_gap", "bag_channels", "load_channels",
            "mapped_bag_channels", "same_unit", "scene_of_bag"]
 
-_SENSOR_TOPICS = ((T.ACCEL_BATCH, "accelerometer"), (T.STRAIN_BATCH, "strain"),
-                  (T.POT_BATCH, "potentiometer"))
 _SI_UNIT = {"accelerometer": "m/s^2", "strain": "1", "potentiometer": "rad"}
 _DRIVE_UNIT = {"dc_motor": "V", "hydraulic": "A", None: "N*m"}
-_ELASTIC = re.compile(r"_(tip_disp|tip_rot|w\d+|th\d+|mode\d+)$")
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,69 +139,45 @@ def _channel(name, unit, t, y, source, vibration=False) -> Channel | None:
 # ----------------------------------------------------------------------------- twin bags
 
 def scene_of_bag(bag):
-    """``(scene, problem)``: the scene embedded in a twin bag (``flexarm_ros`` metadata
-    ``scene_yaml``), or ``(None, why)``."""
-    from flexarm_ros.scene import load_scene_dict
-    text = bag.metadata.get("flexarm_ros", {}).get("scene_yaml")
-    if not text:
-        return None, "the bag has no embedded scene (flexarm_ros metadata scene_yaml)"
+    """``(scene, problem)``: the scene embedded in a twin bag
+    (:func:`flexarm_ros.bag.twin_bag.embedded_scene`), or ``(None, why)``."""
     try:
-        return load_scene_dict(yaml.safe_load(text)), None
-    except Exception as exc:  # a scene from another software version
+        scene = twin_bag.embedded_scene(bag)
+    except BagError as exc:           # a scene from another software version
         return None, f"the embedded scene does not load ({exc})"
+    if scene is None:
+        return None, "the bag has no embedded scene (flexarm_ros metadata scene_yaml)"
+    return scene, None
 
 
-def _batch_times_ns(log_ns: int, rows: int, rate_hz: float) -> np.ndarray:
-    """Row times (ns) of a [sample, channel] batch: uniform 1/rate, the last at the log
-    time (rounded to the nanosecond)."""
-    step = 1e9 / rate_hz
-    back = np.round((rows - 1 - np.arange(rows)) * step).astype(np.int64)
-    return np.int64(log_ns) - back
-
-
-def _batch_times(log_ns: int, rows: int, rate_hz: float) -> np.ndarray:
-    return _batch_times_ns(log_ns, rows, rate_hz) * 1e-9
-
-
-def _columns_of(msg, default: int | None = None) -> int:
-    dims = getattr(getattr(msg, "layout", None), "dim", None) or []
-    if len(dims) >= 2 and dims[1].size > 0:
-        return int(dims[1].size)
-    return default or 1
-
-
-def _batch(messages, names, units, rate_hz, topic, vibration) -> list[Channel]:
-    ts, rows = [], []
-    for log_ns, msg in messages:
-        data = np.asarray(msg.data, dtype=float)
-        ncol = _columns_of(msg, len(names))
-        if data.size == 0 or data.size % ncol or ncol < len(names):
-            continue                        # not the layout the scene declares
-        block = data.reshape(-1, ncol)
-        ts.append(_batch_times(log_ns, block.shape[0], rate_hz))
-        rows.append(block[:, :len(names)])
-    if not rows:
+def _batch_channels(bag, topic, scene, ns, notes) -> list[Channel]:
+    """One channel per column of a sensor batch topic
+    (:func:`flexarm_ros.bag.twin_bag.sensor_batches`: per-sample times, layout stride and
+    offset honoured); V with a ``sensitivity``, else the kind's SI unit; '' unnamed."""
+    sb = twin_bag.sensor_batches(bag, topic, scene, ns)
+    if sb is None:
         return []
-    t = np.concatenate(ts)
-    block = np.concatenate(rows)
+    notes.extend(sb.notes)
+    if sb.sensors:
+        units = ["V" if s.sensitivity is not None else _SI_UNIT[sb.kind] for s in sb.sensors]
+    else:
+        units = [""] * len(sb.names)
+    t = sb.t_ns * 1e-9
     out = []
-    for j, (name, unit) in enumerate(zip(names, units)):
-        ch = _channel(name, unit, t, block[:, j], f"{topic} [sample, {j}]", vibration)
+    for j, (name, unit) in enumerate(zip(sb.names, units)):
+        ch = _channel(name, unit, t, sb.values[:, j], f"{sb.topic} [sample, {j}]",
+                      sb.kind in ("accelerometer", "strain"))
         if ch is not None:
             out.append(ch)
     return out
 
 
 def _coordinate_unit(name: str) -> str:
-    if re.search(r"_(tip_disp|w\d+)$", name):
-        return "m"
-    if re.search(r"_mode\d+$", name):
-        return ""            # modal amplitude: unit depends on the shape normalization
-    return "rad"
+    return coordinate_unit(name) or ""
 
 
 def _joint_state(messages, topic, rename=lambda n: n, unit=_coordinate_unit,
-                 vibration=lambda n: bool(_ELASTIC.search(n))) -> dict[str, Channel]:
+                 vibration=beam_coordinate) -> dict[str, Channel]:
     cols: dict[str, tuple[list, list]] = {}
     for log_ns, msg in messages:
         for name, pos in zip(msg.name, msg.position):
@@ -217,15 +201,21 @@ def _scalar(messages, get, name, unit, topic, src, vibration=False) -> Channel |
     return _channel(name, unit, t, y, f"{topic} {src}", vibration)
 
 
-def bag_channels(bag, scene=None) -> dict[str, Channel]:
+def bag_channels(bag, scene=None, notes: list | None = None) -> dict[str, Channel]:
     """The channels of a twin bag (table in the module docstring). ``scene`` supplies the
-    sensor names, units and drives (default: the scene embedded in the bag)."""
+    sensor names, units and drives (default: the scene embedded in the bag); ``notes``
+    collects what was guessed (generic sensor names, an estimated sample rate).
+
+    Raises:
+        BagError: a sensor batch whose layout does not fit its data.
+    """
     if scene is None:
         scene, _ = scene_of_bag(bag)
-    ns = bag.metadata.get("flexarm_ros", {}).get("namespace", "/flexarm")
+    notes = [] if notes is None else notes
+    ns = twin_bag.namespace(bag)
 
     def msgs(topic):
-        return bag.messages.get(T.resolve(ns, topic), [])
+        return twin_bag.twin_messages(bag, topic, ns)
 
     out: dict[str, Channel] = {}
 
@@ -234,26 +224,8 @@ def bag_channels(bag, scene=None) -> dict[str, Channel]:
             out[ch.name] = ch
 
     sensors = list(scene.sensors) if scene is not None else []
-    for topic, kind in _SENSOR_TOPICS:
-        m = msgs(topic)
-        if not m:
-            continue
-        spec = [s for s in sensors if s.kind == kind]
-        if spec:
-            names = [s.name for s in spec]
-            units = ["V" if s.sensitivity is not None else _SI_UNIT[kind] for s in spec]
-            rate = spec[0].rate_hz
-        else:                 # no scene: generic names, unknown unit; rate from the spacing
-            ncol = _columns_of(m[0][1])
-            names = [f"{kind}_{j}" for j in range(ncol)]
-            units = [""] * ncol
-            rows = len(m[-1][1].data) // ncol
-            dt_ns = (m[-1][0] - m[-2][0]) if len(m) > 1 else 0
-            if rows == 0 or dt_ns <= 0:
-                continue
-            rate = rows / (dt_ns * 1e-9)
-        for ch in _batch(m, names, units, rate, T.resolve(ns, topic),
-                         kind in ("accelerometer", "strain")):
+    for topic in T.BATCH_KINDS:
+        for ch in _batch_channels(bag, topic, scene, ns, notes):
             put(ch)
     enc = sorted((s for s in sensors if s.kind == "encoder"), key=lambda s: s.joint)
     m = msgs(T.ENCODER_COUNTS)
@@ -388,19 +360,21 @@ def _map_entry(bag, cmap: ChannelMap, e: MapEntry):
             t_ns = log_ns
         if e.rate_hz is not None:
             data = np.asarray(value, dtype=float).ravel()
-            ncol = e.columns or _columns_of(msg)
+            try:        # explicit 'columns': plain rows; else the message's layout
+                lay = twin_bag.batch_layout(None if e.columns else getattr(msg, "layout", None),
+                                            data.size, e.columns,
+                                            where=f"{bag.path}: topic {e.topic!r} ({where}) "
+                                                  f"at {log_ns} ns")
+            except BagError as exc:
+                raise CompareInputError(str(exc)) from None
             col = e.index or 0
-            if col >= ncol:
-                raise CompareInputError(f"{bag.path}: {where}: index {col} with {ncol} "
-                                        f"columns per row; expected an index < {ncol}")
-            if data.size % ncol:
-                raise CompareInputError(f"{bag.path}: topic {e.topic!r} ({where}): a "
-                                        f"message holds {data.size} values, not a multiple "
-                                        f"of {ncol} columns")
-            block = data.reshape(-1, ncol)
-            if block.shape[0]:
-                ts.append(_batch_times_ns(t_ns, block.shape[0], e.rate_hz))
-                ys.append(block[:, col])
+            if col >= lay.channels:
+                raise CompareInputError(f"{bag.path}: {where}: index {col} with "
+                                        f"{lay.channels} columns per row; expected an index "
+                                        f"< {lay.channels}")
+            if lay.samples:
+                ts.append(twin_bag.batch_times_ns(t_ns, lay.samples, e.rate_hz))
+                ys.append(data[lay.offset + lay.stride * np.arange(lay.samples) + col])
             continue
         if e.index is not None:
             try:
@@ -445,6 +419,12 @@ def mapped_bag_channels(bag, cmap: ChannelMap) -> dict[str, Channel]:
     return out
 
 
+def _vibration_name(name: str) -> bool:
+    """A channel whose frequency is a criterion, by its name: the tip position and the
+    elastic beam coordinates (:func:`flexarm_ros.io.units.beam_coordinate`)."""
+    return name in ("tip_x", "tip_y") or beam_coordinate(name)
+
+
 def _table_channels(path, columns, cmap: ChannelMap | None) -> dict[str, Channel]:
     renames = {} if cmap is None else {e.column: e for e in cmap.column_entries}
     if cmap is not None:
@@ -454,17 +434,31 @@ def _table_channels(path, columns, cmap: ChannelMap | None) -> dict[str, Channel
                                     f"channels.{renames[missing[0]].name}); columns: "
                                     f"{', '.join(columns)}")
     out = {}
+    labels = {}
     for col, (unit, t, y) in columns.items():
         e = renames.get(col)
+        if unit == TEXT:
+            if e is not None:
+                raise CompareInputError(f"{path}: column {col!r} holds text (unit [text]); "
+                                        f"map {cmap.path}, channels.{e.name} expects numbers")
+            labels[col] = (t, y)
+            continue
         if e is None:
-            ch = _channel(col, unit, t, y, f"column {col!r}")
+            ch = _channel(col, unit, t, y, f"column {col!r}", _vibration_name(col))
         else:
             ch = _channel(e.name, e.unit or unit, t, e.scale * y + e.offset,
-                          f"column {col!r} x {e.scale:g} + {e.offset:g}")
+                          f"column {col!r} x {e.scale:g} + {e.offset:g}",
+                          _vibration_name(e.name))
         if ch is not None:
             if ch.name in out:
                 raise CompareInputError(f"{path}: two columns give the channel {ch.name!r}")
             out[ch.name] = ch
+    if "contact_phase" in labels and "contact" not in out:
+        t, phase = labels["contact_phase"]
+        ch = _channel("contact", "1", t, (phase != "free").astype(float),
+                      "column 'contact_phase' (1 unless 'free')")
+        if ch is not None:
+            out["contact"] = ch
     return out
 
 
@@ -508,7 +502,7 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
         raise CompareInputError(
             f"{p}: the bag holds no messages{' (it is truncated)' if bag.truncated else ''}"
             f"; expected a recording (flexarm run --record, or a foreign bag with --map)")
-    meta = bag.metadata.get("flexarm_ros")
+    meta = twin_bag.twin_info(bag)
     if meta is not None:
         cs.scene_name = meta.get("scene")
         cs.scene, why = scene_of_bag(bag)
@@ -521,11 +515,14 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
                                 f"metadata); pass a channel map (--map MAP.yaml) that "
                                 f"names its topics")
     else:
-        cs.channels = bag_channels(bag, cs.scene)
+        try:
+            cs.channels = bag_channels(bag, cs.scene, cs.warnings)
+        except BagError as exc:
+            raise CompareInputError(str(exc)) from None
         add_wall_gap(cs.channels, cs.scene)
     if not cs.channels:
         raise CompareInputError(
             f"{p}: no channel found (the bag holds {bag.message_count} messages"
             f"{'; it is truncated' if bag.truncated else ''}); expected the twin's topics "
-            f"under {meta.get('namespace', '/flexarm') if meta else 'the map'}")
+            f"under {twin_bag.namespace(bag) if meta is not None else 'the map'}")
     return cs

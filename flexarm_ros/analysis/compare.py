@@ -22,9 +22,13 @@ Steps (every number in the result comes from :mod:`.metrics` and :mod:`.spectra`
    Nyquist) with resolution ``fs / N`` and stated bound ``0.1 fs / N`` (one bin outside
    the validity domain); ``frequency_error = (f_run - f_ref) / f_ref`` (seed 000 Fig. 5.8
    compares FFT peaks; seed 002 Gannon Tables 4.3 / 4.5 normalize by the experiment).
+   A dimensionless channel taking only 0 and 1 in both records (``contact``) is a flag:
+   no frequency (null, :data:`BOOLEAN_REASON`), its ``events`` instead
+   (:func:`~flexarm_ros.analysis.metrics.step_events`: rises, falls, duty, first rise).
 4. Pass/fail (Gannon 1986 Ch. IV after Petroka: |relative error| <= 10 %): a channel
    passes when ``|amplitude_error| <= threshold`` and, for the twin's vibration channels
-   (accelerometers, strain gauges, elastic beam coordinates, tip position),
+   (accelerometers, strain gauges, elastic beam coordinates, tip position; flagged in
+   either record),
    ``|frequency_error| <= threshold``. The tip block adds Gannon's normalized tip-amplitude
    error ``max_i |p_run(t_i) - p_ref(t_i)| / L`` (Table 4.2; L = the arm length, the sum of
    the scene's hub radii and beam lengths) and the tip frequency error, both against the
@@ -38,7 +42,10 @@ Steps (every number in the result comes from :mod:`.metrics` and :mod:`.spectra`
 The result is a plain dict (:func:`to_json` prints it): every error figure sits under a
 key containing ``error``, relative errors are fractions, and a figure that cannot be
 computed is ``null`` with its reason under ``null_reasons`` of the same block. The key
-set is documented in ``docs/compare.md`` and pinned by ``test/test_compare.py``.
+sets live in :mod:`flexarm_ros.analysis.comparison` (with :class:`Comparison`, which
+the report draws), documented in ``docs/compare.md`` and pinned by
+``test/test_compare.py``. The command (summary table, ``--report``) is
+:mod:`flexarm_ros.analysis.compare_cli`.
 """
 
 from __future__ import annotations
@@ -47,19 +54,21 @@ import dataclasses
 import json
 import math
 import statistics
-from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.io.experiment import CompareInputError, load_channel_map
 from flexarm_ros.analysis import metrics as M
 from flexarm_ros.analysis.channels import ChannelSet, add_wall_gap, load_channels, same_unit
-from flexarm_ros.analysis.spectra import MAX_JITTER, MIN_SAMPLES, dominant_frequency, uniform
+from flexarm_ros.analysis.comparison import (CHANNEL_KEYS, CONTACT_KEYS, FREQ_DETREND,
+                                             FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD,
+                                             SCHEMA, TIP_KEYS, Comparison)
+from flexarm_ros.analysis.spectra import MIN_SAMPLES, crop, dominant_frequency, uniform_record
+from flexarm_ros.io.experiment import CompareInputError, load_channel_map
 
-__all__ = ["BOUNCE_WINDOW_S", "CHANNEL_KEYS", "CONTACT_KEYS", "Comparison", "DEFAULT_MAX_SHIFT_S",
-           "SCHEMA", "TIP_KEYS", "TOP_KEYS", "compare", "compare_files", "to_json"]
+__all__ = ["BOUNCE_WINDOW_S", "DEFAULT_MAX_SHIFT_S", "IMPACT_GAP_M", "IMPACT_SOURCES",
+           "arm_length", "compare", "compare_files", "parse_offset", "parse_window",
+           "to_json"]
 
-SCHEMA = "flexarm-compare/1"
 #: Seconds after the impact searched for the bounce (seed 000: the tip leaves the wall by
 #: ~5 mm and is driven back within a few tenths of a second).
 BOUNCE_WINDOW_S = 0.25
@@ -70,41 +79,11 @@ IMPACT_SOURCES = ("contact", "wall_gap", "normal_force")
 #: A wall gap below this counts as touching (m): well above the round-off the contact
 #: solver leaves on a resting tool (~1e-13 m), well below the ~mm approach per ms.
 IMPACT_GAP_M = 1e-6
+#: Why a 0/1 channel has no frequency figures (``null_reasons``).
+BOOLEAN_REASON = ("boolean channel (only 0 and 1): a step signal has no dominant frequency; "
+                  "see events (rises, falls, duty)")
 #: Default search range of the automatic offset, s.
 DEFAULT_MAX_SHIFT_S = 0.5
-#: Frequency estimator settings (see :func:`flexarm_ros.analysis.spectra.dominant_frequency`).
-FREQ_WINDOW, FREQ_DETREND, FREQ_ZERO_PAD, FREQ_MIN_BINS = "hann", "linear", 4, 3
-
-TOP_KEYS = ("schema", "run", "reference", "threshold", "offset", "window", "frequency_method",
-            "channels", "contact", "tip", "pass", "failed", "warnings")
-SOURCE_KEYS = ("path", "kind", "scene", "truncated", "channels", "start_s", "end_s")
-OFFSET_KEYS = ("mode", "offset_s", "method", "max_shift_s", "estimates_s", "sample_period_s")
-CHANNEL_KEYS = ("unit", "span_s", "samples_run", "samples_reference", "sample_rate_run_hz",
-                "sample_rate_reference_hz", "frequency_run_hz", "frequency_reference_hz",
-                "frequency_resolution_hz", "frequency_bound_hz", "frequency_error",
-                "rms_error", "peak_error", "relative_rms_error", "amplitude_error",
-                "criteria", "pass", "null_reasons")
-CONTACT_KEYS = ("impact_source", "impact_time_run_s", "impact_time_reference_s",
-                "impact_time_error_s", "bounce_window_s", "bounce_height_run_m",
-                "bounce_height_reference_m", "bounce_height_abs_error_m",
-                "bounce_height_error", "null_reasons")
-TIP_KEYS = ("arm_length_m", "normalized_amplitude_error", "normalized_rms_amplitude_error",
-            "frequency_channel", "frequency_error", "criteria", "pass", "null_reasons")
-
-
-@dataclass
-class Comparison:
-    """The result document plus what the report needs to draw it."""
-
-    result: dict
-    run: ChannelSet
-    reference: ChannelSet
-    names: list[str]
-    offset_s: float
-
-    @property
-    def passed(self) -> bool:
-        return bool(self.result["pass"])
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -130,27 +109,8 @@ def _rate(t) -> float | None:
     return None if t.size < 2 else 1.0 / float(np.median(np.diff(t)))
 
 
-def _crop(t, y, a, b, pad=False):
-    """Samples with a <= t <= b (``pad``: plus one each side, for interpolation)."""
-    i0 = int(np.searchsorted(t, a, side="left"))
-    i1 = int(np.searchsorted(t, b, side="right"))
-    if pad:
-        i0, i1 = max(i0 - 1, 0), min(i1 + 1, t.size)
-    return t[i0:i1], y[i0:i1]
-
-
-def _uniform_record(t, y):
-    """The record on a uniform grid (unchanged when its sampling already is uniform)."""
-    if t.size >= 2:
-        dt = np.diff(t)
-        mean = (t[-1] - t[0]) / (t.size - 1)
-        if float(np.max(np.abs(dt - mean))) <= MAX_JITTER * mean:
-            return t, y
-    return uniform(t, y)
-
-
 def _peak(t, y):
-    t, y = _uniform_record(t, y)
+    t, y = uniform_record(t, y)
     if t.size < MIN_SAMPLES:
         raise ValueError(f"{t.size} samples in the span, need at least {MIN_SAMPLES}")
     fs = (t.size - 1) / (t[-1] - t[0])
@@ -259,49 +219,11 @@ def _offset(run, ref, names, mode, max_shift, warnings_out):
     return off, info
 
 
-def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
-    blk = {k: None for k in CHANNEL_KEYS}
-    why = {}
-    blk["unit"] = ref_ch.unit or run_ch.unit
-    tr = run_ch.t - off
-    a, b = max(ref_ch.t[0], tr[0]), min(ref_ch.t[-1], tr[-1])
-    if window is not None:
-        a, b = max(a, window[0]), min(b, window[1])
-    crit = {}
-    if not b > a:
-        msg = (f"no common time span: reference [{ref_ch.t[0]:g}, {ref_ch.t[-1]:g}] s, "
-               f"run [{tr[0]:g}, {tr[-1]:g}] s after the offset"
-               + ("" if window is None else f", window [{window[0]:g}, {window[1]:g}] s"))
-        for k in ("frequency_run_hz", "frequency_reference_hz", "frequency_resolution_hz",
-                  "frequency_bound_hz", "frequency_error", "rms_error", "peak_error",
-                  "relative_rms_error", "amplitude_error"):
-            why[k] = msg
-        blk.update(samples_run=0, samples_reference=0, criteria={}, null_reasons=why)
-        return blk
-    blk["span_s"] = [_num(a), _num(b)]
-    t_ref, y_ref = _crop(ref_ch.t, ref_ch.y, a, b)
-    t_run, y_run = _crop(tr, run_ch.y, a, b)
-    blk["samples_run"], blk["samples_reference"] = int(t_run.size), int(t_ref.size)
-    blk["sample_rate_run_hz"] = _num(_rate(run_ch.t))
-    blk["sample_rate_reference_hz"] = _num(_rate(ref_ch.t))
-    # pointwise errors: the run interpolated onto the reference instants
-    try:
-        tp, yp = _crop(tr, run_ch.y, a, b, pad=True)
-        errs = M.channel_errors(t_ref, y_ref, tp, yp)
-    except ValueError as exc:
-        errs = {}
-        for k in ("rms_error", "peak_error", "relative_rms_error", "amplitude_error"):
-            why[k] = str(exc)
-    _put(blk, "rms_error", errs.get("rms_error"), why, why.get("rms_error"))
-    _put(blk, "peak_error", errs.get("peak_error"), why, why.get("peak_error"))
-    _put(blk, "relative_rms_error", errs.get("relative_rms_error"), why,
-         why.get("relative_rms_error", "the reference is zero over the span (RMS 0)"))
-    _put(blk, "amplitude_error", errs.get("amplitude_error"), why,
-         why.get("amplitude_error", "the reference does not vary over the span "
-                                    "(peak-to-peak 0)"))
-    # dominant frequencies on the same span
+def _frequencies(blk, why, run_rec, ref_rec):
+    """The dominant frequencies of both records (over the span), their resolution, bound
+    and the frequency error into ``blk``; reasons for the null ones into ``why``."""
     peaks = {}
-    for side, (t, y) in (("run", (t_run, y_run)), ("reference", (t_ref, y_ref))):
+    for side, (t, y) in (("run", run_rec), ("reference", ref_rec)):
         try:
             peaks[side] = _peak(t, y)
         except ValueError as exc:
@@ -324,6 +246,60 @@ def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
     else:
         why["frequency_error"] = why.get("frequency_reference_hz") or why.get(
             "frequency_run_hz")
+
+
+def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
+    blk = {k: None for k in CHANNEL_KEYS}
+    why = {}
+    blk["unit"] = ref_ch.unit or run_ch.unit
+    boolean = (same_unit(blk["unit"], "1") and M.is_boolean(run_ch.y)
+               and M.is_boolean(ref_ch.y))
+    blk["signal"] = "boolean" if boolean else "continuous"
+    tr = run_ch.t - off
+    a, b = max(ref_ch.t[0], tr[0]), min(ref_ch.t[-1], tr[-1])
+    if window is not None:
+        a, b = max(a, window[0]), min(b, window[1])
+    crit = {}
+    if not b > a:
+        msg = (f"no common time span: reference [{ref_ch.t[0]:g}, {ref_ch.t[-1]:g}] s, "
+               f"run [{tr[0]:g}, {tr[-1]:g}] s after the offset"
+               + ("" if window is None else f", window [{window[0]:g}, {window[1]:g}] s"))
+        for k in ("frequency_run_hz", "frequency_reference_hz", "frequency_resolution_hz",
+                  "frequency_bound_hz", "frequency_error", "rms_error", "peak_error",
+                  "relative_rms_error", "amplitude_error"):
+            why[k] = msg
+        blk.update(samples_run=0, samples_reference=0, criteria={}, null_reasons=why)
+        return blk
+    blk["span_s"] = [_num(a), _num(b)]
+    t_ref, y_ref = crop(ref_ch.t, ref_ch.y, a, b)
+    t_run, y_run = crop(tr, run_ch.y, a, b)
+    blk["samples_run"], blk["samples_reference"] = int(t_run.size), int(t_ref.size)
+    blk["sample_rate_run_hz"] = _num(_rate(run_ch.t))
+    blk["sample_rate_reference_hz"] = _num(_rate(ref_ch.t))
+    # pointwise errors: the run interpolated onto the reference instants
+    try:
+        tp, yp = crop(tr, run_ch.y, a, b, pad=True)
+        errs = M.channel_errors(t_ref, y_ref, tp, yp)
+    except ValueError as exc:
+        errs = {}
+        for k in ("rms_error", "peak_error", "relative_rms_error", "amplitude_error"):
+            why[k] = str(exc)
+    _put(blk, "rms_error", errs.get("rms_error"), why, why.get("rms_error"))
+    _put(blk, "peak_error", errs.get("peak_error"), why, why.get("peak_error"))
+    _put(blk, "relative_rms_error", errs.get("relative_rms_error"), why,
+         why.get("relative_rms_error", "the reference is zero over the span (RMS 0)"))
+    _put(blk, "amplitude_error", errs.get("amplitude_error"), why,
+         why.get("amplitude_error", "the reference does not vary over the span "
+                                    "(peak-to-peak 0)"))
+    if boolean:     # a flag: events and duty instead of a dominant frequency
+        blk["events"] = {side: M.step_events(t, y) if t.size else None
+                         for side, (t, y) in (("run", (t_run, y_run)),
+                                              ("reference", (t_ref, y_ref)))}
+        for k in ("frequency_run_hz", "frequency_reference_hz", "frequency_resolution_hz",
+                  "frequency_bound_hz", "frequency_error"):
+            why[k] = BOOLEAN_REASON
+    else:
+        _frequencies(blk, why, (t_run, y_run), (t_ref, y_ref))
     # criteria
     if blk["amplitude_error"] is not None:
         crit["amplitude_error"] = M.passes(blk["amplitude_error"], threshold)
@@ -462,7 +438,7 @@ def _tip_block(run, ref, off, scene, names, blocks, window, threshold):
             a0, b0 = blocks[n]["span_s"] or (None, None)
             if a0 is None:
                 continue
-            tt, yy = _crop(ref[n].t, ref[n].y, a0, b0)
+            tt, yy = crop(ref[n].t, ref[n].y, a0, b0)
             amps[n] = _peak(tt, yy).amplitude
         except ValueError:
             continue
@@ -515,7 +491,7 @@ def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=
     warn = list(run.warnings) + list(reference.warnings)
     off, off_info = _offset(run, reference, names, offset, float(max_shift_s), warn)
     blocks = {n: _channel_block(n, run[n], reference[n], off, window, threshold,
-                                run[n].vibration)
+                                run[n].vibration or reference[n].vibration)
               for n in names}
     contact = _contact_block(run, reference, off, scene)
     tip = _tip_block(run, reference, off, scene, names, blocks, window, threshold)
@@ -561,72 +537,3 @@ def compare_files(run_path, reference_path, *, map_path=None, **kw) -> Compariso
 def to_json(result: dict) -> str:
     """The result as stable JSON: sorted keys, two-space indent, no NaN."""
     return json.dumps(result, indent=2, sort_keys=True, allow_nan=False)
-
-
-# ----------------------------------------------------------------------------- CLI
-
-def _summary(cmp: Comparison) -> str:
-    r = cmp.result
-    lines = [f"{r['run']['path']} vs {r['reference']['path']}: "
-             f"{'PASS' if r['pass'] else 'FAIL'} (threshold ±{100 * r['threshold']:g} %, "
-             f"offset {r['offset']['offset_s']:+.6g} s, {r['offset']['mode']})"]
-    lines.append(f"  {'channel':22s} {'f run':>9s} {'f ref':>9s} {'f err':>8s} "
-                 f"{'amp err':>8s} {'rel RMS':>8s}  result")
-
-    def pct(x):
-        return "-" if x is None else f"{100 * x:+.2f}%"
-
-    def hz(x):
-        return "-" if x is None else f"{x:.4g}"
-    for n in cmp.names:
-        b = r["channels"][n]
-        res = {True: "pass", False: "FAIL", None: "-"}[b["pass"]]
-        lines.append(f"  {n:22s} {hz(b['frequency_run_hz']):>9s} "
-                     f"{hz(b['frequency_reference_hz']):>9s} {pct(b['frequency_error']):>8s} "
-                     f"{pct(b['amplitude_error']):>8s} {pct(b['relative_rms_error']):>8s}  "
-                     f"{res}")
-    c = r["contact"]
-    if c["impact_source"] is not None:
-        lines.append(f"  impact ({c['impact_source']}): run {hz(c['impact_time_run_s'])} s, "
-                     f"reference {hz(c['impact_time_reference_s'])} s, error "
-                     f"{hz(c['impact_time_error_s'])} s")
-    tp = r["tip"]
-    if tp["normalized_amplitude_error"] is not None or tp["frequency_error"] is not None:
-        lines.append(f"  tip (Gannon): amplitude error / L "
-                     f"{pct(tp['normalized_amplitude_error'])}, frequency error "
-                     f"{pct(tp['frequency_error'])} "
-                     f"({tp['frequency_channel'] or 'no tip channel compared'})")
-    if r["failed"]:
-        lines.append("  failed: " + ", ".join(r["failed"]))
-    return "\n".join(lines)
-
-
-def run_cli(args) -> int:
-    """``flexarm compare`` (options parsed in :mod:`flexarm_ros.cli`): prints the summary
-    or the JSON, writes the report; returns 0 = pass, 1 = fail. Bad input raises
-    :class:`CompareInputError` (exit status 2)."""
-    import sys
-    import warnings as _w
-    channels = None
-    if args.channels:
-        channels = [c for item in args.channels for c in item.split(",") if c.strip()]
-    with _w.catch_warnings(record=True) as caught:
-        _w.simplefilter("always")
-        cmp = compare_files(
-            args.run, args.reference, map_path=args.map, offset=args.offset,
-            threshold=M.GANNON_THRESHOLD if args.threshold is None else args.threshold,
-            channels=channels,
-            max_shift_s=DEFAULT_MAX_SHIFT_S if args.max_shift is None else args.max_shift,
-            window=parse_window(args.window))
-    for w in caught:
-        print(f"flexarm compare: warning: {w.message}", file=sys.stderr)
-    for w in cmp.result["warnings"]:
-        if not any(str(c.message) == w for c in caught):
-            print(f"flexarm compare: warning: {w}", file=sys.stderr)
-    if args.report:
-        from flexarm_ros.analysis.report import write_report
-        md = write_report(cmp, args.report)
-        if not args.json:
-            print(f"report: {md}")
-    print(to_json(cmp.result) if args.json else _summary(cmp))
-    return 0 if cmp.passed else 1

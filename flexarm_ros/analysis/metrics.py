@@ -163,6 +163,33 @@ def event_time(t, y, threshold, direction=+1):
     return float(t[i] + (t[i + 1] - t[i]) * (-s[i]) / (s[i + 1] - s[i]))
 
 
+def is_boolean(y) -> bool:
+    """Whether a record only takes the values 0 and 1 (a flag such as ``contact``)."""
+    y = np.asarray(y, dtype=float)
+    return y.size > 0 and bool(np.all((y == 0.0) | (y == 1.0)))
+
+
+def step_events(t, y) -> dict:
+    """Events of a 0/1 record, each value held until the next sample: ``rises`` (0 -> 1
+    steps), ``falls`` (1 -> 0), ``duty`` = the fraction of ``[t[0], t[-1]]`` spent at 1
+    (``y[0]`` for a single sample) and ``first_rise_s`` (the time of the first sample at 1
+    after one at 0, or None).
+
+    Raises:
+        ValueError: invalid record, or a value other than 0 and 1.
+    """
+    t, y = _series(t, y, name="flag", min_samples=1)
+    if not is_boolean(y):
+        bad = y[(y != 0.0) & (y != 1.0)][0]
+        raise ValueError(f"flag: got the value {bad:g}, expected only 0 and 1")
+    up = np.flatnonzero((y[:-1] == 0.0) & (y[1:] == 1.0))
+    falls = int(np.count_nonzero((y[:-1] == 1.0) & (y[1:] == 0.0)))
+    span = float(t[-1] - t[0])
+    duty = float(y[0]) if span == 0.0 else float(np.sum(y[:-1] * np.diff(t)) / span)
+    return {"rises": int(up.size), "falls": falls, "duty": duty,
+            "first_rise_s": float(t[up[0] + 1]) if up.size else None}
+
+
 def bounce_height(t, gap, t_impact, window_s):
     """Largest gap after the first impact, within ``window_s`` seconds of it, or None.
 

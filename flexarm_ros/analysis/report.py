@@ -4,6 +4,8 @@ Figures (matplotlib's Agg canvas, no display, no pyplot state):
 
 * ``overlay_<channel>.png`` — reference and run (on the reference clock, ``t - offset``)
   against time, and below them the difference run - reference at the reference instants;
+  the reference a broad light line under the run's thin red one, a 0/1 flag drawn as
+  steps, the time outside the analysed span shaded light grey;
 * ``spectrum_<channel>.png`` — the amplitude spectra of both records over the analysed
   span on one axis (Hann window, linear detrend, 4x zero padding: what the peak estimator
   searches; seed 000 Fig. 5.8 compares the FFTs of measured and simulated accelerations
@@ -14,6 +16,7 @@ Figures (matplotlib's Agg canvas, no display, no pyplot state):
 * ``contact.png`` — the wall normal force and the contact phase (1 = in contact) against
   time, impact times marked.
 
+Legends name the inputs by file: ``<run file> (run)``, ``<reference file> (reference)``.
 Every number in ``report.md`` is read from the comparison result (the ``--json``
 document), so the two never disagree.
 """
@@ -26,17 +29,27 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-
 from scipy import signal as _sig
 
-from flexarm_ros.analysis.compare import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD, Comparison, _crop, _uniform_record)
-from flexarm_ros.analysis.spectra import MIN_SAMPLES, _series
+from flexarm_ros.analysis.comparison import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW,
+                                             FREQ_ZERO_PAD, Comparison)
+from flexarm_ros.analysis.spectra import MIN_SAMPLES, _series, crop, uniform_record
 
 __all__ = ["write_report"]
 
-RUN_STYLE = {"color": "C3", "lw": 1.0, "label": "run (twin)"}
-REF_STYLE = {"color": "k", "lw": 0.8, "alpha": 0.75, "label": "reference"}
+#: Line styles: the reference a broad light band under the run's thin line, so both stay
+#: visible where they agree; labels name the files (:func:`_styles`).
+RUN_STYLE = {"color": "C3", "lw": 0.9, "zorder": 3}
+REF_STYLE = {"color": "0.2", "lw": 2.2, "alpha": 0.4, "zorder": 2}
+#: Face colour of the parts of the time axis outside the analysed span.
+OUTSIDE_SPAN = "0.93"
 DPI = 100
+
+
+def _styles(cmp: Comparison) -> tuple[dict, dict]:
+    """(reference style, run style), labelled ``<file name> (reference)`` / ``(run)``."""
+    return ({**REF_STYLE, "label": f"{Path(cmp.reference.path).name} (reference)"},
+            {**RUN_STYLE, "label": f"{Path(cmp.run.path).name} (run)"})
 
 
 def _safe(name: str) -> str:
@@ -82,10 +95,12 @@ def _overlay(cmp: Comparison, name: str, out: Path) -> Path | None:
     run, ref = cmp.run[name], cmp.reference[name]
     off = cmp.offset_s
     unit = blk["unit"]
+    ref_style, run_style = _styles(cmp)
+    step = {"drawstyle": "steps-post"} if blk["signal"] == "boolean" else {}
     fig = Figure(figsize=(8.0, 5.0))
     ax, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    ax.plot(ref.t, ref.y, **REF_STYLE)
-    ax.plot(run.t - off, run.y, **RUN_STYLE)
+    ax.plot(ref.t, ref.y, **ref_style, **step)
+    ax.plot(run.t - off, run.y, **run_style, **step)
     ax.set_ylabel(f"{name} [{unit}]")
     ax.set_title(f"{name}: amplitude error {_pct(blk['amplitude_error'])}, relative RMS "
                  f"error {_pct(blk['relative_rms_error'])}", fontsize=10)
@@ -93,12 +108,17 @@ def _overlay(cmp: Comparison, name: str, out: Path) -> Path | None:
     ax.grid(alpha=0.3)
     if blk["span_s"] is not None:
         a, b = blk["span_s"]
-        tr, yr = _crop(ref.t, ref.y, a, b)
-        tp, yp = _crop(run.t - off, run.y, a, b, pad=True)
+        tr, yr = crop(ref.t, ref.y, a, b)
+        tp, yp = crop(run.t - off, run.y, a, b, pad=True)
         if tr.size and tp.size >= 2:
             ax2.plot(tr, np.interp(tr, tp, yp) - yr, color="C0", lw=0.8)
-        for axis in (ax, ax2):
-            axis.axvspan(a, b, color="0.9", zorder=-1)
+        lo = min(ref.t[0], run.t[0] - off)
+        hi = max(ref.t[-1], run.t[-1] - off)
+        for axis in (ax, ax2):       # shade what lies outside the analysed span
+            for x0, x1 in ((lo, a), (b, hi)):
+                if x1 > x0:
+                    axis.axvspan(x0, x1, color=OUTSIDE_SPAN, zorder=0, lw=0)
+            axis.set_xlim(lo, hi)
     ax2.set_ylabel(f"run − ref [{unit}]", fontsize=9)
     ax2.set_xlabel(f"time, reference clock [s] (run shifted by −offset = "
                    f"{0.0 - off:+.6g} s)")
@@ -114,11 +134,12 @@ def _spectrum(cmp: Comparison, name: str, out: Path) -> Path | None:
     a, b = blk["span_s"]
     off = cmp.offset_s
     curves = []
-    for side, ch, shift, style in (("reference", cmp.reference[name], 0.0, REF_STYLE),
-                                   ("run", cmp.run[name], off, RUN_STYLE)):
-        t, y = _crop(ch.t - shift, ch.y, a, b)
+    ref_style, run_style = _styles(cmp)
+    for side, ch, shift, style in (("reference", cmp.reference[name], 0.0, ref_style),
+                                   ("run", cmp.run[name], off, run_style)):
+        t, y = crop(ch.t - shift, ch.y, a, b)
         try:
-            t, y = _uniform_record(t, y)
+            t, y = uniform_record(t, y)
             f, amp = _padded_spectrum(t, y)
         except ValueError:
             continue
@@ -143,7 +164,8 @@ def _spectrum(cmp: Comparison, name: str, out: Path) -> Path | None:
                         xytext=(9, -4 if side == "run" else -16), fontsize=8,
                         color=style["color"])
             top = max(top, float(np.max(amp[sel])))
-    ax.axvspan(0.0, lo_band, color="0.9", zorder=-1, label="below 3 bins (not searched)")
+    ax.axvspan(0.0, lo_band, color=OUTSIDE_SPAN, zorder=0, lw=0,
+               label="below 3 bins (not searched)")
     ax.set_xlim(0.0, fmax)
     if top > 0:
         ax.set_ylim(0.0, 1.12 * top)
@@ -169,9 +191,10 @@ def _tip_path(cmp: Comparison, out: Path) -> Path | None:
     fig = Figure(figsize=(8.0, 1.4 + 6.6 * ratio))
     ax = fig.subplots()
     contact = cmp.result["contact"]
+    ref_style, run_style = _styles(cmp)
     for cs, style, shift, t_imp in (
-            (ref, REF_STYLE, 0.0, contact["impact_time_reference_s"]),
-            (run, RUN_STYLE, cmp.offset_s, contact["impact_time_run_s"])):
+            (ref, ref_style, 0.0, contact["impact_time_reference_s"]),
+            (run, run_style, cmp.offset_s, contact["impact_time_run_s"])):
         x, y = cs["tip_x"], cs["tip_y"]
         t = x.t
         yy = np.interp(t, y.t, y.y)
@@ -213,16 +236,16 @@ def _contact(cmp: Comparison, out: Path) -> Path | None:
     fig = Figure(figsize=(8.0, 5.0))
     ax, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     res = cmp.result["contact"]
+    ref_style, run_style = _styles(cmp)
     for cs, style, shift, t_imp in (
-            (ref, REF_STYLE, 0.0, res["impact_time_reference_s"]),
-            (run, RUN_STYLE, cmp.offset_s, res["impact_time_run_s"])):
+            (ref, ref_style, 0.0, res["impact_time_reference_s"]),
+            (run, run_style, cmp.offset_s, res["impact_time_run_s"])):
         if "normal_force" in cs:
             ch = cs["normal_force"]
             ax.plot(ch.t - shift, ch.y, **style)
         if "contact" in cs:
             ch = cs["contact"]
-            ax2.step(ch.t - shift, ch.y, where="post", color=style["color"], lw=1.0,
-                     label=style["label"])
+            ax2.step(ch.t - shift, ch.y, where="post", **style)
         if t_imp is not None:
             for axis in (ax, ax2):
                 axis.axvline(t_imp - shift, color=style["color"], ls="--", lw=0.8)
@@ -275,8 +298,10 @@ def _markdown(cmp: Comparison, figs: dict) -> str:
         lines.append(f"Finest sample period among the compared channels: "
                      f"{off['sample_period_s']:.6g} s.")
     if r["window"] is not None:
-        lines.append(f"Analysis window (reference clock): {r['window']['start_s']:g} … "
-                     f"{r['window']['end_s']:g} s.")
+        w0, w1 = r["window"]["start_s"], r["window"]["end_s"]    # null: an open end
+        lines.append(f"Analysis window (reference clock): "
+                     f"{'the start' if w0 is None else f'{w0:g} s'} … "
+                     f"{'the end' if w1 is None else f'{w1:g} s'}.")
     lines += [
         "",
         "## Channels",
@@ -297,8 +322,27 @@ def _markdown(cmp: Comparison, figs: dict) -> str:
             f"{_pct(b['amplitude_error'])} | {_pct(b['relative_rms_error'])} | "
             f"{_g(b['rms_error'], digits=4)} | {_g(b['peak_error'], digits=4)} | {crit} | "
             f"{_ok(b['pass'])} |")
+        keys_by_reason: dict = {}
         for k, why in sorted(b["null_reasons"].items()):
-            notes.append(f"- {name}.{k}: {why}")
+            keys_by_reason.setdefault(why, []).append(k)
+        for why, keys in keys_by_reason.items():
+            notes.append(f"- {name}.{', '.join(keys)}: {why}")
+    flags = [n for n in cmp.names if r["channels"][n]["events"] is not None]
+    if flags:
+        lines += ["", "Boolean channels (0/1: events instead of a frequency; rises, falls, "
+                      "time fraction at 1 over the span, first rise on the reference clock):",
+                  "", "| channel | rises run / ref | falls run / ref | duty run / ref | "
+                      "first rise run / ref [s] |", "|---|---|---|---|---|"]
+        for n in flags:
+            ev = r["channels"][n]["events"]
+            run_ev, ref_ev = ev["run"] or {}, ev["reference"] or {}
+
+            def pair(key, fmt=lambda v: f"{v}"):
+                return " / ".join("—" if e.get(key) is None else fmt(e[key])
+                                  for e in (run_ev, ref_ev))
+            lines.append(f"| {n} | {pair('rises')} | {pair('falls')} | "
+                         f"{pair('duty', lambda v: f'{v:.4g}')} | "
+                         f"{pair('first_rise_s', lambda v: f'{v:.6g}')} |")
     lines += [
         "",
         "Frequencies: dominant peak of the Hann-windowed, 4× zero-padded FFT of each record "

@@ -307,3 +307,25 @@ def uniform(t, y, rate_hz=None):
     t_new = t[0] + np.arange(n) / rate
     t_new = np.minimum(t_new, t[-1])
     return t_new, resample(t, y, t_new)
+
+
+def uniform_record(t, y):
+    """The record on a uniform grid: unchanged when its spacing already is uniform (within
+    :data:`MAX_JITTER`), else :func:`uniform` at its mean rate."""
+    t = np.asarray(t, dtype=float)
+    if t.size >= 2:
+        dt = np.diff(t)
+        mean = (t[-1] - t[0]) / (t.size - 1)
+        if float(np.max(np.abs(dt - mean))) <= MAX_JITTER * mean:
+            return t, y
+    return uniform(t, y)
+
+
+def crop(t, y, a, b, pad: bool = False):
+    """The samples with ``a <= t <= b`` of a record with sorted ``t`` (``pad``: plus one
+    sample each side, for interpolation at the ends)."""
+    i0 = int(np.searchsorted(t, a, side="left"))
+    i1 = int(np.searchsorted(t, b, side="right"))
+    if pad:
+        i0, i1 = max(i0 - 1, 0), min(i1 + 1, len(t))
+    return t[i0:i1], y[i0:i1]

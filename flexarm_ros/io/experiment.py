@@ -13,6 +13,8 @@ CSV convention
   increasing. An empty cell means "no sample of this channel at this time", so channels
   sampled at different rates share one file (a 4 kHz accelerometer and a 1 kHz tip
   position: the tip cells are empty on three rows out of four).
+* A column with the unit ``[text]`` holds labels, not numbers (``flexarm simulate``'s
+  ``contact_phase [text]``: free / impact / sliding / sticking); it is read as text.
 
 Channel map file (YAML)
 -----------------------
@@ -51,11 +53,13 @@ import numpy as np
 import yaml
 
 from flexarm_ros.errors import SceneError
+from flexarm_ros.io.units import TEXT as TEXT_UNIT
 
 __all__ = [
     "CompareInputError",
     "ChannelMap",
     "MapEntry",
+    "TEXT_UNIT",
     "TIME_HEADER",
     "load_channel_map",
     "read_experiment_csv",
@@ -97,7 +101,8 @@ def read_experiment_csv(path) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarr
 
     Returns:
         ``(columns, comments)``: ``columns[name] = (unit, t, y)`` with only the rows where
-        the cell is not empty (so each channel keeps its own sample times), in file order;
+        the cell is not empty (so each channel keeps its own sample times), in file order
+        (``y`` floats; a ``[text]`` column's ``y`` its labels, a ``str`` array);
         ``comments`` the text of the ``#`` lines before the header.
 
     Raises:
@@ -152,6 +157,7 @@ def read_experiment_csv(path) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarr
         raise CompareInputError(f"{p}: no data rows after the header (line {hline})")
     ncol = len(hcells)
     data = np.full((len(rows), ncol), np.nan)
+    text = {j: [""] * len(rows) for j, u in enumerate(units, 1) if u == TEXT_UNIT}
     for i, (lineno, cells) in enumerate(rows):
         if len(cells) != ncol:
             raise CompareInputError(f"{p}: line {lineno} has {len(cells)} cells; expected "
@@ -162,6 +168,9 @@ def read_experiment_csv(path) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarr
                 if j == 0:
                     raise CompareInputError(f"{p}: line {lineno}: empty time cell; expected "
                                             f"a time in s")
+                continue
+            if j in text:
+                text[j][i] = c
                 continue
             try:
                 v = float(c)
@@ -182,6 +191,11 @@ def read_experiment_csv(path) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarr
                                 f"{t[i - 1]:.10g} s; expected strictly increasing times")
     out = {}
     for j, (name, unit) in enumerate(zip(names, units), 1):
+        if j in text:
+            labels = np.array(text[j], dtype=str)
+            have = labels != ""
+            out[name] = (unit, t[have].copy(), labels[have])
+            continue
         have = ~np.isnan(data[:, j])
         out[name] = (unit, t[have].copy(), data[have, j].copy())
     return out, comments
@@ -191,26 +205,28 @@ def write_experiment_csv(path, columns: dict, comments=(), fmt: str = "%.17g",
                          time_fmt: str = "%.17g") -> Path:
     """Write channels to the CSV convention (the inverse of :func:`read_experiment_csv`).
 
-    ``columns[name] = (unit, t, y)``; the rows are the union of every channel's times
-    (compared exactly), cells without a sample left empty. ``comments`` become ``# ``
+    ``columns[name] = (unit, t, y)`` (``y`` labels for the unit ``text``); the rows are the
+    union of every channel's times (compared exactly), cells without a sample (or NaN)
+    left empty. ``comments`` become ``# ``
     lines before the header. ``fmt`` formats the values, ``time_fmt`` the times (the
     default ``%.17g`` round-trips a float exactly).
     """
     path = Path(path)
     times = np.unique(np.concatenate([np.asarray(c[1], float) for c in columns.values()]))
-    table = np.full((times.size, len(columns)), np.nan)
+    cells = [[""] * len(columns) for _ in times]
     for j, (unit, t, y) in enumerate(columns.values()):
         idx = np.searchsorted(times, np.asarray(t, float))
-        table[idx, j] = np.asarray(y, float)
+        for i, v in zip(idx, y):
+            cells[i][j] = (str(v) if unit == TEXT_UNIT else
+                           "" if math.isnan(float(v)) else fmt % float(v))
     tmp = path.with_name(path.name + ".part")
     with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
         for line in comments:
             fh.write(f"# {line}".rstrip() + "\n")
         fh.write(",".join([TIME_HEADER] + [f"{n} [{c[0]}]" for n, c in columns.items()])
                  + "\n")
-        for ti, row in zip(times, table):
-            cells = [time_fmt % ti] + ["" if math.isnan(v) else fmt % v for v in row]
-            fh.write(",".join(cells) + "\n")
+        for ti, row in zip(times, cells):
+            fh.write(",".join([time_fmt % ti] + row) + "\n")
     tmp.replace(path)
     return path
 

@@ -1,21 +1,31 @@
 """Output tables: CSV with a header row, or NumPy ``.npz`` (one array per column). Columns
-are numbers (``%.10g`` in CSV) or text (e.g. ``contact_phase``)."""
+are numbers (``%.10g`` in CSV) or text (e.g. ``contact_phase``).
+
+With units (:func:`flexarm_ros.io.units.table_units`) a CSV header cell reads
+``name [unit]`` (``t [s]``, ``tip_x [m]``, ``contact_phase [text]``): the CSV convention
+``flexarm compare`` reads (:mod:`flexarm_ros.io.experiment`). ``.npz`` keys are the bare
+names. :func:`read_table` returns bare names either way."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
 from flexarm_ros.errors import SceneError
 
+_UNIT = re.compile(r"\s*\[[^\[\]]*\]\s*$")
 
-def write_table(path, columns: dict) -> Path:
+
+def write_table(path, columns: dict, units: dict | None = None) -> Path:
     """Write named equal-length columns to ``path`` (.csv or .npz), atomically.
 
-    The file is written beside the target and renamed, so a failure never leaves a
-    half-written table in place of an earlier one.
+    ``units`` (``{name: unit}``): CSV headers ``name [unit]`` for the names it holds (the
+    others bare). The file is written beside the target and renamed, so a failure never
+    leaves a half-written table in place of an earlier one.
     """
+    units = units or {}
     path = Path(path)
     names = list(columns)
     text = {k for k in names if np.asarray(columns[k]).dtype.kind in "OUS"}
@@ -31,8 +41,9 @@ def write_table(path, columns: dict) -> Path:
     if suffix == ".csv":
         cols = [(np.asarray(columns[k]).astype(str) if k in text else
                  np.char.mod("%.10g", np.asarray(columns[k], float))) for k in names]
-        with open(tmp, "w") as fh:
-            fh.write(",".join(names) + "\n")
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(",".join(f"{k} [{units[k]}]" if k in units else k for k in names)
+                     + "\n")
             for row in zip(*cols):
                 fh.write(",".join(row) + "\n")
     else:
@@ -44,13 +55,14 @@ def write_table(path, columns: dict) -> Path:
 
 
 def read_table(path) -> dict:
-    """Read a table written by :func:`write_table` back into named columns."""
+    """Read a table written by :func:`write_table` back into named columns (bare names: a
+    header's `` [unit]`` is dropped)."""
     path = Path(path)
     if path.suffix.lower() == ".npz":
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
-    with open(path) as fh:
-        names = fh.readline().strip().split(",")
+    with open(path, encoding="utf-8") as fh:
+        names = [_UNIT.sub("", h) for h in fh.readline().strip().split(",")]
         rows = [line.rstrip("\n").split(",") for line in fh if line.strip()]
     out = {}
     for j, k in enumerate(names):

@@ -43,8 +43,6 @@ from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import to_dict
 
 _TICK_TOPICS = (T.ENCODER_COUNTS, T.TOOL_CONTACT, T.COMMANDS, T.EFFORTS)
-_BATCH_KIND = {T.ACCEL_BATCH: "accelerometer", T.STRAIN_BATCH: "strain",
-               T.POT_BATCH: "potentiometer"}
 
 
 class RecorderNode(Node):
@@ -68,14 +66,14 @@ class RecorderNode(Node):
         self.writer.add_metadata("model", {"explain": explain(scene)})
         self.period_ns = int(round(control_period(scene) * 1e9))
         self.every_ns = {}
-        for topic, kind in _BATCH_KIND.items():
+        for topic, kind in T.BATCH_KINDS.items():
             rates = [s.rate_hz for s in scene.sensors if s.kind == kind]
             if rates:
                 self.every_ns[topic] = int(round(1e9 / rates[0]))
         self.ticks = C.SimTime(scene)       # lockstep: the stamp of tick n
         self.latest_clock = 0
         self.index = {t: 0 for t in _TICK_TOPICS}
-        self.rows = {t: 0 for t in _BATCH_KIND}
+        self.rows = {t: 0 for t in T.BATCH_KINDS}
         self.received = {}
         self.last_rx = time.monotonic()
         self._flushed = time.monotonic()
@@ -101,7 +99,7 @@ class RecorderNode(Node):
             self._write(topic, tp, data, t_ns)
         elif "header" in data:
             self._write(topic, tp, data, C.stamp_ns(m.header.stamp))
-        elif topic in _BATCH_KIND:
+        elif topic in T.BATCH_KINDS:
             self.rows[topic] += data["layout"]["dim"][0]["size"]
             every = self.every_ns.get(topic, self.period_ns)
             tick = -(-self.rows[topic] * every // self.period_ns)

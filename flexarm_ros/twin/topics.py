@@ -34,6 +34,10 @@ COMMANDS = "motor_driver/commands"
 EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
 
+#: Sensor batch topic -> the scene sensor kind whose channels it carries (scene order).
+BATCH_KINDS = {ACCEL_BATCH: "accelerometer", STRAIN_BATCH: "strain",
+               POT_BATCH: "potentiometer"}
+
 TYPES = {
     CLOCK: "rosgraph_msgs/msg/Clock",
     JOINT_STATES: "sensor_msgs/msg/JointState",

@@ -3,9 +3,9 @@ viewer), :mod:`.rerun_view` logs it to rerun (optional dependency rerun-sdk, the
 ``viz`` extra: ``pip install -e .[viz]``; imported only when used). See docs/viewing.md.
 """
 
-from flexarm_ros.viz.bag_view import BagView, expand_batch, thin
+from flexarm_ros.viz.bag_view import BagView, thin
 
-__all__ = ["BagView", "bag_to_rerun", "expand_batch", "thin"]
+__all__ = ["BagView", "bag_to_rerun", "thin"]
 
 
 def bag_to_rerun(*args, **kwargs):

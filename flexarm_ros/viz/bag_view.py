@@ -2,17 +2,15 @@
 the deformed arm, the wall, the tool and its contact force, the tip path and the sensor
 traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to rerun.
 
-The model comes from the bag itself: the recorder stores the scene YAML in the MCAP
-metadata ``flexarm_ros`` → ``scene_yaml``; :class:`~flexarm_ros.model.Chain` of
-that scene turns the full coordinate vector of ``ground_truth/coordinates`` (mapped by
-name onto ``Chain.names``) into beam centerlines (``Chain.centerlines``). Time is the
-log time of each message, which the recorder sets to the simulation time.
-
-Sensor batches (``accelerometers/batch``, ``strain/batch``, ``potentiometer/batch``) are
-``std_msgs/Float64MultiArray`` with layout [sample, channel]: n uniform samples 1/fs
-apart, the last at the message's log time; channels are the scene's sensors of that
-kind in scene order, fs their ``rate_hz``. :meth:`BagView.batch_series` expands them to
-one time stamp per sample.
+The bag's conventions (embedded scene, namespace, sensor batch layout and timing) are
+read by :mod:`flexarm_ros.bag.twin_bag`, as ``flexarm compare`` reads them. The model
+comes from the bag itself: :class:`~flexarm_ros.model.chain.Chain` of the embedded scene
+(``from flexarm_ros.model import Chain``, the model's public API, imported when a scene
+is present; nothing of ``flexarm_ros.sim``) turns the full coordinate
+vector of ``ground_truth/coordinates`` (mapped by name onto ``Chain.names``) into beam
+centerlines (``Chain.centerlines``). Time is the log time of each message, which the
+recorder sets to the simulation time. :meth:`BagView.batch_series` expands the sensor
+batches to one time stamp per sample.
 """
 
 from __future__ import annotations
@@ -21,16 +19,12 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import yaml
 
+from flexarm_ros.bag import twin_bag
 from flexarm_ros.bag.reader import Bag, BagError, read_bag
 from flexarm_ros.twin import topics as T
 
-__all__ = ["BATCH_KINDS", "BagView", "ShapeFrame", "Trace", "expand_batch", "thin"]
-
-BATCH_KINDS = {T.ACCEL_BATCH: "accelerometer", T.STRAIN_BATCH: "strain",
-               T.POT_BATCH: "potentiometer"}
-"""Batch topic → sensor kind whose channels it carries."""
+__all__ = ["BagView", "ShapeFrame", "Trace", "thin"]
 
 
 @dataclass
@@ -51,29 +45,6 @@ class ShapeFrame:
     q: np.ndarray
 
 
-def expand_batch(layout_dims, data, log_time_ns: int, rate_hz: float,
-                 where: str = "batch", data_offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(sample times ns (n,), values (n, channels)) of one [sample, channel] batch
-    (``value[i, j] = data[data_offset + dim[1].stride·i + j]``): n samples 1/rate_hz
-    apart, the last at ``log_time_ns`` (times rounded to the ns)."""
-    dims = list(layout_dims)
-    arr = np.asarray(data, dtype=np.float64)
-    if len(dims) == 2:
-        n, c = int(dims[0]["size"]), int(dims[1]["size"])
-    elif len(dims) == 1:                 # a single sample of c channels
-        n, c = 1, int(dims[0]["size"])
-    else:
-        raise BagError(f"{where}: got a layout of {len(dims)} dims, expected [sample, channel]")
-    stride = int(dims[1]["stride"]) if len(dims) == 2 and int(dims[1]["stride"]) else c
-    idx = data_offset + stride * np.arange(n)[:, None] + np.arange(c)[None, :]
-    if n * c and idx.max() >= arr.size:
-        raise BagError(f"{where}: layout says {n} samples x {c} channels (stride {stride}, "
-                       f"offset {data_offset}), the data has only {arr.size} values")
-    values = arr[idx]
-    back = np.rint((n - 1 - np.arange(n)) * 1e9 / rate_hz).astype(np.int64)
-    return np.int64(log_time_ns) - back, values
-
-
 def thin(t_ns, rate_hz: float) -> list[int]:
     """Indices into the sorted times ``t_ns`` keeping at most ``rate_hz`` per second: the
     first, then the first at or after each 1/rate_hz step, and always the last
@@ -91,11 +62,6 @@ def thin(t_ns, rate_hz: float) -> list[int]:
     return out
 
 
-def _dims(layout) -> list:
-    return [{"size": d.size, "stride": d.stride} for d in layout.dim]
-
-
-
 class BagView:
     """The drawable content of one twin bag (a path or a :class:`~flexarm_ros.bag.Bag`).
 
@@ -106,19 +72,11 @@ class BagView:
 
     def __init__(self, bag, namespace: str | None = None):
         self.bag: Bag = bag if isinstance(bag, Bag) else read_bag(bag)
-        info = self.bag.metadata.get("flexarm_ros", {})
-        self.namespace = namespace or info.get("namespace") or "/flexarm"
-        self.scene = self.chain = None
-        text = info.get("scene_yaml")
-        if text:
+        self.namespace = twin_bag.namespace(self.bag, namespace)
+        self.scene = twin_bag.embedded_scene(self.bag)
+        self.chain = None
+        if self.scene is not None:
             from flexarm_ros.model import Chain
-            from flexarm_ros.errors import SceneError
-            from flexarm_ros.scene import load_scene_dict
-            try:
-                self.scene = load_scene_dict(yaml.safe_load(text))
-            except (SceneError, yaml.YAMLError) as err:
-                raise BagError(f"{self.bag.path}: metadata flexarm_ros.scene_yaml is not a "
-                               f"valid scene: {err}") from err
             self.chain = Chain(self.scene, backend="numpy")
         self._index: dict = {}
         self._tips: dict | None = None
@@ -134,7 +92,7 @@ class BagView:
 
     def messages(self, name: str) -> list:
         """[(log time ns, decoded message)] of a twin topic (empty when absent)."""
-        return self.bag.messages.get(self.topic(name), [])
+        return twin_bag.twin_messages(self.bag, name, self.namespace)
 
     @property
     def link_names(self) -> list[str]:
@@ -248,35 +206,14 @@ class BagView:
     # ------------------------------------------------------------------ traces
     def batch_series(self, topic: str) -> list[Trace]:
         """Per-sample traces of a batch topic, one per channel, named after the scene's
-        sensors of its kind (``ch0``, … when the counts differ or there is no scene)."""
-        msgs = self.messages(topic)
-        if not msgs:
+        sensors of its kind (``<kind>_<j>`` when the counts differ or the scene has none;
+        :func:`flexarm_ros.bag.twin_bag.sensor_batches`, whose notes are warned)."""
+        sb = twin_bag.sensor_batches(self.bag, topic, self.scene, self.namespace)
+        if sb is None:
             return []
-        kind = BATCH_KINDS.get(topic)
-        sensors = [s for s in (self.scene.sensors if self.scene else ()) if s.kind == kind]
-        if not sensors:
-            warnings.warn(f"{self.path}: {self.topic(topic)}: not drawn, no {kind} sensor "
-                          "in the scene metadata gives the sample rate", stacklevel=2)
-            return []
-        rate = sensors[0].rate_hz
-        if any(s.rate_hz != rate for s in sensors):
-            warnings.warn(f"{self.path}: {kind} sensors have different rates "
-                          f"{[s.rate_hz for s in sensors]}; using {rate} Hz", stacklevel=2)
-        ts, vs = [], []
-        for t, m in msgs:
-            tt, vv = expand_batch(_dims(m.layout), m.data, t, rate,
-                                  where=f"{self.path}: {self.topic(topic)} at {t} ns",
-                                  data_offset=m.layout.data_offset)
-            ts.append(tt)
-            vs.append(vv)
-        t_all, v_all = np.concatenate(ts), np.concatenate(vs)
-        names = [s.name for s in sensors]
-        if len(names) != v_all.shape[1]:
-            warnings.warn(f"{self.path}: {self.topic(topic)} has {v_all.shape[1]} channels, "
-                          f"the scene {len(names)} {kind} sensors; naming them ch0, ch1, …",
-                          stacklevel=2)
-            names = [f"ch{j}" for j in range(v_all.shape[1])]
-        return [Trace(n, t_all, v_all[:, j].copy()) for j, n in enumerate(names)]
+        for note in sb.notes:
+            warnings.warn(note, stacklevel=2)
+        return [Trace(n, sb.t_ns, sb.values[:, j].copy()) for j, n in enumerate(sb.names)]
 
     def joint_state_series(self, topic: str, field: str = "position") -> list[Trace]:
         """One trace per joint name of a ``sensor_msgs/JointState`` topic (by name)."""

@@ -63,6 +63,17 @@ class BeamDiscretization:
     def n(self) -> int:
         return len(self.coord_suffixes)
 
+    @property
+    def coord_units(self) -> tuple[str, ...]:
+        """SI unit of each coordinate: the rigid rung's spring angle and the nodal slopes
+        rad; nodal deflections and modal amplitudes (modes scaled to unit peak deflection)
+        m."""
+        if self.rung == "rigid":
+            return ("rad",) * self.n
+        if self.rung in ("cubic", "fem"):
+            return ("m", "rad") * (self.n // 2)
+        return ("m",) * self.n
+
     def curvature(self, x) -> np.ndarray:
         """φ″(x), shape (len(x), ne): strain at depth t/2 is (t/2)·φ″(x)ᵀη."""
         return self.curvature_fn(np.atleast_1d(np.asarray(x, float)))

@@ -8,7 +8,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-
 ROOT = Path(__file__).resolve().parents[1]
 NODES = ("simulator", "motor_driver", "controller", "recorder")
 PIP_SCRIPTS = {"flexarm", "flexarm-simulator", "flexarm-motor-driver", "flexarm-controller",

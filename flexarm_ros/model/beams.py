@@ -260,11 +260,10 @@ def finite_differences(beam, n_seg):
     The stiffness is the energy-consistent form of the seed's scheme: strain energy
     ½EI Σ_i w_i h κ_i² (trapezoidal weights) with the central-difference curvature
     κ_i = (y_{i−1} − 2y_i + y_{i+1})/h², the clamped root through the ghost node y_{−1} = y_1
-    and, at the tip, the one-sided κ_n = (y_n − 2y_{n−1} + y_{n−2})/h². (Omitting κ_n, i.e.
-    imposing a moment-free tip, made the modes of a beam with tip inertia converge only at
-    O(h); measured.) Its interior rows are the seed's stencil
-    EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy, which
-    the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
+    and, at the tip, the one-sided κ_n = (y_n − 2y_{n−1} + y_{n−2})/h² (keeps second-order
+    convergence with a tip inertia; docs/design_notes.md). Its interior rows are the seed's
+    stencil EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy,
+    which the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
     by the second-order one-sided difference (the seed's backward difference is first
     order and made chained tip paths converge at O(h)).
     """

@@ -38,7 +38,8 @@ is dropped while a subscriber lags by less than 1000 messages per topic)."""
 
 def publisher(node, msgtype: str, topic: str):
     """A publisher with :data:`QOS` and no QoS-event handlers: rclpy's default handlers
-    add waitables that every executor wait has to scan (a third of a lockstep tick)."""
+    add waitables that every executor wait has to scan (a large share of a lockstep tick,
+    docs/design_notes.md)."""
     from flexarm_ros.nodes._msgconv import msg_class
     return node.create_publisher(msg_class(msgtype), topic, QOS,
                                  event_callbacks=PublisherEventCallbacks(
@@ -177,8 +178,8 @@ class StopFlag:
 
 def make_executor(context, kind="single"):
     """rclpy's SingleThreadedExecutor, or with ``kind="events"`` the experimental
-    EventsExecutor (C++ event queue, about 1 ms less per lockstep tick than rebuilding the
-    wait set in Python, but it still calls back into nodes already removed/destroyed)."""
+    EventsExecutor (a C++ event queue, cheaper per lockstep tick than rebuilding the wait
+    set in Python, but it still calls back into nodes already removed/destroyed)."""
     if kind == "events":
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)

@@ -136,10 +136,11 @@ rad, m, counts, m/s², m/m for the outputs).
 
 controllability: do not take the rank of the controllability matrix [B, AB, ...]: for a
 flexible model its condition number is 1e20 or more and its computed rank is meaningless.
-"controllability" in --json is the PBH test (rank [A - λI, B] = n at every eigenvalue λ,
-on the balanced A, uncontrollable when σ_min/σ_max < tol = 1e-14), with the eigenvalues
-that fail and the smallest margin; a margin near tol is at the limit of double precision,
-where a controllability Gramian or a balanced realization grades the answer."""
+"controllable" in --json is the PBH test instead: rank [A - λI, B] = n at every eigenvalue
+λ of the balanced A, a mode failing when σ_min/σ_max of that matrix is below tol = 1e-14;
+"controllability" gives tol, the eigenvalues that fail and the smallest margin. A margin
+near tol is at the limit of double precision, where a controllability Gramian or a
+balanced realization grades the answer (flexarm_ros.model.controllability)."""
 
 
 def cmd_linearize(args):

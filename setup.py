@@ -1,10 +1,27 @@
-"""ament_python package flexarm_ros (also a plain pip package: `pip install -e .[dev]`)."""
+"""ament_python package flexarm_ros (also a plain pip package: `pip install -e .[dev]`).
 
+Executables: pip puts ``flexarm`` and ``flexarm-simulator``, ``flexarm-motor-driver``,
+``flexarm-controller``, ``flexarm-recorder`` on PATH. colcon / ament (which run
+``setup.py install`` or ``setup.py develop``; setup.cfg sends their scripts to
+``lib/flexarm_ros``) also install the nodes under their plain names, what ``ros2 run
+flexarm_ros simulator`` executes; a pip wheel never does, since ``simulator`` or
+``controller`` on PATH would clash with other programs.
+"""
+
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
 
 package_name = "flexarm_ros"
+
+NODES = ("simulator", "motor_driver", "controller", "recorder")
+# setup.py run directly by colcon/ament (pip builds wheels: bdist_wheel, editable_wheel)
+ROS_INSTALL = bool({"install", "develop"} & set(sys.argv[1:]))
+scripts = ["flexarm = flexarm_ros.cli:main"]
+scripts += [f"flexarm-{n.replace('_', '-')} = flexarm_ros.nodes.{n}:main" for n in NODES]
+if ROS_INSTALL:
+    scripts += [f"{n} = flexarm_ros.nodes.{n}:main" for n in NODES]
 
 setup(
     name=package_name,
@@ -32,18 +49,5 @@ setup(
     description="ROS 2 digital twin of flexible-link robot arms",
     license="Apache-2.0",
     tests_require=["pytest"],
-    entry_points={
-        "console_scripts": [
-            "flexarm = flexarm_ros.cli:main",
-            # the twin's nodes: `ros2 run flexarm_ros simulator` runs lib/flexarm_ros/simulator
-            "simulator = flexarm_ros.nodes.simulator:main",
-            "motor_driver = flexarm_ros.nodes.motor_driver:main",
-            "controller = flexarm_ros.nodes.controller:main",
-            "recorder = flexarm_ros.nodes.recorder:main",
-            "flexarm-simulator = flexarm_ros.nodes.simulator:main",
-            "flexarm-motor-driver = flexarm_ros.nodes.motor_driver:main",
-            "flexarm-controller = flexarm_ros.nodes.controller:main",
-            "flexarm-recorder = flexarm_ros.nodes.recorder:main",
-        ],
-    },
+    entry_points={"console_scripts": scripts},
 )

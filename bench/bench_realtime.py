@@ -118,8 +118,8 @@ def main(argv=None) -> int:
                          "EventsExecutor)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    from flexarm_ros.run import ros_environment
-    env = ros_environment()
+    from flexarm_ros.nodes import environment
+    env = environment.private_graph()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))

@@ -1,27 +1,38 @@
-"""The ``flexarm`` command: simulate, modes, linearize, study, explain.
+"""The ``flexarm`` command: simulate, modes, linearize, explain, study, run, replay, compare.
 
-Every command that builds a model accepts the fidelity overrides ``--rung``, ``--refine``,
-``--integrator``, ``--rtol``, ``--atol``, ``--dt``. ``SCENE`` is a YAML path or the name of
-a shipped scene (``flexarm simulate link_tipmass``); without it the embedded default
-scene ``two_link_free`` runs.
+``simulate``, ``modes``, ``linearize``, ``explain`` and ``study`` need no ROS; ``run`` and
+``replay`` use ROS 2 (loopback-only discovery unless set, see
+:mod:`flexarm_ros.nodes.environment`); ``compare`` reads bags and CSV files.
+
+Every command that builds a model (simulate, modes, linearize, explain, run) takes the
+fidelity overrides ``--rung``, ``--refine``, ``--integrator``, ``--rtol``, ``--atol``,
+``--dt`` and ``--no-foreshortening``; ``study`` varies rung, refinement and integrator itself
+and takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped
+scene (``flexarm simulate link_tipmass``); without it every command uses
+:data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress,
+never the final summary line.
+
+Exit codes: 0 done, 1 failed (``run``: a node exited with an error; ``compare``: a check
+failed; ``replay``: no subscriber in time), 2 bad input, 3 the simulation diverged.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-DEFAULT_SCENE = "two_link_free"
+from flexarm_ros.nodes import environment
+from flexarm_ros.scene import DEFAULT_SCENE
+
+SCENE_HELP = f"scene YAML path or shipped scene name (default {DEFAULT_SCENE})"
 
 
-def _ros_env_defaults():
-    """Loopback-only DDS discovery unless the user chose otherwise (no traffic leaves)."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+def _scene_arg(p):
+    p.add_argument("scene", nargs="?", help=SCENE_HELP)
 
 
 def _fidelity_args(p):
@@ -37,14 +48,18 @@ def _fidelity_args(p):
                    help="drop the geometric-stiffening (foreshortening) terms")
 
 
-def _load(args):
-    from flexarm_ros.scene import load_scene
-    scene = load_scene(args.scene or DEFAULT_SCENE)
+def _overrides(args) -> dict:
+    """The fidelity options given → ``Scene.with_fidelity`` keywords (None: not given)."""
     over = {k: getattr(args, k, None) for k in
             ("rung", "refine", "integrator", "rtol", "atol", "dt")}
     if getattr(args, "no_foreshortening", False):
         over["foreshortening"] = False
-    return scene.with_fidelity(**over)
+    return over
+
+
+def _load(args):
+    from flexarm_ros.scene import load_scene
+    return load_scene(args.scene or DEFAULT_SCENE).with_fidelity(**_overrides(args))
 
 
 def _progress(quiet):
@@ -115,11 +130,27 @@ def cmd_modes(args):
     return 0
 
 
+LINEARIZE_EPILOG = """\
+units: --json and --out give state_units, input_units and output_units aligned with
+states, inputs and outputs (rad, m, rad/s, m/s, A, Pa for the state; N·m, V or A per input;
+rad, m, counts, m/s², m/m for the outputs).
+
+controllability: do not take the rank of the controllability matrix [B, AB, ...]: for a
+flexible model its condition number is 1e20 or more and its computed rank is meaningless.
+"controllable" in --json is the PBH test instead: rank [A - λI, B] = n at every eigenvalue
+λ of the balanced A, a mode failing when σ_min/σ_max of that matrix is below tol = 1e-14;
+"controllability" gives tol, the eigenvalues that fail and the smallest margin. A margin
+near tol is at the limit of double precision, where a controllability Gramian or a
+balanced realization grades the answer (flexarm_ros.model.controllability)."""
+
+
 def cmd_linearize(args):
     from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.controllability import pbh_test
     from flexarm_ros.model.statespace import linearize
     scene = _load(args)
     ss = linearize(Chain(scene))
+    pbh = pbh_test(ss.A, ss.B)
     if args.out:
         out = Path(args.out)
         if out.suffix != ".npz":
@@ -127,17 +158,28 @@ def cmd_linearize(args):
             raise SceneError(f"--out: got {str(out)!r}, expected a .npz file")
         np.savez(out, A=ss.A, B=ss.B, C=ss.C, D=ss.D, x0=ss.x0,
                  states=np.array(ss.states), inputs=np.array(ss.inputs),
-                 outputs=np.array(ss.outputs))
+                 outputs=np.array(ss.outputs), state_units=np.array(ss.state_units),
+                 input_units=np.array(ss.input_units),
+                 output_units=np.array(ss.output_units))
     if args.json:
-        print(json.dumps(ss.as_dict(), indent=1))
+        print(json.dumps({**ss.as_dict(), "controllable": pbh.controllable,
+                          "controllability": pbh.as_dict()}, indent=1))
     else:
         eig = np.linalg.eigvals(ss.A)
         osc = np.sort(np.abs(eig[eig.imag > 0].imag)) / (2 * np.pi)
-        print(f"{scene.name}: {len(ss.states)} states, {len(ss.inputs)} inputs "
-              f"({', '.join(ss.inputs) or 'none'}), {len(ss.outputs)} outputs "
-              f"({', '.join(ss.outputs)})" + (f" → {args.out}" if args.out else ""))
-        print("  states: " + ", ".join(ss.states))
+
+        def named(names, units):
+            return ", ".join(f"{n} [{u}]" for n, u in zip(names, units)) or "none"
+        print(f"{scene.name}: {len(ss.states)} states, {len(ss.inputs)} inputs, "
+              f"{len(ss.outputs)} outputs" + (f" → {args.out}" if args.out else ""))
+        print("  states: " + named(ss.states, ss.state_units))
+        print("  inputs: " + named(ss.inputs, ss.input_units))
+        print("  outputs: " + named(ss.outputs, ss.output_units))
         print("  oscillatory eigenvalues (Hz): " + ", ".join(f"{f:.4g}" for f in osc[:10]))
+        print(f"  controllable (PBH, tol {pbh.tol:g}): "
+              + ("yes" if pbh.controllable else
+                 f"no, {len(pbh.uncontrollable)} of {len(ss.states)} eigenvalues fail")
+              + (f"; smallest margin {pbh.margins.min():.2g}" if pbh.margins.size else ""))
     return 0
 
 
@@ -164,24 +206,23 @@ def cmd_study(args):
 
 def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
-    from flexarm_ros.run import DEFAULT_SCENE as RUN_SCENE
     from flexarm_ros.run import run
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
-              namespace=args.namespace, progress=not args.quiet)
+              namespace=args.namespace, progress=not args.quiet, fidelity=_overrides(args))
     record = None if args.no_record else args.record
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
         from flexarm_ros.run import run_with_view
         from flexarm_ros.viz.rerun_view import RerunUnavailable
         try:
             res, view = run_with_view(args.rerun, args.rerun_spawn, record,
-                                      scene=args.scene or RUN_SCENE, **kw)
+                                      scene=args.scene or DEFAULT_SCENE, **kw)
         except RerunUnavailable as exc:
             print(f"flexarm run: error: {exc}", file=sys.stderr)
             return 2
         print(res.summary())
         print(f"rerun: {view.text()}" + (" (viewer spawned)" if args.rerun_spawn else ""))
     else:
-        res = run(args.scene or RUN_SCENE, record=record, **kw)
+        res = run(args.scene or DEFAULT_SCENE, record=record, **kw)
         print(res.summary())
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
     if bad:
@@ -207,16 +248,17 @@ def build_parser():
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="batch simulation without ROS")
-    s.add_argument("scene", nargs="?", help=f"scene YAML or shipped name ({DEFAULT_SCENE})")
-    s.add_argument("--duration", type=float, help="simulated seconds (default: scene's)")
+    _scene_arg(s)
+    s.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
     s.add_argument("--out", type=Path, help="output .csv or .npz")
     s.add_argument("--json", action="store_true", help="print the run summary as JSON")
-    s.add_argument("--quiet", action="store_true", help="no progress")
+    s.add_argument("--quiet", action="store_true",
+                   help="no progress on stderr (the summary is still printed)")
     _fidelity_args(s)
     s.set_defaults(func=cmd_simulate)
 
     m = sub.add_parser("modes", help="natural frequencies of the linearized chain")
-    m.add_argument("scene", nargs="?")
+    _scene_arg(m)
     m.add_argument("--joints", choices=("locked", "free"),
                    help="drives clamped or free (default: locked when the scene drives a "
                         "joint, else free)")
@@ -226,21 +268,24 @@ def build_parser():
     m.set_defaults(func=cmd_modes)
 
     li = sub.add_parser("linearize", help="state-space model (A, B, C, D) about the initial "
-                                          "state")
-    li.add_argument("scene", nargs="?")
-    li.add_argument("--out", type=Path, help="write A, B, C, D, names to this .npz")
+                                          "state", epilog=LINEARIZE_EPILOG,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    _scene_arg(li)
+    li.add_argument("--out", type=Path, help="write A, B, C, D, x0, names and units to this "
+                                             ".npz")
     li.add_argument("--json", action="store_true",
-                    help="print A, B, C, D, states, inputs, outputs as JSON")
+                    help="print A, B, C, D, x0, states, inputs, outputs, their units and the "
+                         "PBH controllability as JSON")
     _fidelity_args(li)
     li.set_defaults(func=cmd_linearize)
 
     e = sub.add_parser("explain", help="print the model built from the scene")
-    e.add_argument("scene", nargs="?")
+    _scene_arg(e)
     _fidelity_args(e)
     e.set_defaults(func=cmd_explain)
 
     st = sub.add_parser("study", help="speed–accuracy table of the fidelity ladder")
-    st.add_argument("scene", nargs="?")
+    _scene_arg(st)
     st.add_argument("--duration", type=float, help="simulated seconds per run")
     st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
     st.add_argument("--json", action="store_true")
@@ -251,7 +296,7 @@ def build_parser():
     st.set_defaults(func=cmd_study)
     r = sub.add_parser("run", help="the ROS 2 twin: simulator, motor driver, controller and "
                                     "recorder nodes")
-    r.add_argument("scene", nargs="?", help="scene YAML or shipped name (two_link_case1)")
+    _scene_arg(r)
     r.add_argument("--duration", type=float,
                    help="simulated seconds (default: the scene's); Ctrl-C stops earlier")
     r.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default="lockstep",
@@ -265,13 +310,16 @@ def build_parser():
     r.add_argument("--processes", action="store_true",
                    help="one process per node (default: all nodes on one executor)")
     r.add_argument("--namespace", default="/flexarm", help="node namespace (default /flexarm)")
-    r.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    r.add_argument("--quiet", action="store_true",
+                   help="no progress and no node info log on stderr (the summary is still "
+                        "printed; warnings and errors too)")
     r.add_argument("--rerun", type=Path, metavar="FILE.rrd",
                    help="after the run, convert its bag to this rerun recording (needs "
                         "rerun-sdk: pip install -e .[viz]; see docs/viewing.md)")
     r.add_argument("--rerun-spawn", action="store_true",
                    help="after the run, show its bag in a spawned rerun viewer (needs a "
                         "display)")
+    _fidelity_args(r)
     r.set_defaults(func=cmd_run)
 
     rp = sub.add_parser("replay", help="publish a recorded bag on ROS 2 with /clock (no "
@@ -306,7 +354,8 @@ def build_parser():
                     help="--rerun: contact force arrow length per newton (default: the "
                          "largest force draws a quarter of the arm's reach)")
     rp.add_argument("--json", action="store_true", help="print the counts as JSON")
-    rp.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    rp.add_argument("--quiet", action="store_true",
+                    help="no progress on stderr (the summary is still printed)")
     rp.set_defaults(func=cmd_replay)
 
     c = sub.add_parser("compare", help="a twin run beside an experiment or another run: "
@@ -333,7 +382,7 @@ def build_parser():
 
 
 def main(argv=None) -> int:
-    _ros_env_defaults()
+    environment.use_loopback()
     from flexarm_ros.errors import SceneError, SimulationDiverged
     args = build_parser().parse_args(argv)
     try:

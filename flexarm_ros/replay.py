@@ -124,7 +124,8 @@ def _clock(t_ns: int) -> dict:
 def replay(plan: ReplayPlan, rate: float = 1.0, loop: bool = False,
            wait_subscribers: int = 0, wait_timeout: float = 30.0, delay: float = 0.5,
            node_name: str = "flexarm_replay", progress=None) -> ReplayResult:
-    """Publish ``plan`` on ROS 2 (domain from ``ROS_DOMAIN_ID``) until done, or forever
+    """Publish ``plan`` on ROS 2 (domain from ``ROS_DOMAIN_ID``, discovery on loopback
+    unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set) until done, or forever
     with ``loop``, or until SIGINT/SIGTERM. ``wait_subscribers``: before the first
     message, wait (up to ``wait_timeout`` s of wall time, else TimeoutError) until every
     publisher has that many matched subscriptions; then ``delay`` s for discovery to
@@ -139,6 +140,8 @@ def replay(plan: ReplayPlan, rate: float = 1.0, loop: bool = False,
     from flexarm_ros.nodes._common import StopFlag, publisher
     from flexarm_ros.nodes._msgconv import msg_class, to_msg
 
+    from flexarm_ros.nodes import environment
+    environment.use_loopback()
     res = ReplayResult()
     stop = StopFlag()
     ctx = Context()

@@ -6,15 +6,18 @@ node, for a duration or until Ctrl-C; always leaves a finalized MCAP when record
 :class:`ProcessGraph` directly to reach into a running graph (kill a node, publish a bad
 command, read counters).
 
-Environment: DDS discovery stays on the loopback interface
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless set) and the graph gets a private
-``ROS_DOMAIN_ID`` (1 + pid mod 101, unless set), both before rclpy initializes and in the
-environment of every child process.
+The scene is a YAML path or shipped name (default :data:`flexarm_ros.scene.DEFAULT_SCENE`);
+``fidelity`` overrides (``Scene.with_fidelity`` keywords: rung, refine, integrator, rtol,
+atol, dt, foreshortening) reach every node as the parameters of
+:mod:`flexarm_ros.nodes.parameters`.
+
+Environment: :func:`flexarm_ros.nodes.environment.private_graph` (loopback-only discovery
+and a private ``ROS_DOMAIN_ID``, each unless set) before rclpy initializes, inherited by
+every child process.
 """
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -22,16 +25,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-DEFAULT_SCENE = "two_link_case1"
+from flexarm_ros.nodes import environment
+from flexarm_ros.nodes.parameters import MODES, fidelity_parameters
+from flexarm_ros.scene import DEFAULT_SCENE
+
 DEFAULT_NAMESPACE = "/flexarm"
 NODES = ("recorder", "motor_driver", "controller", "simulator")   # start order
-
-
-def ros_environment() -> dict:
-    """Loopback discovery and a private domain id (kept when the user chose them)."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
-    return {k: os.environ[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID")}
 
 
 @dataclass
@@ -63,11 +62,11 @@ class RunResult:
         return s + (f" → {self.record}" if self.record else "")
 
 
-def _params(scene, mode, duration, record, node, progress) -> dict:
-    """ROS parameters of ``node``: the common ones, the recorder's output, the
-    simulator's progress, sim time for the others in fast mode."""
+def _params(scene, mode, duration, record, node, progress, fidelity=None) -> dict:
+    """ROS parameters of ``node``: the common ones, the fidelity overrides, the recorder's
+    output, the simulator's progress, sim time for the others in fast mode."""
     p = {"scene": _scene_arg(scene), "mode": mode, "duration": float(duration or 0.0),
-         "recorders": 1 if record else 0}
+         "recorders": 1 if record else 0, **fidelity_parameters(fidelity)}
     if node == "recorder":
         p["output"] = str(record)
     if node == "simulator":
@@ -87,24 +86,26 @@ class InProcessGraph:
     """All nodes in this process on one executor and a private context.
 
     ``executor="single"``: rclpy's SingleThreadedExecutor (default); ``"events"``: the
-    experimental EventsExecutor, about 1 ms faster per lockstep tick, but it still
-    dispatches events queued for a node that was removed or destroyed (used by
-    ``bench/bench_realtime.py --executor events`` only)."""
+    experimental EventsExecutor, whose C++ event queue spends less time per lockstep tick,
+    but it still dispatches events queued for a node that was removed or destroyed (used by
+    ``bench/bench_realtime.py --executor events`` only). ``progress``: the simulator's
+    progress line and the nodes' info log; without it warnings and errors only."""
 
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 executor="single"):
+                 executor="single", fidelity=None):
         import rclpy
         from rclpy.context import Context
+        from rclpy.logging import LoggingSeverity
         from rclpy.parameter import Parameter
         from rclpy.signals import SignalHandlerOptions
 
         from flexarm_ros.nodes import node_classes
         from flexarm_ros.nodes._common import make_executor
-        env = ros_environment()
+        environment.private_graph()
         self.context = Context()
-        rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]),
+        rclpy.init(context=self.context, domain_id=environment.domain_id(),
                    signal_handler_options=SignalHandlerOptions.NO)
         self.executor = make_executor(self.context, executor)
         self.nodes = {}
@@ -113,10 +114,12 @@ class InProcessGraph:
             for name in NODES:
                 if name not in names:
                     continue
-                p = _params(scene, mode, duration, record, name, progress)
+                p = _params(scene, mode, duration, record, name, progress, fidelity)
                 node = node_classes()[name](
                     context=self.context, namespace=namespace,
                     parameter_overrides=[Parameter(k, value=v) for k, v in p.items()])
+                node.get_logger().set_level(LoggingSeverity.INFO if progress
+                                            else LoggingSeverity.WARN)
                 self.nodes[name] = node
                 self.executor.add_node(node)
         except BaseException:
@@ -167,13 +170,14 @@ class InProcessGraph:
 
 
 class ProcessGraph:
-    """One child process per node: ``python -m flexarm_ros.nodes.<node> --ros-args ...``."""
+    """One child process per node: ``python -m flexarm_ros.nodes.<node> --ros-args ...``
+    (``progress``: as :class:`InProcessGraph`)."""
 
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 stderr=None):
-        env = dict(os.environ, **ros_environment())
+                 stderr=None, fidelity=None):
+        env = environment.child_environment()
         names = list(nodes) + (["recorder"] if record else [])
         self.procs = {}
         try:
@@ -181,9 +185,11 @@ class ProcessGraph:
                 if name not in names:
                     continue
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
-                            progress)
+                            progress, fidelity)
                 cmd = [sys.executable, "-m", f"flexarm_ros.nodes.{name}", "--ros-args",
                        "-r", f"__ns:={namespace}"]
+                if not progress:
+                    cmd += ["--log-level", "warn"]
                 for k, v in p.items():
                     cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
                 self.procs[name] = subprocess.Popen(cmd, env=env, stderr=stderr)
@@ -219,20 +225,25 @@ class ProcessGraph:
 
 
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
-        processes=False, namespace=DEFAULT_NAMESPACE, progress=True) -> RunResult:
+        processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
+        fidelity=None) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
-    SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL."""
+    SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
+    ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
+    scene's); ``progress``: progress line and the nodes' info log on stderr."""
     from flexarm_ros.scene import load_scene
-    from flexarm_ros.nodes._common import MODES, StopFlag
+    from flexarm_ros.nodes._common import StopFlag
     if mode not in MODES:
         raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
-    name = load_scene(scene).name                      # fails early on a bad scene
+    # fails early on a bad scene or override (SceneError, exit 2)
+    name = load_scene(scene).with_fidelity(**(fidelity or {})).name
     record = Path(record) if record else None
     stop = StopFlag()
     t0 = time.monotonic()
     try:
         if processes:
-            g = ProcessGraph(scene, mode, duration, record, namespace, progress)
+            g = ProcessGraph(scene, mode, duration, record, namespace, progress,
+                             fidelity=fidelity)
             sim = g.procs["simulator"]
             while sim.poll() is None and not stop.set and not g.failed():
                 try:
@@ -242,7 +253,8 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             codes = g.stop()
             return RunResult(name, mode, True, record, time.monotonic() - t0,
                              interrupted=stop.set, returncodes=codes)
-        g = InProcessGraph(scene, mode, duration, record, namespace, progress)
+        g = InProcessGraph(scene, mode, duration, record, namespace, progress,
+                           fidelity=fidelity)
         try:
             sim = g["simulator"]
             g.spin_until(lambda: sim.finished, stop=stop)

@@ -1,9 +1,8 @@
 """Suite-wide settings: DDS on loopback and a private ROS domain per test run."""
 
-import os
+from flexarm_ros.nodes import environment
 
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
+environment.private_graph()
 
 
 def pytest_configure(config):

@@ -94,16 +94,19 @@ def test_bad_input_exits_with_a_clear_message(argv, fragment, capsys, tmp_path,
 
 
 def test_console_entry_point_runs_default_scene(tmp_path):
+    from flexarm_ros.scene import DEFAULT_SCENE
     out = tmp_path / "run.csv"
     r = subprocess.run([sys.executable, "-m", "flexarm_ros.cli", "simulate", "--duration",
                         "0.02", "--out", str(out), "--quiet"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    assert "two_link_free" in r.stdout and out.exists()
+    assert DEFAULT_SCENE == "two_link_case1"
+    assert r.stdout.startswith(f"{DEFAULT_SCENE}: ") and out.exists()
 
 
 def test_core_imports_without_rclpy():
     code = ("import sys; sys.modules['rclpy'] = None; "
-            "import flexarm_ros.model.chain, flexarm_ros.sim.simulate, flexarm_ros.cli; "
+            "import flexarm_ros.model.chain, flexarm_ros.sim.simulate, flexarm_ros.cli, "
+            "flexarm_ros.nodes.environment, flexarm_ros.run; "
             "print('ok')")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0 and "ok" in r.stdout, r.stderr
@@ -124,3 +127,15 @@ def test_study_refuses_the_options_its_ladder_varies(capsys):
         main(["study", "link", "--rung", "fem"])
     assert info.value.code == 2
     assert "unrecognized arguments: --rung fem" in capsys.readouterr().err
+
+
+def test_quiet_hides_progress_not_the_summary(capsys):
+    argv = ["simulate", "link", "--duration", "0.05", "--rung", "cubic"]
+    assert main(argv) == 0
+    loud = capsys.readouterr()
+    assert loud.err.startswith("\r")                 # the progress line (then cleared)
+    assert main(argv + ["--quiet"]) == 0
+    quiet = capsys.readouterr()
+    assert quiet.err == ""
+    assert quiet.out.startswith("link: ") and "simulated in" in quiet.out
+    assert quiet.out.count("\n") == loud.out.count("\n") == 1

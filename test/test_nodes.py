@@ -46,7 +46,8 @@ def test_node_help_prints_usage_and_parameters(node):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith(f"usage: {node}")
-    for p in ("scene", "mode", "duration", "recorders"):
+    for p in ("scene", "mode", "duration", "recorders", "rung", "refine", "integrator",
+              "rtol", "atol", "dt", "no_foreshortening"):
         assert f"  {p} (default" in r.stdout
 
 
@@ -72,6 +73,7 @@ def test_core_packages_import_and_cosimulate_without_rclpy():
 
         sys.meta_path.insert(0, Block())
         import flexarm_ros.model, flexarm_ros.twin, flexarm_ros.control, flexarm_ros.bag
+        import flexarm_ros.nodes.environment, flexarm_ros.nodes.parameters, flexarm_ros.run
         from flexarm_ros.scene import load_scene
         from flexarm_ros.twin.cosim import cosimulate
         res = cosimulate(load_scene("link_motor"), 0.005)
@@ -224,3 +226,61 @@ def test_killed_controller_process_trips_the_watchdog(tmp_path):
 def test_environment_stays_on_loopback():
     assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
     assert 0 < int(os.environ["ROS_DOMAIN_ID"]) <= 101
+
+
+def test_environment_sets_defaults_and_keeps_what_the_user_set():
+    from flexarm_ros.nodes import environment
+    env = {}
+    environment.use_loopback(env)
+    assert env == {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}     # no private domain
+    env = {}
+    got = environment.private_graph(env, pid=4242)
+    assert got == env == {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+                          "ROS_DOMAIN_ID": str(1 + 4242 % 101)}
+    for pid in (0, 100, 101, 2**22):
+        assert 1 <= int(environment.private_graph({}, pid=pid)["ROS_DOMAIN_ID"]) <= 101
+    user = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_DOMAIN_ID": "7"}
+    assert environment.private_graph(dict(user)) == user
+    assert environment.domain_id(user) == 7 and environment.domain_id({}) == 0
+    with pytest.raises(ValueError, match="ROS_DOMAIN_ID: got 'seven'"):
+        environment.domain_id({"ROS_DOMAIN_ID": "seven"})
+
+
+def test_nothing_imports_the_cli():
+    """The command line is the top: no module of the package, tool or benchmark imports
+    it (the console script ``flexarm`` runs it, tests may import it)."""
+    import ast
+    offenders = []
+    for folder in ("flexarm_ros", "tools", "bench"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = []
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom):
+                    mod = node.module or ""
+                    names = [mod] + [f"{mod}.{a.name}" for a in node.names]
+                    if node.level:                      # relative: resolve against path
+                        names = [".".join(path.relative_to(ROOT).with_suffix("").parts[
+                            :-node.level]) + "." + n for n in names]
+                if any(n == "flexarm_ros.cli" or n.startswith("flexarm_ros.cli.")
+                       for n in names):
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not offenders, offenders
+
+
+@pytest.mark.parametrize("over", [
+    {"rung": "rigid"},
+    {"rung": "fem", "refine": 3, "integrator": "dop853", "rtol": 1e-6, "atol": 1e-9,
+     "dt": 0.0, "foreshortening": False},
+    {"refine": 0, "dt": 2e-4, "foreshortening": True},
+])
+def test_fidelity_overrides_survive_the_node_parameters(over):
+    from flexarm_ros.nodes.parameters import FIDELITY, fidelity_overrides, fidelity_parameters
+    params = fidelity_parameters(over)
+    assert all(type(v) is type(FIDELITY[k][0]) for k, v in params.items())
+    values = {k: d for k, (d, _) in FIDELITY.items()}
+    values.update(params)
+    want = {k: v for k, v in over.items() if not (k == "foreshortening" and v)}
+    assert fidelity_overrides(values) == want
+    assert fidelity_overrides({k: d for k, (d, _) in FIDELITY.items()}) == {}

@@ -112,6 +112,37 @@ def test_flexarm_run_writes_a_finalized_bag_with_metadata(tmp_path, capsys):
     assert depths == {DEPTH}
 
 
+def test_flexarm_run_takes_the_fidelity_overrides_and_quiet_keeps_the_summary(tmp_path,
+                                                                             capfd):
+    """--rung etc. reach every node: the recorder embeds the model that ran (explain) and a
+    scene whose fidelity section rebuilds it; --quiet leaves the summary, no progress and
+    no node info log."""
+    import yaml
+
+    from flexarm_ros.cli import main
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.scene import load_scene_dict
+    out = tmp_path / "rigid.mcap"
+    assert main(["run", "two_link_free", "--rung", "rigid", "--duration", "0.05",
+                 "--record", str(out), "--quiet"]) == 0
+    std = capfd.readouterr()
+    assert std.out.startswith("two_link_free: lockstep run (one process), 0.050 s simulated")
+    assert "[INFO]" not in std.err and "t = " not in std.err, std.err
+    bag = read_bag(out)
+    assert "rung rigid (refine 1)" in bag.metadata["model"]["explain"]
+    info = bag.metadata["flexarm_ros"]
+    assert info["fidelity_overrides"] == '{"rung": "rigid"}'
+    scene = load_scene_dict(yaml.safe_load(info["scene_yaml"]))
+    assert scene.fidelity.rung == "rigid"
+    assert Chain(scene).names == ["link1_joint", "link1_spring", "link2_joint",
+                                  "link2_spring"]
+    coords = to_dict(bag[f"{NS}/{T.GT_COORDINATES}"][0][1])
+    assert coords["name"] == Chain(scene).names
+    assert main(["run", "two_link_free", "--rung", "fd", "--refine", "2", "--no-record",
+                 "--quiet"]) == 2
+    assert "expected >= 4 segments" in capfd.readouterr().err
+
+
 def test_flexarm_run_rejects_a_bad_scene(capsys):
     from flexarm_ros.cli import main
     assert main(["run", "no_such_scene", "--no-record", "--quiet"]) == 2

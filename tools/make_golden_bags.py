@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT))
 
 from flexarm_ros.analysis.channels import load_channels  # noqa: E402
 from flexarm_ros.io.experiment import write_experiment_csv  # noqa: E402
+from flexarm_ros.nodes import environment  # noqa: E402
 
 GOLDEN = ROOT / "bags" / "golden_case1.mcap"
 SYNTHETIC = ROOT / "bags" / "synthetic_experiment_case1.csv"
@@ -66,8 +67,7 @@ NOISE = {
 def make_golden(path: Path = GOLDEN) -> Path:
     """Run the twin (the documented command) and record ``path``."""
     env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
+    environment.private_graph(env)
     path.parent.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "flexarm_ros.cli", "run", SCENE, "--duration",
            str(DURATION_S), "--record", str(path), "--quiet"]

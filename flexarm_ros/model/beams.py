@@ -63,6 +63,17 @@ class BeamDiscretization:
     def n(self) -> int:
         return len(self.coord_suffixes)
 
+    @property
+    def coord_units(self) -> tuple[str, ...]:
+        """SI unit of each coordinate: the rigid rung's spring angle and the nodal slopes
+        rad; nodal deflections and modal amplitudes (modes scaled to unit peak deflection)
+        m."""
+        if self.rung == "rigid":
+            return ("rad",) * self.n
+        if self.rung in ("cubic", "fem"):
+            return ("m", "rad") * (self.n // 2)
+        return ("m",) * self.n
+
     def curvature(self, x) -> np.ndarray:
         """φ″(x), shape (len(x), ne): strain at depth t/2 is (t/2)·φ″(x)ᵀη."""
         return self.curvature_fn(np.atleast_1d(np.asarray(x, float)))
@@ -249,11 +260,10 @@ def finite_differences(beam, n_seg):
     The stiffness is the energy-consistent form of the seed's scheme: strain energy
     ½EI Σ_i w_i h κ_i² (trapezoidal weights) with the central-difference curvature
     κ_i = (y_{i−1} − 2y_i + y_{i+1})/h², the clamped root through the ghost node y_{−1} = y_1
-    and, at the tip, the one-sided κ_n = (y_n − 2y_{n−1} + y_{n−2})/h². (Omitting κ_n, i.e.
-    imposing a moment-free tip, made the modes of a beam with tip inertia converge only at
-    O(h); measured.) Its interior rows are the seed's stencil
-    EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy, which
-    the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
+    and, at the tip, the one-sided κ_n = (y_n − 2y_{n−1} + y_{n−2})/h² (keeps second-order
+    convergence with a tip inertia; docs/design_notes.md). Its interior rows are the seed's
+    stencil EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy,
+    which the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
     by the second-order one-sided difference (the seed's backward difference is first
     order and made chained tip paths converge at O(h)).
     """

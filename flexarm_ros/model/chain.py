@@ -107,19 +107,24 @@ class Chain:
         self.fidelity = fidelity or scene.fidelity
         self.links: list[_LinkModel] = []
         names: list[str] = []
+        units: list[str] = []                     # SI unit of each coordinate
         for lk in scene.links:
             i_motor = -1
             if lk.joint.flexibility is not None or lk.joint.backlash is not None:
                 i_motor = len(names)
                 names.append(f"{lk.name}_motor")
+                units.append("rad")
             i_joint = len(names)
             names.append(f"{lk.name}_joint")
+            units.append("rad")
             disc = beams.discretize(lk.beam, lk.tip, self.fidelity)
             start = len(names)
             names.extend(f"{lk.name}_{s}" for s in disc.coord_suffixes)
+            units.extend(disc.coord_units)
             self.links.append(_LinkModel(lk.name, lk, disc, i_joint, i_motor,
                                          slice(start, len(names))))
         self.names = names
+        self.units = units
         self.n = n = len(names)
         self.gravity = np.asarray(scene.gravity, float)
         self.has_gravity = bool(np.any(self.gravity != 0.0))
@@ -153,6 +158,7 @@ class Chain:
         self.actuators: list[Actuator] = []
         self.prescribed = []          # (coordinate index, program, theta0)
         self.state_names: list[str] = []
+        self.state_name_units: list[str] = []     # actuator states: current A, pressure Pa
         for k, lm in enumerate(self.links):
             jt = lm.link.joint
             inp = by_joint.get(k + 1)
@@ -168,6 +174,7 @@ class Chain:
                 state = len(self.state_names)
                 self.state_names.append(
                     f"{lm.name}_{'pressure' if kind == drives.HYDRAULIC else 'current'}")
+                self.state_name_units.append("Pa" if kind == drives.HYDRAULIC else "A")
             drive = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
             ikind = {None: "torque", "dc_motor": "voltage", "hydraulic": "current"}[
                 jt.drive.type if jt.drive else None]
@@ -501,6 +508,11 @@ class Chain:
         """Names of the first-order state x = [q_free, q̇_free, z]."""
         fr = [self.names[i] for i in self.free]
         return fr + [f"{nm}_rate" for nm in fr] + list(self.state_names)
+
+    def state_units(self) -> list[str]:
+        """SI units of :meth:`state_labels`, in the same order."""
+        fr = [self.units[i] for i in self.free]
+        return fr + [f"{u}/s" for u in fr] + list(self.state_name_units)
 
     # --------------------------------------------------------------------------- outputs
     def energy(self, q, qd) -> dict:

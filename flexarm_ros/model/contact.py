@@ -32,9 +32,8 @@ penetration δ = −g > 0 with c = 2ζ√(k_eff m_eff) (m_eff = 1/G_nn, G_nn = J
 the start; ζ = 1 by default: no contact rebound, as the impulse rung) and regularized
 Coulomb friction −μ F_n v_t/√(v_t² + v_s²) enter the equations of motion as
 J_nᵀF_n + J_tᵀF_t. Cheap per step, stiff: the automatic step follows the contact's
-eigenvalue ω(ζ + √(ζ² − 1)), ω = √(k_eff G_nn). (A Hunt–Crossley damping c ∝ δ^e was
-tried first: its rate grows with the peak force, unknown before the run, and RK4 went
-unstable at k = 1e7 N/m — measured.)
+eigenvalue ω(ζ + √(ζ² − 1)), ω = √(k_eff G_nn), known before the run (why not a
+Hunt–Crossley damping c ∝ δ^e: docs/design_notes.md).
 """
 
 from __future__ import annotations
@@ -288,7 +287,7 @@ def constrained_rate(contact: WallContact, x0) -> float:
     nf = contact.nf
     x0 = np.array(x0, float)
     x0[nf:2 * nf] = 0.0      # on the constraint manifold: at rest (a moving state is off it
-    #                          and its Jacobian has spurious drift rates, measured 1e8 1/s)
+    #                          and its Jacobian has spurious drift rates)
     d0 = contact.d
     contact.d = float(contact.n @ contact.terms(0.0, x0).r)    # wall through the tool
     try:

@@ -4,7 +4,8 @@ x = [q_free, q̇_free, z] (z: actuator states, e.g. armature current i — seed 
 actuator-augmented form x = [Z, Ż, i]), u = the actuator inputs (torque N·m, voltage V or
 valve current A, one per driven joint, in joint order), y = hub (joint) angles, beam tip
 deflections and every declared sensor (encoders as continuous counts, accelerometers in
-m/s², strain, potentiometer angle, tip position x/y).
+m/s², strain, potentiometer angle, tip position x/y). ``state_units``, ``input_units`` and
+``output_units`` give the SI unit of each, aligned with the names.
 
 The matrices are assembled from the model's parts, not by differencing the whole
 right-hand side (a test does that, as the independent check):
@@ -23,7 +24,7 @@ state must be at rest (q̇ = 0), where the velocity-product terms have zero deri
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,11 +46,23 @@ class StateSpace:
     inputs: list
     outputs: list
     x0: np.ndarray
+    state_units: list = field(default_factory=list)
+    input_units: list = field(default_factory=list)
+    output_units: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"A": self.A.tolist(), "B": self.B.tolist(), "C": self.C.tolist(),
                 "D": self.D.tolist(), "states": self.states, "inputs": self.inputs,
-                "outputs": self.outputs, "x0": self.x0.tolist()}
+                "outputs": self.outputs, "x0": self.x0.tolist(),
+                "state_units": self.state_units, "input_units": self.input_units,
+                "output_units": self.output_units}
+
+
+#: unit of an actuator input, by its kind
+INPUT_UNITS = {"torque": "N·m", "voltage": "V", "current": "A"}
+#: unit of a sensor output, by its kind (encoders as continuous counts)
+SENSOR_UNITS = {"encoder": "counts", "potentiometer": "rad", "strain": "m/m",
+                "tip_position": "m", "accelerometer": "m/s²"}
 
 
 def _drive_derivatives(a, w, z):
@@ -133,9 +146,11 @@ def linearize(chain) -> StateSpace:
     A[2 * nf:, 2 * nf:] = Zz
     B[nf:2 * nf] = Minv @ Bu[free]
     B[2 * nf:] = Zu
-    C, D, outputs = _outputs(chain, q0, kin, A, B, nf, qdd0)
+    C, D, outputs, out_units = _outputs(chain, q0, kin, A, B, nf, qdd0)
     inputs = [f"{chain.links[a.link].name}_{a.input_kind}" for a in chain.actuators]
-    return StateSpace(A, B, C, D, chain.state_labels(), inputs, outputs, x0)
+    return StateSpace(A, B, C, D, chain.state_labels(), inputs, outputs, x0,
+                      chain.state_units(), [INPUT_UNITS[a.input_kind] for a in chain.actuators],
+                      out_units)
 
 
 def _qdd_zero_input(chain, q0, z0):
@@ -154,11 +169,12 @@ def _qdd_zero_input(chain, q0, z0):
 
 
 def _outputs(chain, q0, kin, A, B, nf, qdd0):
-    """Rows of C and D: hub angles, tip deflections, then every declared sensor."""
+    """Rows of C and D, names and units: hub angles, tip deflections, then every declared
+    sensor."""
     free = chain.free
     n = chain.n
     ns, na = A.shape[0], B.shape[1]
-    rows_c, rows_d, names = [], [], []
+    rows_c, rows_d, names, units = [], [], [], []
 
     def from_q(row_q):                       # output = row_q · q (positions only)
         c = np.zeros(ns)
@@ -171,14 +187,17 @@ def _outputs(chain, q0, kin, A, B, nf, qdd0):
         r[lm.i_joint] = 1.0
         from_q(r)
         names.append(f"{lm.name}_joint")
+        units.append("rad")
     for lm in chain.links:
         r = np.zeros(n)
         r[lm.eta] = lm.beam.phi_tip
         from_q(r)
         names.append(f"{lm.name}_tip_deflection")
+        units.append("m")
     g = chain.gravity
     for sm in build_sensors(chain):
         kind = sm.spec.kind
+        units += [SENSOR_UNITS[kind]] * (2 if kind == "tip_position" else 1)
         if kind in ("encoder", "potentiometer"):
             r = np.zeros(n)
             r[sm.coord] = sm.gain if kind == "encoder" else 1.0
@@ -211,7 +230,7 @@ def _outputs(chain, q0, kin, A, B, nf, qdd0):
             names.append(sm.name)
     C = np.array(rows_c).reshape(len(names), ns)
     D = np.array(rows_d).reshape(len(names), na)
-    return C, D, names
+    return C, D, names, units
 
 
 def _moving_frame_term(chain, q0, sm, qdd0):

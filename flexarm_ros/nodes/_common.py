@@ -25,10 +25,10 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from flexarm_ros.nodes import environment
+from flexarm_ros.nodes.parameters import COMMON, FIDELITY, MODES, fidelity_overrides
 from flexarm_ros.twin.cores import _ns, control_period
 
-MODES = ("lockstep", "realtime", "fast")
-DEFAULT_SCENE = "two_link_case1"
 DEPTH = 1000
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
@@ -36,10 +36,10 @@ QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
 is dropped while a subscriber lags by less than 1000 messages per topic)."""
 
 
-
 def publisher(node, msgtype: str, topic: str):
     """A publisher with :data:`QOS` and no QoS-event handlers: rclpy's default handlers
-    add waitables that every executor wait has to scan (a third of a lockstep tick)."""
+    add waitables that every executor wait has to scan (a large share of a lockstep tick,
+    docs/design_notes.md)."""
     from flexarm_ros.nodes._msgconv import msg_class
     return node.create_publisher(msg_class(msgtype), topic, QOS,
                                  event_callbacks=PublisherEventCallbacks(
@@ -54,17 +54,6 @@ def subscription(node, msgtype: str, topic: str, callback):
                                         use_default_callbacks=False))
 
 
-COMMON = {
-    "scene": (DEFAULT_SCENE, "scene YAML path or shipped scene name"),
-    "mode": ("lockstep", "time mode: lockstep (message-driven, deterministic), realtime "
-                         "(wall-clock paced) or fast (free-running, /clock)"),
-    "duration": (0.0, "simulated seconds until the run ends (0: the scene's duration, inf: "
-                      "no end); the controller and driver do not answer states at or past it"),
-    "recorders": (0, "recorders expected on every topic before publishing starts (lockstep "
-                     "loses nothing only if every subscriber is matched first)"),
-}
-
-
 def declare(node, params: dict) -> dict:
     """Declare ``{name: (default, description)}`` read-only; return the values."""
     out = {}
@@ -75,12 +64,14 @@ def declare(node, params: dict) -> dict:
 
 
 def load(node, params: dict) -> tuple:
-    """Common parameters → (values, scene, end tick count or None)."""
+    """Common and fidelity parameters (:mod:`~flexarm_ros.nodes.parameters`) and
+    ``params`` → (values, scene with the fidelity overrides applied, end tick count or
+    None)."""
     from flexarm_ros.scene import load_scene
-    p = declare(node, {**COMMON, **params})
+    p = declare(node, {**COMMON, **FIDELITY, **params})
     if p["mode"] not in MODES:
         raise ValueError(f"parameter mode: got {p['mode']!r}, expected one of {MODES}")
-    scene = load_scene(p["scene"])
+    scene = load_scene(p["scene"]).with_fidelity(**fidelity_overrides(p))
     dur = p["duration"] or scene.duration
     n = None if dur == float("inf") else int(round(dur / control_period(scene)))
     return p, scene, n
@@ -187,8 +178,8 @@ class StopFlag:
 
 def make_executor(context, kind="single"):
     """rclpy's SingleThreadedExecutor, or with ``kind="events"`` the experimental
-    EventsExecutor (C++ event queue, about 1 ms less per lockstep tick than rebuilding the
-    wait set in Python, but it still calls back into nodes already removed/destroyed)."""
+    EventsExecutor (a C++ event queue, cheaper per lockstep tick than rebuilding the wait
+    set in Python, but it still calls back into nodes already removed/destroyed)."""
     if kind == "events":
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
@@ -203,7 +194,7 @@ def node_main(cls, args=None) -> int:
     from rclpy.signals import SignalHandlerOptions
     from rclpy.utilities import remove_ros_args
     argv = list(sys.argv if args is None else args)
-    params = {**COMMON, **getattr(cls, "PARAMS", {})}
+    params = {**COMMON, **FIDELITY, **getattr(cls, "PARAMS", {})}
     epilog = "parameters (--ros-args -p name:=value):\n" + "\n".join(
         f"  {k} (default {v[0]!r}): {v[1]}" for k, v in params.items())
     mod_doc = (sys.modules[cls.__module__].__doc__ or "").strip().split("\n\n")
@@ -214,8 +205,7 @@ def node_main(cls, args=None) -> int:
         epilog=epilog + f"\n\nexample: ros2 run flexarm_ros {cls.EXECUTABLE} --ros-args "
                         "-r __ns:=/flexarm -p scene:=two_link_position -p mode:=realtime")
     ap.parse_args(remove_ros_args(argv)[1:])
-    from flexarm_ros.cli import _ros_env_defaults
-    _ros_env_defaults()
+    environment.use_loopback()
     ctx = Context()
     rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopFlag()

@@ -6,8 +6,10 @@ the sensor batches, ``tool/contact``, ``tool/wrench``, ``ground_truth/*``,
 ``motor_driver/commands``, ``effort_controller/commands``, ``motor_driver/motor_states``.
 Publishes nothing. Writes ``output`` with :class:`~flexarm_ros.bag.BagWriter`: topics
 under their absolute names, metadata ``flexarm_ros`` (scene YAML text, scene name,
-software version, time mode, namespace) and ``model`` (the built model, ``flexarm
-explain``).
+software version, time mode, namespace, the fidelity overrides as JSON) and ``model`` (the
+built model, ``flexarm explain``). With fidelity overrides (``-p rung:=rigid``, ``flexarm
+run --rung rigid``) the embedded scene YAML is the scene file with its ``fidelity`` section
+updated, so whoever rebuilds the model from the bag builds the one that ran.
 
 Log time = simulation time: the header stamp where the message has one, ``/clock`` its
 value. Headerless messages are paired by count: the n-th ``encoders/counts`` and
@@ -28,9 +30,12 @@ finalizes the file.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
+
+import yaml
 
 from rclpy.node import Node
 
@@ -41,6 +46,7 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import control_period
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import to_dict
+from flexarm_ros.nodes.parameters import fidelity_overrides
 
 _TICK_TOPICS = (T.ENCODER_COUNTS, T.TOOL_CONTACT, T.COMMANDS, T.EFFORTS)
 
@@ -59,9 +65,11 @@ class RecorderNode(Node):
         self.lockstep = self.p["mode"] == "lockstep"
         from flexarm_ros.model.explain import explain
         ns = self.get_namespace()
-        info = {"scene": scene.name, "scene_yaml": resolve_scene_path(self.p["scene"]).read_text(),
+        over = fidelity_overrides(self.p)
+        info = {"scene": scene.name, "scene_yaml": scene_yaml(self.p["scene"], over),
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],
-                "namespace": ns, "control_mode": scene.control.mode}
+                "namespace": ns, "control_mode": scene.control.mode,
+                "fidelity_overrides": json.dumps(over, sort_keys=True)}
         self.writer = BagWriter(self.p["output"], metadata=info, qos_depth=C.DEPTH)
         self.writer.add_metadata("model", {"explain": explain(scene)})
         self.period_ns = int(round(control_period(scene) * 1e9))
@@ -124,6 +132,20 @@ class RecorderNode(Node):
     @property
     def path(self) -> Path:
         return Path(self.p["output"])
+
+
+def scene_yaml(scene, overrides: dict) -> str:
+    """The text of the scene file ``scene`` (path or shipped name); with ``overrides``
+    (``Scene.with_fidelity`` keywords) the file re-dumped with them in its ``fidelity``
+    section."""
+    text = resolve_scene_path(scene).read_text()
+    if not overrides:
+        return text
+    data = yaml.safe_load(text)
+    data["fidelity"] = {**(data.get("fidelity") or {}), **overrides}
+    return (f"# {Path(str(scene)).name} with the fidelity overrides "
+            f"{json.dumps(overrides, sort_keys=True)}\n"
+            + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
 
 
 def main(args=None):

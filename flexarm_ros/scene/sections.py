@@ -335,8 +335,8 @@ class Wall:
     friction/static_friction: Coulomb coefficients (seed 000: μ = 0.5 kinetic).
     stiffness/exponent/damping_ratio/slip_velocity are used by the compliant rung only:
     F_n = max(0, k δ^e + c δ̇) for penetration δ = −g > 0, c = 2ζ√(k m_eff) (a penalty
-    spring–damper; the Hunt–Crossley form c ∝ δ^e made the explicit step depend on the
-    unknown peak force), friction −μ F_n v_t/√(v_t² + v_s²).
+    spring–damper with a damping fixed at the start, see :mod:`flexarm_ros.model.contact`),
+    friction −μ F_n v_t/√(v_t² + v_s²).
     """
     point: tuple[float, float] = param(unit="m", doc="a point on the wall line")
     normal: tuple[float, float] = param(doc="inward normal (into the free side)")
@@ -450,7 +450,7 @@ class Fidelity:
                                    "state, or take it quasi-static (L/R far below the step)")
     contact: str = param("impulse", choices=("impulse", "compliant"),
                          doc="wall contact: impulse–constraint (seed 000) or compliant "
-                             "(Hunt–Crossley penalty)")
+                             "(penalty F = kδ^e + cδ̇, c = 2ζ√(k m_eff))")
     contact_tolerance: float = param(1e-9, unit="m", gt=0.0,
                                      doc="impulse rung: largest allowed drift of the tool "
                                          "off the wall while in contact")

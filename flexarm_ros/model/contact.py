@@ -47,6 +47,7 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
+from flexarm_ros.model.differentiate import jacobian
 
 FREE, SLIDING, STICKING = 0, 1, 2
 PHASES = ("free", "sliding", "sticking", "impact")
@@ -294,15 +295,7 @@ def constrained_rate(contact: WallContact, x0) -> float:
     try:
         worst = 0.0
         for mode in (SLIDING, STICKING):
-            m = len(x0)
-            J = np.zeros((m, m))
-            for j in range(m):
-                dx = 1e-6 * max(1.0, abs(x0[j]))
-                xp, xm = x0.copy(), x0.copy()
-                xp[j] += dx
-                xm[j] -= dx
-                J[:, j] = (contact.rhs(0.0, xp, mode, 1.0)[0]
-                           - contact.rhs(0.0, xm, mode, 1.0)[0]) / (2 * dx)
+            J = jacobian(lambda x: contact.rhs(0.0, x, mode, 1.0)[0], x0)
             worst = max(worst, float(np.abs(np.linalg.eigvals(J)).max()))
     finally:
         contact.d = d0

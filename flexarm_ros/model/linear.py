@@ -15,6 +15,10 @@ import numpy as np
 import scipy.linalg
 
 from flexarm_ros.errors import SceneError
+from flexarm_ros.model.differentiate import REL_STEP, jacobian
+
+#: largest difference step of :func:`highest_rate` with backlash (the dead zone's kink)
+BACKLASH_MAX_STEP = 1e-9
 
 
 @dataclass(frozen=True)
@@ -38,7 +42,7 @@ def reduced_coordinates(chain, joints: str) -> np.ndarray:
     return np.array([i for i in range(chain.n) if i not in drop], dtype=int)
 
 
-def tangent_stiffness(chain, q0, keep=None, rel_step=1e-6) -> np.ndarray:
+def tangent_stiffness(chain, q0, keep=None, rel_step=REL_STEP) -> np.ndarray:
     """K_t = −∂f/∂q at rest, f = Q_grav − h − K q (central differences), on ``keep``."""
     keep = np.arange(chain.n) if keep is None else keep
     zero = np.zeros(chain.n)
@@ -47,14 +51,7 @@ def tangent_stiffness(chain, q0, keep=None, rel_step=1e-6) -> np.ndarray:
         kin = chain.kinematics(q, zero)
         return kin.Qg - kin.h - chain.K @ q
 
-    Kt = np.zeros((len(keep), len(keep)))
-    for j, idx in enumerate(keep):
-        dq = rel_step * max(1.0, abs(q0[idx]))
-        qp, qm = q0.copy(), q0.copy()
-        qp[idx] += dq
-        qm[idx] -= dq
-        Kt[:, j] = -(force(qp) - force(qm))[keep] / (2 * dq)
-    return Kt
+    return -jacobian(force, q0, rel_step, columns=keep)[keep]
 
 
 def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
@@ -94,17 +91,11 @@ def highest_rate(chain, q0, qd0, z0=None) -> float:
             q = q0.copy()
             q[im] = q0[ij] + sign * (b + 1e-6 * max(b, 1e-3))
             states.append(q)
+    # stay on one side of the dead zone's kink
+    max_step = BACKLASH_MAX_STEP if chain.backlash else np.inf
     worst = 0.0
     for q in states:
         x0 = np.concatenate([q[free], qd0[free], z0])
-        Jm = np.zeros((len(x0), len(x0)))
-        for j in range(len(x0)):
-            dx = 1e-6 * max(1.0, abs(x0[j]))
-            if chain.backlash:      # stay on one side of the dead zone's kink
-                dx = min(dx, 1e-9)
-            xp, xm = x0.copy(), x0.copy()
-            xp[j] += dx
-            xm[j] -= dx
-            Jm[:, j] = (chain.rhs(0.0, xp) - chain.rhs(0.0, xm)) / (2 * dx)
+        Jm = jacobian(lambda x: chain.rhs(0.0, x), x0, max_step=max_step)
         worst = max(worst, float(np.abs(np.linalg.eigvals(Jm)).max()))
     return worst

@@ -25,6 +25,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
+from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.linear import highest_rate
 from flexarm_ros.model.programs import torque_breakpoints
 
@@ -242,6 +243,7 @@ class _Guard:
 
 TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + |S⁻¹|·|f|)
 TRAPEZOID_MAX_ITER = 8      # iterations per step before the iteration matrix is refreshed
+ITERATION_REL_STEP = 1e-7   # relative difference step of the iteration matrix's K and C
 
 
 def iteration_matrix(chain, t, x, h) -> np.ndarray:
@@ -250,24 +252,14 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     model = chain.kernel_args
     ws = kchain.workspace(model)
     free = chain.free
-    nf = len(free)
     q, qd = chain.full_state(t, x)
 
     def force(qq, vv):
         kchain.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
         return ws[kchain.W_F][free].copy()
 
-    K = np.zeros((nf, nf))
-    C = np.zeros((nf, nf))
-    for j, idx in enumerate(free):
-        for arr, out in ((q, K), (qd, C)):
-            d = 1e-7 * max(1.0, abs(arr[idx]))
-            ap, am = arr.copy(), arr.copy()
-            ap[idx] += d
-            am[idx] -= d
-            fp = force(ap, qd) if arr is q else force(q, ap)
-            fm = force(am, qd) if arr is q else force(q, am)
-            out[:, j] = -(fp - fm) / (2 * d)
+    K = -jacobian(lambda qq: force(qq, qd), q, ITERATION_REL_STEP, columns=free)
+    C = -jacobian(lambda vv: force(q, vv), qd, ITERATION_REL_STEP, columns=free)
     kchain.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
     M = ws[kchain.W_M][np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)

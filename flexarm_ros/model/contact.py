@@ -302,11 +302,6 @@ def constrained_rate(contact: WallContact, x0) -> float:
     return worst
 
 
-def contact_rate(contact: WallContact, x0) -> float:
-    """Compliant rung: the contact's largest rate (1/s) at x0 (sets its damping too)."""
-    return contact.set_start(x0)
-
-
 def build_contact(chain):
     """The scene's wall contact, or None (no wall: no contact machinery)."""
     sc = chain.scene

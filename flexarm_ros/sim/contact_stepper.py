@@ -16,6 +16,7 @@ from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
                                        ImpactRecord, WallContact, _stick_or_slip)
+from flexarm_ros.sim.step import rk4_step
 
 
 @dataclass
@@ -60,6 +61,8 @@ class ContactStepper:
         self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
         self.h_contact = h              # step while in contact (halved on excess drift)
         self.compliant = contact.method == "compliant"
+        if self.compliant:
+            contact.set_start(self.x)   # the compliant damping is fixed at the start state
         # smooth stretches of the impulse rung in compiled code (numba backend); events,
         # impacts and retaken steps stay in the Python reference below
         self.compiled = not self.compliant and chain.backend == "numba"
@@ -70,18 +73,16 @@ class ContactStepper:
 
     # ------------------------------------------------------------------ internals
     def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
-        """One RK4 step; with ``want_impulse`` also the normal impulse ∫λ dt over it (the
-        stages' forces with the RK4 weights)."""
-        f = self.contact.rhs
-        k1, l1, _, _ = f(t0 + kchain.STAGE_EPS * dt, x0, md, sg)
-        k2, l2, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)
-        k3, l3, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)
-        k4, l4, _, _ = f(t0 + (1 - kchain.STAGE_EPS) * dt, x0 + dt * k3, md, sg)
+        """One RK4 step in mode ``md`` (:func:`~flexarm_ros.sim.step.rk4_step`); with
+        ``want_impulse`` also the normal impulse ∫λ dt over it (the stages' normal forces
+        with the RK4 weights)."""
+        rhs = self.contact.rhs
         self.calls += 4
-        x = self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
         if want_impulse:
-            return x, (dt / 6.0) * (l1 + 2 * l2 + 2 * l3 + l4)
-        return x
+            x, impulse = rk4_step(lambda t, x: rhs(t, x, md, sg)[:2], t0, x0, dt,
+                                  quadrature=True)
+            return self.chain.clamp_states(x), impulse
+        return self.chain.clamp_states(rk4_step(lambda t, x: rhs(t, x, md, sg)[0], t0, x0, dt))
 
     def _indicators(self, tt, xx, md, sg):
         """Event functions of a mode (positive while the mode holds)."""

@@ -73,7 +73,8 @@ import numpy as np
 from flexarm_ros.model.beams import DEFAULT_REFINE
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.errors import SceneError, SimulationDiverged
-from flexarm_ros.sim.integrate import choose_step, integrate
+from flexarm_ros.sim.integrate import integrate
+from flexarm_ros.sim.step import choose_step
 from flexarm_ros.model.linear import natural_modes
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.simulate import simulate

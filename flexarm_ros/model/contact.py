@@ -53,6 +53,7 @@ FREE, SLIDING, STICKING = 0, 1, 2
 PHASES = ("free", "sliding", "sticking", "impact")
 PHASE_CODE = {name: k for k, name in enumerate(PHASES)}
 MIN_FLIGHT = 1e-6          # s: a re-impact sooner than this after separation keeps contact
+MIN_DEPTH = 1e-3           # m: depth at which a compliant wall's stiffness is taken, at least
 _E = np.array([[0.0, -1.0], [1.0, 0.0]])
 
 
@@ -104,15 +105,21 @@ class WallContact:
     def set_start(self, x0) -> float:
         """Fix the compliant damping c = 2ζ√(k_eff m_eff) at the start state; returns the
         contact's largest rate |λ| (1/s) for the automatic step."""
-        tm = self.terms(0.0, x0)
+        k_eff, Gnn = self.spring(self.terms(0.0, x0), 0.0)
+        zeta = self.wall.damping_ratio
+        self.c_contact = 2.0 * zeta * math.sqrt(k_eff / Gnn)
+        return spring_damper_rate(math.sqrt(k_eff * Gnn), zeta)
+
+    def spring(self, tm, depth):
+        """(k_eff, G_nn) of the compliant wall with the tool ``depth`` (m) inside it, at
+        least MIN_DEPTH (a Hertz-type law's stiffness vanishes at first touch): the tangent
+        stiffness k_eff = p·k·δ^(p−1) and the tool's inverse effective mass along the
+        normal, G_nn = j_nᵀM⁻¹j_n, at the configuration of ``tm``."""
         jn = self.n @ tm.J
         Gnn = float(jn @ np.linalg.solve(tm.M, jn))
         w = self.wall
-        k_eff = w.exponent * w.stiffness * 1e-3 ** (w.exponent - 1.0)
-        omega = math.sqrt(k_eff * Gnn)
-        zeta = w.damping_ratio
-        self.c_contact = 2.0 * zeta * math.sqrt(k_eff / Gnn)
-        return omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
+        k_eff = w.exponent * w.stiffness * max(depth, MIN_DEPTH) ** (w.exponent - 1.0)
+        return k_eff, Gnn
 
     # --------------------------------------------------------------------- evaluation
     def terms(self, t, x) -> Terms:
@@ -262,6 +269,12 @@ class WallContact:
 
 
 
+
+
+def spring_damper_rate(omega, zeta) -> float:
+    """Largest |λ| (1/s) of a spring–damper of natural frequency ω and damping ratio ζ:
+    ω(ζ + √(ζ² − 1)) when overdamped (ζ > 1), else ω."""
+    return omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
 
 
 def _solve_kkt(A, b):

@@ -15,8 +15,9 @@ from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
-                                       ImpactRecord, WallContact, _stick_or_slip)
-from flexarm_ros.sim.step import rk4_step
+                                       ImpactRecord, WallContact, _stick_or_slip,
+                                       spring_damper_rate)
+from flexarm_ros.sim.step import RK4_AUTO, rk4_step
 
 
 @dataclass
@@ -132,24 +133,18 @@ class ContactStepper:
         return xx, SLIDING, -math.copysign(1.0, lt)
 
     def _compliant_step(self, t, x):
-        """Largest stable RK4 step near or in a compliant contact: 1.5/|λ| of the contact's
-        spring–damper with the tool's effective mass at the current configuration (it can
-        be far lighter than at the start); the fixed step elsewhere."""
+        """Largest stable RK4 step near or in a compliant contact: RK4_AUTO/|λ| of the
+        contact's spring–damper with the tool's effective mass at the current configuration
+        (it can be far lighter than at the start); the fixed step elsewhere."""
         c = self.contact
         tm = c.terms(t, x)
         g = c.gap(tm)
         vn = c.n @ tm.v
         if g > 0.0 and g + min(vn, 0.0) * self.h > 0.0:
             return self.h                       # cannot reach the wall within this step
-        jn = c.n @ tm.J
-        Gnn = float(jn @ np.linalg.solve(tm.M, jn))
-        w = c.wall
-        delta = max(-g, 1e-3)
-        k_eff = w.exponent * w.stiffness * delta ** (w.exponent - 1.0)
-        omega = math.sqrt(k_eff * Gnn)
+        k_eff, Gnn = c.spring(tm, -g)
         zeta = 0.5 * c.c_contact * math.sqrt(Gnn / k_eff)
-        rate = omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
-        return min(self.h, 1.5 / rate)
+        return min(self.h, RK4_AUTO / spring_damper_rate(math.sqrt(k_eff * Gnn), zeta))
 
     # --------------------------------------------------------------------- public
     def advance(self, t_target):

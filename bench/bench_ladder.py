@@ -21,7 +21,7 @@ import numpy as np
 
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.scene import load_scene
-from flexarm_ros.sim.integrate import RK4_STABILITY
+from flexarm_ros.sim.step import RK4_STABILITY
 from flexarm_ros.model.linear import highest_rate
 from flexarm_ros.model.statics import initial_state
 from flexarm_ros.sim.simulate import simulate

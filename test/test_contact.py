@@ -22,11 +22,15 @@ from hypothesis import strategies as st
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.sim import contact_stepper
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.contact import FREE, SLIDING, STICKING, Terms, WallContact, build_contact
-from flexarm_ros.errors import SceneError
+from flexarm_ros.model.contact import (FREE, SLIDING, STICKING, Terms, WallContact,
+                                       build_contact, constrained_rate)
+from flexarm_ros.errors import SceneError, StepTooLarge
+from flexarm_ros.model.linear import highest_rate
 from flexarm_ros.scene import load_scene_dict
-from flexarm_ros.model.statics import initial_x
+from flexarm_ros.model.statics import initial_state, initial_x
+from flexarm_ros.sim.plant import Plant
 from flexarm_ros.sim.simulate import simulate
+from flexarm_ros.sim.step import RK4_STABILITY
 
 L1, L2 = 0.7, 0.6
 
@@ -328,6 +332,33 @@ def test_contact_scenes_refuse_other_integrators_and_inside_start():
         load_scene_dict({**{"name": "x", "links": [{"name": "a", "beam": {
             "length": 1.0, "EI": 1.0, "mass_per_length": 1.0}}]},
             "walls": [{"point": [0, 0], "normal": [1, 0]}] * 2})
+
+
+@pytest.mark.parametrize("wall_x", [None, -0.15])
+def test_the_plant_refuses_an_unstable_step_as_simulate_does(wall_x):
+    """fidelity.dt above the RK4 stability limit is refused by the plant (the ROS
+    simulator's core) with batch simulation's message; with a wall the limit is the one of
+    the arm with its tool held on it, which lies below the free arm's here. Below the limit
+    the plant takes the step batch simulation takes."""
+    probe = _arm(rung="rigid", torques=(1.0, 0.3), wall_x=wall_x, duration=0.01)
+    ch = Chain(probe)
+    free_limit = RK4_STABILITY / highest_rate(ch, *initial_state(ch))
+    limit = free_limit
+    if wall_x is not None:
+        limit = RK4_STABILITY / constrained_rate(build_contact(ch), initial_x(ch))
+        assert limit < free_limit
+    unstable = probe.with_fidelity(dt=math.sqrt(limit * free_limit) if wall_x is not None
+                                   else 1.2 * limit)
+    with pytest.raises(StepTooLarge) as batch:
+        simulate(unstable)
+    with pytest.raises(StepTooLarge) as plant:
+        Plant(unstable)
+    msg = str(plant.value)
+    assert msg == str(batch.value)
+    assert "stability limit" in msg and f"--dt <= {limit:.3g} s" in msg
+    assert ("tool held on the wall" in msg) == (wall_x is not None)
+    stable = probe.with_fidelity(dt=0.9 * limit)
+    assert Plant(stable).h == simulate(stable).run.dt
 
 
 def _reference_only(monkeypatch):

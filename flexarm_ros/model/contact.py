@@ -46,11 +46,13 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
+from flexarm_ros.model.differentiate import jacobian
 
 FREE, SLIDING, STICKING = 0, 1, 2
 PHASES = ("free", "sliding", "sticking", "impact")
 PHASE_CODE = {name: k for k, name in enumerate(PHASES)}
 MIN_FLIGHT = 1e-6          # s: a re-impact sooner than this after separation keeps contact
+MIN_DEPTH = 1e-3           # m: depth at which a compliant wall's stiffness is taken, at least
 _E = np.array([[0.0, -1.0], [1.0, 0.0]])
 
 
@@ -102,15 +104,21 @@ class WallContact:
     def set_start(self, x0) -> float:
         """Fix the compliant damping c = 2ζ√(k_eff m_eff) at the start state; returns the
         contact's largest rate |λ| (1/s) for the automatic step."""
-        tm = self.terms(0.0, x0)
+        k_eff, Gnn = self.spring(self.terms(0.0, x0), 0.0)
+        zeta = self.wall.damping_ratio
+        self.c_contact = 2.0 * zeta * math.sqrt(k_eff / Gnn)
+        return spring_damper_rate(math.sqrt(k_eff * Gnn), zeta)
+
+    def spring(self, tm, depth):
+        """(k_eff, G_nn) of the compliant wall with the tool ``depth`` (m) inside it, at
+        least MIN_DEPTH (a Hertz-type law's stiffness vanishes at first touch): the tangent
+        stiffness k_eff = p·k·δ^(p−1) and the tool's inverse effective mass along the
+        normal, G_nn = j_nᵀM⁻¹j_n, at the configuration of ``tm``."""
         jn = self.n @ tm.J
         Gnn = float(jn @ np.linalg.solve(tm.M, jn))
         w = self.wall
-        k_eff = w.exponent * w.stiffness * 1e-3 ** (w.exponent - 1.0)
-        omega = math.sqrt(k_eff * Gnn)
-        zeta = w.damping_ratio
-        self.c_contact = 2.0 * zeta * math.sqrt(k_eff / Gnn)
-        return omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
+        k_eff = w.exponent * w.stiffness * max(depth, MIN_DEPTH) ** (w.exponent - 1.0)
+        return k_eff, Gnn
 
     # --------------------------------------------------------------------- evaluation
     def terms(self, t, x) -> Terms:
@@ -262,6 +270,12 @@ class WallContact:
 
 
 
+def spring_damper_rate(omega, zeta) -> float:
+    """Largest |λ| (1/s) of a spring–damper of natural frequency ω and damping ratio ζ:
+    ω(ζ + √(ζ² − 1)) when overdamped (ζ > 1), else ω."""
+    return omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
+
+
 def _solve_kkt(A, b):
     """Solve the constrained-dynamics (KKT) system; at a kinematic singularity (the two
     contact constraints dependent, e.g. a straight arm) take the least-squares solution
@@ -293,24 +307,11 @@ def constrained_rate(contact: WallContact, x0) -> float:
     try:
         worst = 0.0
         for mode in (SLIDING, STICKING):
-            m = len(x0)
-            J = np.zeros((m, m))
-            for j in range(m):
-                dx = 1e-6 * max(1.0, abs(x0[j]))
-                xp, xm = x0.copy(), x0.copy()
-                xp[j] += dx
-                xm[j] -= dx
-                J[:, j] = (contact.rhs(0.0, xp, mode, 1.0)[0]
-                           - contact.rhs(0.0, xm, mode, 1.0)[0]) / (2 * dx)
+            J = jacobian(lambda x: contact.rhs(0.0, x, mode, 1.0)[0], x0)
             worst = max(worst, float(np.abs(np.linalg.eigvals(J)).max()))
     finally:
         contact.d = d0
     return worst
-
-
-def contact_rate(contact: WallContact, x0) -> float:
-    """Compliant rung: the contact's largest rate (1/s) at x0 (sets its damping too)."""
-    return contact.set_start(x0)
 
 
 def build_contact(chain):

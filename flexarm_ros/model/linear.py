@@ -2,9 +2,11 @@
 
 About a configuration q0 at rest the equations of motion linearize to
 ``M(q0) δq̈ + K_t δq = 0`` with the tangent stiffness ``K_t = −∂(Q_grav − h − K q)/∂q``
-(the elastic K plus gravity's geometric stiffness, by central differences). The natural
-frequencies are ω_i² from the generalized symmetric eigenproblem K_t v = ω² M v (K_t is
-symmetrized: at a static equilibrium it is symmetric up to the differencing error).
+(the elastic K plus gravity's geometric stiffness, by central differences). The mode shapes
+are the mass-normalised eigenvectors of the generalized symmetric eigenproblem
+K_t v = ω² M v (K_t is symmetrized: at a static equilibrium it is symmetric up to the
+differencing error), and ω_i² the Rayleigh quotients v_iᵀK_t v_i of those shapes; a mode
+whose ω² is at the round-off of K_t is rigid (0 Hz, :func:`rigid_modes`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,12 @@ import numpy as np
 import scipy.linalg
 
 from flexarm_ros.errors import SceneError
+from flexarm_ros.model.differentiate import REL_STEP, jacobian
+
+#: largest difference step of :func:`highest_rate` with backlash (the dead zone's kink)
+BACKLASH_MAX_STEP = 1e-9
+#: a mode is rigid when its ω² is within this fraction of ‖K_t‖₂·‖v‖² (:func:`rigid_modes`)
+RIGID_ROUNDOFF = 1e-12
 
 
 @dataclass(frozen=True)
@@ -38,7 +46,7 @@ def reduced_coordinates(chain, joints: str) -> np.ndarray:
     return np.array([i for i in range(chain.n) if i not in drop], dtype=int)
 
 
-def tangent_stiffness(chain, q0, keep=None, rel_step=1e-6) -> np.ndarray:
+def tangent_stiffness(chain, q0, keep=None, rel_step=REL_STEP) -> np.ndarray:
     """K_t = −∂f/∂q at rest, f = Q_grav − h − K q (central differences), on ``keep``."""
     keep = np.arange(chain.n) if keep is None else keep
     zero = np.zeros(chain.n)
@@ -47,14 +55,15 @@ def tangent_stiffness(chain, q0, keep=None, rel_step=1e-6) -> np.ndarray:
         kin = chain.kinematics(q, zero)
         return kin.Qg - kin.h - chain.K @ q
 
-    Kt = np.zeros((len(keep), len(keep)))
-    for j, idx in enumerate(keep):
-        dq = rel_step * max(1.0, abs(q0[idx]))
-        qp, qm = q0.copy(), q0.copy()
-        qp[idx] += dq
-        qm[idx] -= dq
-        Kt[:, j] = -(force(qp) - force(qm))[keep] / (2 * dq)
-    return Kt
+    return -jacobian(force, q0, rel_step, columns=keep)[keep]
+
+
+def rigid_modes(w2, V, Kt) -> np.ndarray:
+    """Flags of the rigid-body modes among the eigenpairs (ω², v) of K_t v = ω² M v: those
+    whose stiffness is at the round-off of K_t, |ω²| ≤ RIGID_ROUNDOFF·‖K_t‖₂·‖v‖² (v the
+    columns of V). A threshold relative to the largest ω² would flag genuine low modes of a
+    fine mesh, whose highest ω² lies ~1e10× above the first."""
+    return np.abs(w2) <= RIGID_ROUNDOFF * np.linalg.norm(Kt, 2) * np.sum(V * V, axis=0)
 
 
 def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
@@ -71,10 +80,14 @@ def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
         Kt = chain.K[np.ix_(keep, keep)]
     Kt = 0.5 * (Kt + Kt.T)
     w2, V = scipy.linalg.eigh(Kt, M)
-    # rigid-body modes at exactly 0: K v vanishes to round-off relative to ‖K‖ (a threshold
-    # relative to the largest ω² would delete real low modes of fine meshes)
-    rigid = np.abs(w2) <= 1e-12 * np.linalg.norm(Kt, 2) * np.sum(V * V, axis=0)
-    w2 = np.where(rigid, 0.0, w2)
+    V = np.ascontiguousarray(V)
+    # ω² as the Rayleigh quotients vᵀK_t v of the mass-normalised shapes: the eigenvalue of
+    # a low mode carries the eigen-solve's round-off of the highest, ε·ω²_max, the quotient
+    # of its shape does not
+    w2 = np.einsum("ik,ij,jk->k", V, Kt, V)
+    w2 = np.where(rigid_modes(w2, V, Kt), 0.0, w2)      # rigid-body modes at exactly 0
+    order = np.argsort(w2, kind="stable")
+    w2, V = w2[order], V[:, order]
     freqs = np.sign(w2) * np.sqrt(np.abs(w2)) / (2 * np.pi)
     shapes = np.zeros((chain.n, len(keep)))
     shapes[keep, :] = V
@@ -94,17 +107,11 @@ def highest_rate(chain, q0, qd0, z0=None) -> float:
             q = q0.copy()
             q[im] = q0[ij] + sign * (b + 1e-6 * max(b, 1e-3))
             states.append(q)
+    # stay on one side of the dead zone's kink
+    max_step = BACKLASH_MAX_STEP if chain.backlash else np.inf
     worst = 0.0
     for q in states:
         x0 = np.concatenate([q[free], qd0[free], z0])
-        Jm = np.zeros((len(x0), len(x0)))
-        for j in range(len(x0)):
-            dx = 1e-6 * max(1.0, abs(x0[j]))
-            if chain.backlash:      # stay on one side of the dead zone's kink
-                dx = min(dx, 1e-9)
-            xp, xm = x0.copy(), x0.copy()
-            xp[j] += dx
-            xm[j] -= dx
-            Jm[:, j] = (chain.rhs(0.0, xp) - chain.rhs(0.0, xm)) / (2 * dx)
+        Jm = jacobian(lambda x: chain.rhs(0.0, x), x0, max_step=max_step)
         worst = max(worst, float(np.abs(np.linalg.eigvals(Jm)).max()))
     return worst

@@ -30,6 +30,7 @@ import numpy as np
 
 from flexarm_ros.model import drives
 from flexarm_ros.errors import SceneError
+from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.linear import tangent_stiffness
 from flexarm_ros.model.sensors import build_sensors
 from flexarm_ros.model.statics import initial_state
@@ -112,13 +113,7 @@ def linearize(chain) -> StateSpace:
             Kt[np.ix_([im, ij], [im, ij])] += k * blk
             Dt[np.ix_([im, ij], [im, ij])] += c * blk
     if np.max(np.abs(qdd0)) > 0.0:                        # not an equilibrium: ∂(M q̈₀)/∂q
-        for j in range(n):
-            d = 1e-6 * max(1.0, abs(q0[j]))
-            qp, qm = q0.copy(), q0.copy()
-            qp[j] += d
-            qm[j] -= d
-            Kt[:, j] += (chain.kinematics(qp, zero).M - chain.kinematics(qm, zero).M) @ qdd0 / (
-                2 * d)
+        Kt += jacobian(lambda q: chain.kinematics(q, zero).M @ qdd0, q0)
     Bz = np.zeros((n, nz))
     Bu = np.zeros((n, na))
     Zw = np.zeros((nz, n))
@@ -236,9 +231,7 @@ def _outputs(chain, q0, kin, A, B, nf, qdd0):
 def _moving_frame_term(chain, q0, sm, qdd0):
     """∂/∂q [e(ψ(q))ᵀ J(q)] q̈₀ at rest (central differences of the point kinematics): the
     accelerometer's sensitivity to configuration when the start is not an equilibrium."""
-    n = chain.n
-    zero = np.zeros(n)
-    out = np.zeros(n)
+    zero = np.zeros(chain.n)
 
     def proj(q):
         _, J, _, psi = chain.point_kinematics(q, zero, sm.link, sm.spec.body,
@@ -247,27 +240,18 @@ def _moving_frame_term(chain, q0, sm, qdd0):
         e = np.array([cs * sm.axis[0] - sn * sm.axis[1], sn * sm.axis[0] + cs * sm.axis[1]])
         return e @ (J @ qdd0)
 
-    for j in range(n):
-        d = 1e-6 * max(1.0, abs(q0[j]))
-        qp, qm = q0.copy(), q0.copy()
-        qp[j] += d
-        qm[j] -= d
-        out[j] = (proj(qp) - proj(qm)) / (2 * d)
-    return out
+    return jacobian(proj, q0)
 
 
 def _point_angle_jacobian(chain, q0, sm):
     """∂ψ/∂q of the sensor frame angle (linear in q: joint angles and slopes)."""
     n = chain.n
-    out = np.zeros(n)
     zero = np.zeros(n)
-    for j in range(n):
-        dq = np.zeros(n)
-        dq[j] = 1.0
-        # ψ is linear in q (sum of joint angles and φ′ᵀη): a unit difference is exact
-        psi1 = chain.point_kinematics(q0 + dq, zero, sm.link, sm.spec.body, sm.spec.position,
+
+    def psi(q):
+        return chain.point_kinematics(q, zero, sm.link, sm.spec.body, sm.spec.position,
                                       basis=sm.basis)[3]
-        psi0 = chain.point_kinematics(q0, zero, sm.link, sm.spec.body, sm.spec.position,
-                                      basis=sm.basis)[3]
-        out[j] = psi1 - psi0
-    return out
+
+    # ψ is linear in q (sum of joint angles and φ′ᵀη): a unit difference is exact
+    psi0 = psi(q0)
+    return np.array([psi(q0 + e) - psi0 for e in np.eye(n)])

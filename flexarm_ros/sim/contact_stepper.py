@@ -15,7 +15,9 @@ from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
-                                       ImpactRecord, WallContact, _stick_or_slip)
+                                       ImpactRecord, WallContact, _stick_or_slip,
+                                       spring_damper_rate)
+from flexarm_ros.sim.step import RK4_AUTO, rk4_step
 
 
 @dataclass
@@ -60,6 +62,8 @@ class ContactStepper:
         self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
         self.h_contact = h              # step while in contact (halved on excess drift)
         self.compliant = contact.method == "compliant"
+        if self.compliant:
+            contact.set_start(self.x)   # the compliant damping is fixed at the start state
         # smooth stretches of the impulse rung in compiled code (numba backend); events,
         # impacts and retaken steps stay in the Python reference below
         self.compiled = not self.compliant and chain.backend == "numba"
@@ -70,18 +74,16 @@ class ContactStepper:
 
     # ------------------------------------------------------------------ internals
     def _rk4(self, t0, x0, dt, md, sg, want_impulse=False):
-        """One RK4 step; with ``want_impulse`` also the normal impulse ∫λ dt over it (the
-        stages' forces with the RK4 weights)."""
-        f = self.contact.rhs
-        k1, l1, _, _ = f(t0 + kchain.STAGE_EPS * dt, x0, md, sg)
-        k2, l2, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k1, md, sg)
-        k3, l3, _, _ = f(t0 + 0.5 * dt, x0 + 0.5 * dt * k2, md, sg)
-        k4, l4, _, _ = f(t0 + (1 - kchain.STAGE_EPS) * dt, x0 + dt * k3, md, sg)
+        """One RK4 step in mode ``md`` (:func:`~flexarm_ros.sim.step.rk4_step`); with
+        ``want_impulse`` also the normal impulse ∫λ dt over it (the stages' normal forces
+        with the RK4 weights)."""
+        rhs = self.contact.rhs
         self.calls += 4
-        x = self.chain.clamp_states(x0 + (dt / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
         if want_impulse:
-            return x, (dt / 6.0) * (l1 + 2 * l2 + 2 * l3 + l4)
-        return x
+            x, impulse = rk4_step(lambda t, x: rhs(t, x, md, sg)[:2], t0, x0, dt,
+                                  quadrature=True)
+            return self.chain.clamp_states(x), impulse
+        return self.chain.clamp_states(rk4_step(lambda t, x: rhs(t, x, md, sg)[0], t0, x0, dt))
 
     def _indicators(self, tt, xx, md, sg):
         """Event functions of a mode (positive while the mode holds)."""
@@ -131,24 +133,18 @@ class ContactStepper:
         return xx, SLIDING, -math.copysign(1.0, lt)
 
     def _compliant_step(self, t, x):
-        """Largest stable RK4 step near or in a compliant contact: 1.5/|λ| of the contact's
-        spring–damper with the tool's effective mass at the current configuration (it can
-        be far lighter than at the start); the fixed step elsewhere."""
+        """Largest stable RK4 step near or in a compliant contact: RK4_AUTO/|λ| of the
+        contact's spring–damper with the tool's effective mass at the current configuration
+        (it can be far lighter than at the start); the fixed step elsewhere."""
         c = self.contact
         tm = c.terms(t, x)
         g = c.gap(tm)
         vn = c.n @ tm.v
         if g > 0.0 and g + min(vn, 0.0) * self.h > 0.0:
             return self.h                       # cannot reach the wall within this step
-        jn = c.n @ tm.J
-        Gnn = float(jn @ np.linalg.solve(tm.M, jn))
-        w = c.wall
-        delta = max(-g, 1e-3)
-        k_eff = w.exponent * w.stiffness * delta ** (w.exponent - 1.0)
-        omega = math.sqrt(k_eff * Gnn)
+        k_eff, Gnn = c.spring(tm, -g)
         zeta = 0.5 * c.c_contact * math.sqrt(Gnn / k_eff)
-        rate = omega * (zeta + math.sqrt(zeta * zeta - 1.0) if zeta > 1.0 else 1.0)
-        return min(self.h, 1.5 / rate)
+        return min(self.h, RK4_AUTO / spring_damper_rate(math.sqrt(k_eff * Gnn), zeta))
 
     # --------------------------------------------------------------------- public
     def advance(self, t_target):

@@ -5,12 +5,8 @@ Every run returns an :class:`Integration` result (like scipy's ``OdeResult``: ``
 ``message``, call counters); the state is checked after every step and a non-finite or
 invalid state raises
 :class:`~flexarm_ros.errors.SimulationDiverged` naming what diverged, when, and what
-to change. Nothing non-finite is ever returned.
-
-The explicit step limit: RK4 is stable for h·|λ| below ≈ 2.78 on the negative real axis and
-2√2 ≈ 2.83 on the imaginary axis, λ the eigenvalues of the linearized system. A fixed step
-above that limit is refused up front (:class:`StepTooLarge`); the automatic step is
-1.5/|λ|max, which also keeps the phase error of the highest retained mode small.
+to change (:class:`~flexarm_ros.sim.guard.DivergenceGuard`). Nothing non-finite is ever
+returned. The step size and its stability limit: :mod:`flexarm_ros.sim.step`.
 """
 
 from __future__ import annotations
@@ -22,14 +18,14 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 
+from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
-from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
-from flexarm_ros.model.linear import highest_rate
+from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.programs import torque_breakpoints
+from flexarm_ros.sim.guard import DivergenceGuard
+from flexarm_ros.sim.step import choose_step, rk4_step
 
-RK4_STABILITY = 2.78
-RK4_AUTO = 1.5
 SOLVE_IVP = {"rk45": RK45, "dop853": DOP853, "radau": Radau, "bdf": BDF, "lsoda": LSODA}
 
 
@@ -51,6 +47,18 @@ class Integration:
     def success(self) -> bool:
         return self.status == 0
 
+    @classmethod
+    def completed(cls, chain, t, xs, rhs_evaluations, steps, wall_time_s, dt) -> "Integration":
+        """A run that reached its end time, from its first-order states xs (N, m) at the
+        output times t: q and q̇ of every coordinate (prescribed ones from their motion)
+        and the actuator states."""
+        q = np.empty((len(t), chain.n))
+        qd = np.empty((len(t), chain.n))
+        for k, tk in enumerate(t):
+            q[k], qd[k] = chain.full_state(tk, xs[k])
+        return cls(t, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
+                   "integration reached the end time", rhs_evaluations, steps, wall_time_s, dt)
+
 
 class _Counted:
     def __init__(self, chain):
@@ -60,35 +68,6 @@ class _Counted:
     def __call__(self, t, x):
         self.calls += 1
         return self.chain.rhs(t, x)
-
-
-def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0):
-    """The fixed step to use (RK4, trapezoid) or max step (adaptive, 0 = unbounded).
-
-    RK4: checked against its stability limit, automatic = 1.5/|λ|max. Trapezoid: no
-    stability limit; automatic = the output period (choose --dt for accuracy).
-    """
-    if integrator == "trapezoid":
-        h = min(dt, output_dt) if dt > 0 else output_dt
-        return output_dt / np.ceil(output_dt / h - 1e-9)
-    if integrator != "rk4":
-        return dt
-    q, qd = chain.full_state(t0, x0)
-    rate = highest_rate(chain, q, qd, x0[2 * len(chain.free):])
-    limit = RK4_STABILITY / rate if rate > 0 else np.inf
-    if dt > 0:
-        if dt > limit:
-            raise StepTooLarge(
-                "fixed step", t0, dt,
-                f"use --dt <= {limit:.3g} s (auto: --dt 0), an implicit integrator "
-                f"(--integrator trapezoid, radau or bdf), or a coarser rung / fewer modes",
-                detail=f"dt = {dt:.3g} s exceeds the RK4 stability limit {limit:.3g} s set "
-                       f"by the highest model rate {rate / (2 * np.pi):.4g} Hz")
-        h = dt
-    else:
-        h = RK4_AUTO / rate if rate > 0 else output_dt
-    h = min(h, output_dt)
-    return output_dt / np.ceil(output_dt / h - 1e-9)
 
 
 def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
@@ -107,7 +86,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     t_out = np.arange(n_out + 1) * output_dt
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     h = choose_step(chain, x0, integrator, dt, output_dt)
-    guard = _Guard(chain, max_deflection_ratio, integrator, h)
+    guard = DivergenceGuard(chain, max_deflection_ratio, integrator, h)
     f = _Counted(chain)
     xs = np.empty((len(t_out), len(x0)))
     xs[0] = x0
@@ -142,11 +121,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t = t_out[k]
             for j in range(per):
                 tj = t + j * h
-                k1 = f(tj + kchain.STAGE_EPS * h, x)
-                k2 = f(tj + 0.5 * h, x + 0.5 * h * k1)
-                k3 = f(tj + 0.5 * h, x + 0.5 * h * k2)
-                k4 = f(tj + (1.0 - kchain.STAGE_EPS) * h, x + h * k3)
-                x = chain.clamp_states(x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4))
+                x = chain.clamp_states(rk4_step(f, tj, x, h))
                 steps += 1
                 guard.check(tj + h, x)
             xs[k + 1] = x
@@ -185,63 +160,13 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t_lo = t_hi
         xs[k_out:] = x  # t_end exactly on the grid but below rounding
     wall = time.perf_counter() - wall0
-    q = np.empty((len(t_out), chain.n))
-    qd = np.empty((len(t_out), chain.n))
-    for k, tk in enumerate(t_out):
-        q[k], qd[k] = chain.full_state(tk, xs[k])
     step_used = h if integrator in ("rk4", "trapezoid") else 0.0
-    return Integration(t_out, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
-                       "integration reached the end time", f.calls, steps, wall, step_used)
-
-
-class _Guard:
-    """Checks a state: finite, and beams within the small-deflection model's validity."""
-
-    def __init__(self, chain, max_ratio, integrator, h):
-        self.chain = chain
-        self.max_ratio = max_ratio
-        self.integrator = integrator
-        self.h = h
-        self.last = None
-        self.lengths = np.array([lm.beam.length for lm in chain.links])
-        self.tip_rows = [(lm.beam.phi_tip, lm.eta) for lm in chain.links]
-
-    def _ratios(self, q):
-        return np.array([phi @ q[sl] for phi, sl in self.tip_rows]) / self.lengths
-
-    def _fix(self):
-        if self.integrator == "rk4":
-            return (f"reduce the step (--dt, now {self.h:.3g} s), use --integrator radau, "
-                    f"or a coarser rung / fewer modes")
-        return "tighten --rtol/--atol or use --integrator radau or bdf"
-
-    def check(self, t, x):
-        nf = len(self.chain.free)
-        if not np.all(np.isfinite(x)):
-            bad = int(np.nonzero(~np.isfinite(x))[0][0])
-            name = self.chain.state_labels()[bad]
-            kind = "coordinate" if bad < nf else ("rate" if bad < 2 * nf else "actuator state")
-            last = float(self.last[bad]) if self.last is not None else float("nan")
-            raise SimulationDiverged(f"{kind} {name}", t, last, self._fix(),
-                                     detail="state became non-finite")
-        q, _ = self.chain.full_state(t, x)
-        ratios = self._ratios(q)
-        worst = int(np.argmax(np.abs(ratios)))
-        if abs(ratios[worst]) > self.max_ratio:
-            lm = self.chain.links[worst]
-            raise SimulationDiverged(
-                f"tip deflection of {lm.name}", t, float(ratios[worst] * self.lengths[worst]),
-                "check the input magnitude and damping; keep foreshortening on "
-                "(fidelity.foreshortening: true) for fast rotation; or raise "
-                "fidelity.max_deflection_ratio if large deflection is intended",
-                detail=f"|w(L)|/L = {abs(ratios[worst]):.3g} exceeds "
-                       f"fidelity.max_deflection_ratio = {self.max_ratio} (the small-deflection "
-                       f"beam model is no longer valid)")
-        self.last = np.array(x, copy=True)
+    return Integration.completed(chain, t_out, xs, f.calls, steps, wall, step_used)
 
 
 TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + |S⁻¹|·|f|)
 TRAPEZOID_MAX_ITER = 8      # iterations per step before the iteration matrix is refreshed
+ITERATION_REL_STEP = 1e-7   # relative difference step of the iteration matrix's K and C
 
 
 def iteration_matrix(chain, t, x, h) -> np.ndarray:
@@ -250,24 +175,14 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     model = chain.kernel_args
     ws = kchain.workspace(model)
     free = chain.free
-    nf = len(free)
     q, qd = chain.full_state(t, x)
 
     def force(qq, vv):
         kchain.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
         return ws[kchain.W_F][free].copy()
 
-    K = np.zeros((nf, nf))
-    C = np.zeros((nf, nf))
-    for j, idx in enumerate(free):
-        for arr, out in ((q, K), (qd, C)):
-            d = 1e-7 * max(1.0, abs(arr[idx]))
-            ap, am = arr.copy(), arr.copy()
-            ap[idx] += d
-            am[idx] -= d
-            fp = force(ap, qd) if arr is q else force(q, ap)
-            fm = force(am, qd) if arr is q else force(q, am)
-            out[:, j] = -(fp - fm) / (2 * d)
+    K = -jacobian(lambda qq: force(qq, qd), q, ITERATION_REL_STEP, columns=free)
+    C = -jacobian(lambda vv: force(q, vv), qd, ITERATION_REL_STEP, columns=free)
     kchain.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
     M = ws[kchain.W_M][np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)

@@ -25,10 +25,11 @@ from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.contact import PHASES, build_contact, constrained_rate, contact_rate
+from flexarm_ros.model.contact import PHASES, build_contact
 from flexarm_ros.sim.contact_stepper import ContactStepper
 from flexarm_ros.errors import SceneError
-from flexarm_ros.sim.integrate import RK4_AUTO, _Guard, choose_step
+from flexarm_ros.sim.guard import DivergenceGuard
+from flexarm_ros.sim.step import choose_step
 from flexarm_ros.scene import Input, Program
 from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
 from flexarm_ros.model.statics import initial_state
@@ -60,7 +61,7 @@ class Sample:
 class Plant:
     """A scene's arm advanced by :meth:`step` with held joint torques."""
 
-    def __init__(self, scene, physics_dt: float = 0.0):
+    def __init__(self, scene):
         self.scene = scene
         self.chain = ch = Chain(plant_scene(scene))
         self.contact = build_contact(ch)
@@ -83,16 +84,9 @@ class Plant:
             self._acc_row = {int(j): r for r, j in enumerate(self._acc[0])}
         self.torques = np.zeros(len(ch.links))
         fid = ch.fidelity
-        h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt)
-        if self.contact is not None:
-            if self.contact.method == "compliant":
-                contact_rate(self.contact, self.x)      # fixes the contact damping
-            else:
-                h = min(h, RK4_AUTO / constrained_rate(self.contact, self.x))
-        if physics_dt > 0:
-            h = min(h, physics_dt)
-        self.h = h
-        self.guard = _Guard(ch, fid.max_deflection_ratio, "rk4", h)
+        # the step of a batch run (fidelity.dt checked against the stability limit)
+        self.h = h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt, contact=self.contact)
+        self.guard = DivergenceGuard(ch, fid.max_deflection_ratio, "rk4", h)
         self.guard.check(0.0, self.x)
         self.ws = kchain.workspace(ch.kernel_args)
         self._frames_at = None                       # (t, k) of the frames in self.ws

@@ -9,16 +9,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError, StepTooLarge
+from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.model.contact import (PHASE_CODE, PHASES, build_contact, check_integrator,
-                                       constrained_rate, contact_rate)
+from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact, check_integrator
 from flexarm_ros.model.sensors import build_sensors, sample_grid_ns, sensor_tables
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.contact_stepper import integrate_contact
-from flexarm_ros.sim.integrate import (RK4_AUTO, RK4_STABILITY, Integration, _Guard,
-                                       choose_step, integrate)
+from flexarm_ros.sim.guard import DivergenceGuard
+from flexarm_ros.sim.integrate import Integration, integrate
+from flexarm_ros.sim.step import choose_step
 
 
 @dataclass
@@ -40,14 +40,6 @@ class SimResult:
                 "rhs_evaluations": r.rhs_evaluations, "steps": r.steps, "dt": r.dt,
                 "rung": self.chain.fidelity.rung, "coordinates": list(self.chain.names),
                 "integrator": self.chain.fidelity.integrator}
-
-
-
-
-
-
-
-
 
 
 def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
@@ -103,35 +95,14 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
         raise SceneError(f"walls[0]: the tool starts {-g0:.6g} m inside the wall, expected "
                          f"a start on the free side (gap >= 0)")
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
-    h = choose_step(chain, x0, "rk4", fid.dt, out_dt)
-    if contact.method == "compliant":
-        # the damping is fixed at the start; the stepper shortens its step near and in
-        # contact to the contact's own rate (ContactStepper._compliant_step)
-        contact_rate(contact, x0)
-    else:
-        rate = constrained_rate(contact, x0)
-        limit = RK4_STABILITY / rate
-        if fid.dt > 0 and fid.dt > limit:
-            raise StepTooLarge("fixed step", 0.0, fid.dt,
-                               f"use --dt <= {limit:.3g} s (auto: --dt 0)",
-                               detail=f"the constrained (tool on the wall) arm's highest "
-                                      f"rate {rate / (2 * np.pi):.4g} Hz limits RK4")
-        if fid.dt == 0:
-            h = min(h, RK4_AUTO / rate)
-            h = out_dt / np.ceil(out_dt / h - 1e-9)
-    guard = _Guard(chain, fid.max_deflection_ratio, "rk4", h)
+    h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact)
+    guard = DivergenceGuard(chain, fid.max_deflection_ratio, "rk4", h)
     wall0 = time.perf_counter()
     xs, crun, steps, calls = integrate_contact(chain, contact, x0, T, h, out_dt, guard,
                                                progress)
     wall = time.perf_counter() - wall0
     t = np.arange(len(xs)) * out_dt
-    q = np.empty((len(t), chain.n))
-    qd = np.empty((len(t), chain.n))
-    for k, tk in enumerate(t):
-        q[k], qd[k] = chain.full_state(tk, xs[k])
-    run = Integration(t, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
-                      "integration reached the end time", calls, steps, wall, h)
-    return run, crun
+    return Integration.completed(chain, t, xs, calls, steps, wall, h), crun
 
 
 def contact_columns(crun, every: int = 1) -> dict:

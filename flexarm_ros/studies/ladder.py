@@ -73,8 +73,9 @@ import numpy as np
 from flexarm_ros.model.beams import DEFAULT_REFINE
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.errors import SceneError, SimulationDiverged
-from flexarm_ros.sim.integrate import choose_step, integrate
-from flexarm_ros.model.linear import natural_modes, reduced_coordinates, tangent_stiffness
+from flexarm_ros.sim.integrate import integrate
+from flexarm_ros.sim.step import choose_step
+from flexarm_ros.model.linear import natural_modes
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.simulate import simulate
 
@@ -94,8 +95,6 @@ ADAPTIVE = ("dop853", 1e-6, 1e-9)
 TRAPEZOID_DT = 2.5e-4   # s, the implicit rule's step in the full ladder
 #: frequencies below this are rigid-body modes (Hz)
 RIGID_MODE_HZ = 1e-6
-#: a mode is rigid when vᵀK_t v ≤ this · ‖K_t‖₂ · ‖v‖² (stiffness at round-off)
-RIGID_RAYLEIGH = 1e-12
 #: tip errors within this fraction (or within the reference's estimated error) are ties
 PARETO_REL_TIE = 0.01
 #: failures that make a row's status instead of ending the study
@@ -213,32 +212,11 @@ def energy_drift(res) -> Optional[float]:
 
 def first_frequency(chain: Chain) -> Optional[float]:
     """First natural frequency (Hz) above 1e-6 Hz of the chain linearized at its initial
-    state; joints locked when the scene has inputs, else free. None if there is none.
-
-    The eigenvalues are taken from the mass-normalised shapes of :func:`natural_modes` as
-    Rayleigh quotients ω² = vᵀK_t v, and a mode counts as rigid only when ω² is at the
-    round-off of K_t (|vᵀK_t v| ≤ 1e-12·‖K_t‖₂·‖v‖²). ``natural_modes`` zeroes every ω²
-    below 1e-9 of the largest, which on a fine mesh (highest mode ~1e10× the first)
-    also zeroes genuine low modes (e.g. the 0.35 Hz joint mode of link_flexjoint at
-    fem 8); measured: rigid modes give ≤ 1e-20, genuine ones ≥ 5e-9 on the shipped
-    scenes.
-    """
+    state (:func:`~flexarm_ros.model.linear.natural_modes`, whose rigid-body modes are at
+    exactly 0 Hz); joints locked when the scene has inputs, else free. None if there is
+    none."""
     joints = "locked" if chain.scene.inputs else "free"
-    q0 = initial_state(chain)[0]
-    modes = natural_modes(chain, q0, joints)
-    keep = reduced_coordinates(chain, joints)
-    if len(keep) == 0:
-        return None
-    if chain.has_gravity:
-        Kt = tangent_stiffness(chain, q0, keep)
-    else:
-        Kt = chain.K[np.ix_(keep, keep)]
-    Kt = 0.5 * (Kt + Kt.T)
-    V = modes.shapes[keep, :]
-    w2 = np.einsum("ik,ij,jk->k", V, Kt, V)
-    knorm = np.linalg.norm(Kt, 2)
-    rigid = np.abs(w2) <= RIGID_RAYLEIGH * knorm * np.sum(V * V, axis=0)
-    f = np.where(rigid, 0.0, np.sign(w2) * np.sqrt(np.abs(w2)) / (2 * np.pi))
+    f = natural_modes(chain, initial_state(chain)[0], joints).frequencies_hz
     f = np.sort(f[f > RIGID_MODE_HZ])
     return float(f[0]) if len(f) else None
 

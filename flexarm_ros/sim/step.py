@@ -1,0 +1,105 @@
+"""The time step: one classical RK4 step in numpy (:func:`rk4_step`) and the choice of the
+step size of a run (:func:`choose_step`), shared by batch integration, the contact
+stepper and the plant.
+
+The explicit step limit: RK4 is stable for h·|λ| below ≈ 2.78 on the negative real axis and
+2√2 ≈ 2.83 on the imaginary axis, λ the eigenvalues of the linearized system. A fixed step
+above that limit is refused up front (:class:`~flexarm_ros.errors.StepTooLarge`); the
+automatic step is 1.5/|λ|max, which also keeps the phase error of the highest retained mode
+small.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flexarm_ros.errors import StepTooLarge
+from flexarm_ros.model.compiled.chain import STAGE_EPS
+from flexarm_ros.model.contact import constrained_rate
+from flexarm_ros.model.linear import highest_rate
+
+#: h·|λ|max above which a fixed RK4 step is refused
+RK4_STABILITY = 2.78
+#: h·|λ|max of the automatic RK4 step
+RK4_AUTO = 1.5
+
+
+def rk4_step(f, t, x, h, quadrature: bool = False):
+    """One RK4 step of ẋ = f(t, x) from (t, x) over h (actuator-state bounds are the
+    caller's):
+
+        k₁ = f(t + εh, x),            k₂ = f(t + h/2, x + h/2·k₁),
+        k₃ = f(t + h/2, x + h/2·k₂),  k₄ = f(t + (1 − ε)h, x + h·k₃),
+        x₁ = x + h/6·(k₁ + 2k₂ + 2k₃ + k₄),
+
+    ε = ``STAGE_EPS``: the first and last stages lie just inside the step, so an input that
+    jumps on a step boundary is seen with its value on that step (as the compiled loops).
+
+    With ``quadrature``, ``f`` returns (ẋ, g) and the step returns (x₁, ∫g dt), the integral
+    by the same stages and weights, h/6·(g₁ + 2g₂ + 2g₃ + g₄) (e.g. the normal impulse from
+    the stage contact forces)."""
+    def stage(ts, xs):
+        return f(ts, xs) if quadrature else (f(ts, xs), 0.0)
+
+    k1, g1 = stage(t + STAGE_EPS * h, x)
+    k2, g2 = stage(t + 0.5 * h, x + 0.5 * h * k1)
+    k3, g3 = stage(t + 0.5 * h, x + 0.5 * h * k2)
+    k4, g4 = stage(t + (1.0 - STAGE_EPS) * h, x + h * k3)
+    x1 = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return (x1, (h / 6.0) * (g1 + 2 * g2 + 2 * g3 + g4)) if quadrature else x1
+
+
+def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None):
+    """The fixed step (RK4, trapezoid) or the max step (adaptive, 0 = unbounded) of a run
+    from state x0, given the requested step ``dt`` (0 = automatic) and the output period.
+
+    RK4: a requested step above the stability limit RK4_STABILITY/|λ|max is refused
+    (:class:`StepTooLarge` naming the limit and the alternatives); the automatic step is
+    RK4_AUTO/|λ|max; either is shortened to divide the output period. With a wall
+    ``contact`` of the impulse rung, |λ|max is also taken with the tool held on the wall
+    (:func:`~flexarm_ros.model.contact.constrained_rate`: holding it raises the highest
+    frequency, and the step must be stable in every contact mode); the compliant rung's
+    stepper shortens its own step near the wall. Trapezoid: no stability limit; automatic =
+    the output period (choose --dt for accuracy).
+    """
+    if integrator == "trapezoid":
+        h = min(dt, output_dt) if dt > 0 else output_dt
+        return output_dt / np.ceil(output_dt / h - 1e-9)
+    if integrator != "rk4":
+        return dt
+    q, qd = chain.full_state(t0, x0)
+    rate = highest_rate(chain, q, qd, x0[2 * len(chain.free):])
+    limit = RK4_STABILITY / rate if rate > 0 else np.inf
+    if dt > 0:
+        if dt > limit:
+            raise _refusal(dt, limit, t0, f"the highest model rate {rate / (2 * np.pi):.4g} Hz",
+                           implicit=contact is None)
+        h = dt
+    else:
+        h = RK4_AUTO / rate if rate > 0 else output_dt
+    h = min(h, output_dt)
+    h = output_dt / np.ceil(output_dt / h - 1e-9)
+    if contact is None or contact.method == "compliant":
+        return h
+    rate = constrained_rate(contact, x0)
+    limit = RK4_STABILITY / rate
+    if dt > 0 and dt > limit:
+        raise _refusal(dt, limit, t0, f"the highest rate {rate / (2 * np.pi):.4g} Hz of the "
+                       f"arm with its tool held on the wall", implicit=False)
+    if dt == 0:
+        h = min(h, RK4_AUTO / rate)
+        h = output_dt / np.ceil(output_dt / h - 1e-9)
+    return h
+
+
+def _refusal(dt, limit, t0, source, implicit=True) -> StepTooLarge:
+    """The refusal of a fixed RK4 step above its stability limit: ``source`` names what
+    sets the limit; ``implicit``: offer the implicit integrators (not with a wall, whose
+    contact integrator is RK4)."""
+    fix = f"use --dt <= {limit:.3g} s (auto: --dt 0), "
+    if implicit:
+        fix += "an implicit integrator (--integrator trapezoid, radau or bdf), "
+    return StepTooLarge(
+        "fixed step", t0, dt, fix + "or a coarser rung / fewer modes",
+        detail=f"dt = {dt:.3g} s exceeds the RK4 stability limit {limit:.3g} s set by "
+               f"{source}")

@@ -58,7 +58,7 @@ import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import (Attachment, Channel, ChunkIndex, Footer, Header, Message, MessageIndex,
-                          Metadata, Schema, Statistics)
+                          Metadata, MetadataIndex, Schema, Statistics)
 from mcap_ros2.decoder import DecoderFactory
 
 __all__ = [
@@ -109,7 +109,8 @@ class Damage:
     ``kind`` is ``"truncated"`` (the file ends inside or right after a complete record,
     without its footer) or ``"corrupt"``.  ``lost_messages`` is the number of messages
     the region held and ``lost_time_ns`` their (first, last) log time, when the message
-    indexes, the chunk header or the summary say so (``None``: unknown).
+    indexes, the chunk header or the summary say so (``None``: unknown);
+    ``lost_metadata`` the names of the Metadata records in it (from the summary).
     """
 
     start: int
@@ -118,6 +119,7 @@ class Damage:
     reason: str
     lost_messages: int | None = None
     lost_time_ns: tuple[int, int] | None = None
+    lost_metadata: tuple[str, ...] = ()
 
     def describe(self) -> str:
         """``"bytes A–B (reason): N messages lost (log time t0–t1 s)"``."""
@@ -129,6 +131,9 @@ class Damage:
         if self.lost_time_ns is not None:
             a, b = self.lost_time_ns
             what += f" (log time {seconds(a)}–{seconds(b)} s)"
+        if self.lost_metadata:
+            what += (f"; Metadata record{'s' if len(self.lost_metadata) > 1 else ''} "
+                     f"{', '.join(repr(n) for n in self.lost_metadata)} lost")
         return what
 
 
@@ -389,13 +394,14 @@ class _Region:
         self.indexed: int | None = None
         self.index_times: list[int] = []
 
-    def damage(self, lost: int | None, times: tuple[int, int] | None) -> Damage:
+    def damage(self, lost: int | None, times: tuple[int, int] | None,
+               metadata: tuple[str, ...] = ()) -> Damage:
         if self.indexed is not None:
             lost = self.indexed if lost is None else max(lost, self.indexed)
             if self.index_times:
                 times = (min(self.index_times), max(self.index_times))
         return Damage(self.start, self.end, self.kind, self.reason, lost,
-                      times if times is not None else self.times)
+                      times if times is not None else self.times, metadata)
 
 
 class _Scan:
@@ -416,6 +422,7 @@ class _Scan:
         self.spare_schemas: dict[int, Schema] = {}        # from the summary section
         self.spare_channels: dict[int, Channel] = {}
         self.chunk_indexes: list[ChunkIndex] = []
+        self.metadata_indexes: list[MetadataIndex] = []
         self.statistics: Statistics | None = None
         self.chunked = False
         self.damage: list[Damage] = []
@@ -473,6 +480,7 @@ class _Scan:
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         chunks: list[ChunkIndex] = []
+        metadata: list[MetadataIndex] = []
         stats = None
         pos = 0
         try:
@@ -493,6 +501,8 @@ class _Scan:
                     chunks.append(_parse(ChunkIndex, body))
                 elif opcode == Opcode.STATISTICS:
                     stats = _parse(Statistics, body)
+                elif opcode == Opcode.METADATA_INDEX:
+                    metadata.append(_parse(MetadataIndex, body))
                 elif opcode not in _OPCODES and opcode < 0x80:
                     return False
                 pos += 9 + length
@@ -500,6 +510,7 @@ class _Scan:
             return False
         self.spare_schemas, self.spare_channels = schemas, channels
         self.chunk_indexes, self.statistics = chunks, stats
+        self.metadata_indexes = metadata
         self.chunked = bool(chunks)
         return True
 
@@ -621,7 +632,11 @@ class _Scan:
                 times = (min(c.message_start_time for c in hit),
                          max(c.message_end_time for c in hit))
                 lost = self._indexed_count(hit)
-        damage = region.damage(lost, times)
+            else:
+                lost = 0        # a chunked file keeps its messages in chunks: none here
+        names = tuple(m.name for m in self.metadata_indexes
+                      if region.start <= m.offset < region.end)
+        damage = region.damage(lost, times, names)
         self.damage.append(damage)
         return damage
 
@@ -766,6 +781,8 @@ class _Scan:
                 yield ("channel", channel, schema)
             yield ("message", record, channel, schema, where, verified)
         elif opcode == Opcode.SCHEMA:
+            if record.id in self.schemas and self.schemas[record.id] == record:
+                return                                   # repeated (summary section)
             self.schemas[record.id] = record
             yield ("schema", record)
         elif opcode == Opcode.CHANNEL:

@@ -461,20 +461,20 @@ class _Scan:
         start, _, crc = struct.unpack_from("<QQI", tail, 9)
         if start == 0:
             return                                        # the writer wrote none
-        lookback = max(8, footer_at - _SUMMARY_LOOKBACK)
-        before = self.src.read(lookback, footer_at - lookback)
-        data_end = before.rfind(_DATA_END)
-        starts = [start] if 8 < start < footer_at else []
-        if data_end >= 0:
-            after = lookback + data_end + len(_DATA_END) + 4
-            if after not in starts and after <= footer_at:
-                starts.append(after)
-        for start in starts:
+        def load(start: int) -> bool:
             data = self.src.read(start, footer_at - start)
             if crc != 0 and zlib.crc32(tail[:9 + 16], zlib.crc32(data)) != crc:
-                continue
-            if self._parse_summary(data):
-                return
+                return False
+            return self._parse_summary(data)
+
+        if 8 < start < footer_at and load(start):
+            return
+        lookback = max(8, footer_at - _SUMMARY_LOOKBACK)
+        data_end = self.src.read(lookback, footer_at - lookback).rfind(_DATA_END)
+        if data_end >= 0:
+            moved = lookback + data_end + len(_DATA_END) + 4
+            if moved != start and moved <= footer_at:
+                load(moved)
 
     def _parse_summary(self, data: bytes) -> bool:
         schemas: dict[int, Schema] = {}

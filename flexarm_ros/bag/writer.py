@@ -55,7 +55,9 @@ recovers every message of the complete chunks with a
 chunk being filled (at most ``chunk_size`` bytes of serialized messages; call
 :meth:`BagWriter.flush` to close a chunk early), the ``rosbag2`` metadata record and the
 summary section (indexes, statistics), so tools that need the summary (``ros2 bag
-info``) may refuse the file until it is recovered (e.g. ``mcap recover``).  Data are
+info``, ``mcap``'s indexed reader, rosbags) refuse the file until it is rewritten
+complete by ``flexarm bag repair`` (:mod:`flexarm_ros.bag.repair`; ``flexarm run
+--processes`` does that itself when its recorder process was killed).  Data are
 flushed, not fsync'ed: a power loss can lose more.
 """
 

@@ -273,8 +273,8 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
         f.seek(max(0, path.stat().st_size - 8))
         if f.read() == b"\x89MCAP0\r\n":
             return None                         # it finalized the file before dying
-    how = (f"killed by {signal.Signals(-returncode).name}" if returncode < 0 and
-           -returncode in signal.valid_signals() else f"exited with {returncode}")
+    how = (f"was killed by {signal.Signals(-returncode).name}" if returncode < 0 and
+           -returncode in signal.valid_signals() else f"exited with status {returncode}")
     killed = path.with_name(f"{path.stem}.killed{path.suffix}")
     os.replace(path, killed)
     try:

@@ -143,7 +143,7 @@ def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
         _cleanup(proc)
     assert proc.returncode == 1 and "'recorder': -9" in stderr, stderr
     killed = tmp_path / "run.killed.mcap"
-    assert "the recorder killed by SIGKILL: " in stdout and f"kept as {killed}" in stdout
+    assert "the recorder was killed by SIGKILL: " in stdout and f"kept as {killed}" in stdout
     with pytest.warns(TruncatedBagWarning):
         unfinished = read_bag(killed)
     with open(out, "rb") as f:

@@ -243,6 +243,25 @@ def cmd_compare(args):
     return run_cli(args)
 
 
+def cmd_bag_repair(args):
+    """A damaged or unfinished bag rewritten complete; see flexarm_ros.bag.repair."""
+    from flexarm_ros.bag.repair import cli
+    return cli(args)
+
+
+def _bag_parser(sub):
+    b = sub.add_parser("bag", help="bag tools (repair)")
+    bsub = b.add_subparsers(dest="bag_command", required=True, metavar="{repair}")
+    br = bsub.add_parser("repair", help="rewrite what is readable of a damaged or unfinished "
+                                        "MCAP bag (killed recorder, corrupt chunks) into a "
+                                        "complete file")
+    br.add_argument("bag", type=Path, metavar="IN.mcap", help="the damaged bag (kept as is)")
+    br.add_argument("--out", type=Path, metavar="OUT.mcap",
+                    help="the complete bag to write (default: IN.repaired.mcap)")
+    br.add_argument("--json", action="store_true", help="print the report as JSON")
+    br.set_defaults(func=cmd_bag_repair)
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="flexarm", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -378,6 +397,7 @@ def build_parser():
     c.add_argument("--window", metavar="START:END",
                    help="analyse only this span of the reference clock, s (e.g. 2.1:2.5)")
     c.set_defaults(func=cmd_compare)
+    _bag_parser(sub)
     return p
 
 

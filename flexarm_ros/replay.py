@@ -249,10 +249,17 @@ def command(args) -> int:
             options = ViewOptions(args.shape_rate, args.samples, args.force_scale)
         except (RerunUnavailable, ValueError) as exc:
             return fail(exc)
-    try:
-        plan = load_plan(args.bag, args.topics, args.namespace)
-    except (OSError, BagError) as exc:
-        return fail(exc)
+    import warnings
+    with warnings.catch_warnings(record=True) as caught:   # a damaged bag: one line each
+        warnings.simplefilter("always")
+        try:
+            plan = load_plan(args.bag, args.topics, args.namespace)
+        except (OSError, BagError) as exc:
+            plan = exc
+    for w in caught:
+        print(f"flexarm replay: warning: {w.message}", file=sys.stderr)
+    if isinstance(plan, Exception):
+        return fail(plan)
     out = {"bag": plan.path}
     if args.rerun is not None:
         from flexarm_ros.viz.rerun_view import bag_to_rerun

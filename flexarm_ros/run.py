@@ -47,6 +47,7 @@ class RunResult:
     rejected_commands: int | None = None
     interrupted: bool = False
     returncodes: dict = field(default_factory=dict)
+    recovered: str | None = None            # what recover_killed_bag() did, if anything
 
     def summary(self) -> str:
         how = "one process per node" if self.processes else "one process"
@@ -59,7 +60,8 @@ class RunResult:
             s += f", {self.wall_s:.3g} s wall"
         if self.interrupted:
             s += ", interrupted"
-        return s + (f" → {self.record}" if self.record else "")
+        s += f" → {self.record}" if self.record else ""
+        return s + (f" ({self.recovered})" if self.recovered else "")
 
 
 def _params(scene, mode, duration, record, node, progress, fidelity=None) -> dict:
@@ -169,9 +171,48 @@ class InProcessGraph:
             rclpy.shutdown(context=self.context)
 
 
+PR_SET_PDEATHSIG = 1        # linux/prctl.h
+
+
+def die_with_parent(sig: int = signal.SIGTERM):
+    """A ``preexec_fn`` that makes the child get ``sig`` when this process dies, however
+    it dies (SIGKILL included), or None where that cannot be done.
+
+    Linux's parent-death signal (``prctl(PR_SET_PDEATHSIG)``, set in the child between
+    fork and exec, kept across exec) through ctypes; right after setting it the child
+    checks that its parent is still this process, which closes the race of a parent
+    dying before the call (the child then exits at once).  The signal follows the
+    *thread* that forks: create the children from a thread that lives as long as the
+    graph (the main thread in ``flexarm run``).  Elsewhere (macOS, Windows, a libc
+    without prctl) this returns None: the children then outlive a SIGKILLed parent,
+    as any subprocess does; SIGINT/SIGTERM to the parent still stop them."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong,
+                      ctypes.c_ulong]
+    prctl.restype = ctypes.c_int
+    parent = os.getpid()
+
+    def bind():                 # runs in the child, before exec: keep it minimal
+        if prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0 and os.getppid() != parent:
+            os._exit(1)         # the parent is already gone
+    return bind
+
+
 class ProcessGraph:
     """One child process per node: ``python -m flexarm_ros.nodes.<node> --ros-args ...``
-    (``progress``: as :class:`InProcessGraph`)."""
+    (``progress``: as :class:`InProcessGraph`).
+
+    On Linux every child gets SIGTERM when this process dies, however it dies (SIGKILL
+    included; :func:`die_with_parent`), and stops as on Ctrl-C: the recorder finalizes
+    its bag.  The children stay in the caller's process group, so a terminal's Ctrl-C
+    reaches all of them; each stops cleanly on its own and :meth:`stop` finds them done.
+    """
 
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
@@ -192,7 +233,8 @@ class ProcessGraph:
                     cmd += ["--log-level", "warn"]
                 for k, v in p.items():
                     cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-                self.procs[name] = subprocess.Popen(cmd, env=env, stderr=stderr)
+                self.procs[name] = subprocess.Popen(cmd, env=env, stderr=stderr,
+                                                    preexec_fn=die_with_parent())
         except BaseException:
             self.stop(timeout=5.0)
             raise
@@ -224,6 +266,32 @@ class ProcessGraph:
         return {name: p.returncode for name, p in self.procs.items()}
 
 
+def recover_killed_bag(path: Path, returncode) -> str | None:
+    """After the recorder process died without finalizing its bag (killed, crashed), make
+    ``path`` a complete bag again: the unfinished file is kept as ``<stem>.killed.mcap``
+    and what is readable of it is rewritten to ``path`` by ``flexarm bag repair``.
+    Returns what was done (None when there was nothing to do)."""
+    from flexarm_ros.bag.reader import BagError
+    from flexarm_ros.bag.repair import repair
+    if returncode in (0, None) or not path.is_file():
+        return None
+    with open(path, "rb") as f:
+        f.seek(max(0, path.stat().st_size - 8))
+        if f.read() == b"\x89MCAP0\r\n":
+            return None                         # it finalized the file before dying
+    how = (f"was killed by {signal.Signals(-returncode).name}" if returncode < 0 and
+           -returncode in signal.valid_signals() else f"exited with status {returncode}")
+    killed = path.with_name(f"{path.stem}.killed{path.suffix}")
+    os.replace(path, killed)
+    try:
+        report = repair(killed, path)
+    except (BagError, OSError) as exc:
+        os.replace(killed, path)
+        return f"the recorder {how}; its bag could not be repaired: {exc}"
+    return (f"the recorder {how}: {report.messages} messages recovered into {path}, "
+            f"the unfinished file kept as {killed}")
+
+
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
         fidelity=None) -> RunResult:
@@ -251,10 +319,16 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                 except subprocess.TimeoutExpired:
                     pass
             codes = g.stop()
+            recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             return RunResult(name, mode, True, record, time.monotonic() - t0,
+<<<<<<< HEAD
                              interrupted=stop.set, returncodes=codes)
         g = InProcessGraph(scene, mode, duration, record, namespace, progress,
                            fidelity=fidelity)
+=======
+                             interrupted=stop.set, returncodes=codes, recovered=recovered)
+        g = InProcessGraph(scene, mode, duration, record, namespace, progress)
+>>>>>>> wtY
         try:
             sim = g["simulator"]
             g.spin_until(lambda: sim.finished, stop=stop)

@@ -12,7 +12,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from flexarm_ros.bag import (KNOWN_TYPES, BagError, BagWriter, TruncatedBagWarning, iter_messages, read_bag, to_dict)
+from flexarm_ros.bag import (KNOWN_TYPES, BagError, BagWriter, CorruptChunkWarning, TruncatedBagWarning, iter_messages, read_bag, to_dict)
 from flexarm_ros.bag import messages as m
 from flexarm_ros.bag.msgdefs import TYPE_HASHES, full_text
 from flexarm_ros.bag.writer import encode_cdr
@@ -412,16 +412,39 @@ def test_bag_of_a_killed_writer_is_readable_up_to_the_last_chunk(tmp_path):
     assert len(read_bag(path)["/joint_states"]) == len(msgs)
 
 
-def test_corrupted_chunk_stops_reading_with_a_warning():
+def test_corrupted_chunk_is_skipped_and_reading_continues():
+    """16 bytes overwritten inside a chunk: that chunk fails its CRC and is skipped (a
+    CorruptChunkWarning, still a TruncatedBagWarning, names it and what it held); every
+    message of the other chunks is read, in order. Truth: the chunk that holds the damaged
+    bytes and its messages, from mcap's own reader on the intact file."""
+    from mcap.records import Chunk as McapChunk, Message as McapMessage
+    from mcap.stream_reader import StreamReader, breakup_chunk
     buf = io.BytesIO()
     w, msgs = _many(buf, n=200, compression="none")
     w.close()
     data = bytearray(buf.getvalue())
     mid = len(data) // 2
+    summary = make_reader(io.BytesIO(bytes(data))).get_summary()
+    hit = [c for c in summary.chunk_indexes
+           if c.chunk_start_offset + 9 + 60 <= mid < c.chunk_start_offset + c.chunk_length - 16]
+    assert len(hit) == 1                        # the damage lies inside one chunk's data
+    chunks = [r for r in StreamReader(io.BytesIO(bytes(data)), emit_chunks=True).records
+              if isinstance(r, McapChunk)]
+    k = [c.chunk_start_offset for c in summary.chunk_indexes].index(hit[0].chunk_start_offset)
+    lost = {r.log_time for r in breakup_chunk(chunks[k]) if isinstance(r, McapMessage)}
+    assert 0 < len(lost) < len(msgs)
     data[mid:mid + 16] = b"\xff" * 16
-    with pytest.warns(TruncatedBagWarning, match="damaged at byte .*crc validation failed"):
+    with pytest.warns(CorruptChunkWarning, match="damaged at byte .*crc validation failed"
+                      f".*: {len(lost)} messages lost") as record:
         bag = read_bag(bytes(data))
-    _assert_prefix(bag["/joint_states"], msgs)
+    assert issubclass(record[0].category, TruncatedBagWarning)
+    want = [(T0 + i * 10**6, plain(m)) for i, m in enumerate(msgs)
+            if T0 + i * 10**6 not in lost]
+    got = [(t, to_dict(m)) for t, m in bag["/joint_states"]]
+    assert len(got) == len(want) == len(msgs) - len(lost)
+    assert all(g[0] == e[0] and same(g[1], e[1]) for g, e in zip(got, want))
+    assert bag.truncated and [(d.start, d.kind, d.lost_messages) for d in bag.damage] == [
+        (hit[0].chunk_start_offset, "corrupt", len(lost))]
 
 
 def test_empty_and_foreign_files_raise_bag_error(tmp_path):

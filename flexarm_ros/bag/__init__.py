@@ -9,7 +9,7 @@ See :mod:`.writer` for what "rosbag2-compatible" means and what a killed writer 
 
 from flexarm_ros.bag import messages, msgdefs, twin_bag
 from flexarm_ros.bag.msgdefs import KNOWN_TYPES
-from flexarm_ros.bag.reader import (Bag, BagError, BagMessage, TruncatedBagWarning, iter_messages, read_bag, to_dict)
+from flexarm_ros.bag.reader import (Bag, BagError, BagMessage, CorruptChunkWarning, Damage, TruncatedBagWarning, iter_messages, read_bag, to_dict)
 from flexarm_ros.bag.writer import INFO_METADATA_NAME, ROSBAG2_METADATA_NAME, BagWriter
 
 __all__ = [
@@ -17,6 +17,8 @@ __all__ = [
     "BagError",
     "BagMessage",
     "BagWriter",
+    "CorruptChunkWarning",
+    "Damage",
     "INFO_METADATA_NAME",
     "KNOWN_TYPES",
     "ROSBAG2_METADATA_NAME",

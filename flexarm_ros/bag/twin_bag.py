@@ -44,8 +44,16 @@ DEFAULT_NAMESPACE = "/flexarm"
 # ----------------------------------------------------------------------------- metadata
 
 def twin_info(bag) -> dict | None:
-    """The ``flexarm_ros`` metadata of a twin bag; None for a bag the twin did not record."""
-    return bag.metadata.get(INFO_METADATA_NAME)
+    """The ``flexarm_ros`` metadata of a twin bag; None for a bag the twin did not record.
+
+    When that record was lost to damage, the copy :class:`~flexarm_ros.bag.BagWriter`
+    keeps as the ``rosbag2`` record's ``custom_data`` (written on close) stands in."""
+    info = bag.metadata.get(INFO_METADATA_NAME)
+    if info is None:
+        custom = (bag.rosbag2_metadata() or {}).get("custom_data")
+        if isinstance(custom, dict) and "scene_yaml" in custom:
+            return {str(k): str(v) for k, v in custom.items()}
+    return info
 
 
 def recorded_namespace(bag) -> str | None:

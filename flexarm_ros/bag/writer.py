@@ -55,7 +55,9 @@ recovers every message of the complete chunks with a
 chunk being filled (at most ``chunk_size`` bytes of serialized messages; call
 :meth:`BagWriter.flush` to close a chunk early), the ``rosbag2`` metadata record and the
 summary section (indexes, statistics), so tools that need the summary (``ros2 bag
-info``) may refuse the file until it is recovered (e.g. ``mcap recover``).  Data are
+info``, ``mcap``'s indexed reader, rosbags) refuse the file until it is rewritten
+complete by ``flexarm bag repair`` (:mod:`flexarm_ros.bag.repair`; ``flexarm run
+--processes`` does that itself when its recorder process was killed).  Data are
 flushed, not fsync'ed: a power loss can lose more.
 """
 
@@ -81,7 +83,7 @@ from flexarm_ros import __version__
 from flexarm_ros.bag import msgdefs
 
 __all__ = ["BagWriter", "DEFAULT_QOS", "INFO_METADATA_NAME", "ROSBAG2_METADATA_NAME",
-           "encode_cdr"]
+           "encode_cdr", "rosbag2_bag_metadata"]
 
 ROSBAG2_METADATA_NAME = "rosbag2"
 """Name of the MCAP Metadata record holding rosbag2's serialized ``BagMetadata``."""
@@ -390,6 +392,49 @@ def _check_str_dict(what: str, data: Any) -> dict[str, str]:
     return dict(data)
 
 
+def rosbag2_bag_metadata(version: int, topics: list[tuple], start_ns: int | None,
+                         end_ns: int | None, files: list[str],
+                         custom_data: Mapping[str, str] | None,
+                         ros_distro: str = "") -> dict[str, Any]:
+    """rosbag2's ``BagMetadata`` (what the ``rosbag2`` Metadata record serializes).
+
+    ``topics``: ``(name, type, serialization format, offered QoS list, type description
+    hash, message count)`` per topic; the QoS list is embedded as a YAML sequence for
+    ``version`` >= 9 and as a YAML string before.  ``start_ns``/``end_ns``: the first and
+    last log time (``None`` without messages)."""
+    start = start_ns or 0
+    duration = 0 if start_ns is None or end_ns is None else end_ns - start_ns
+    total = sum(t[5] for t in topics)
+    entries = []
+    for name, msgtype, fmt, qos, type_hash, count in topics:
+        entries.append({
+            "topic_metadata": {
+                "name": name,
+                "type": msgtype,
+                "serialization_format": fmt,
+                "offered_qos_profiles": qos if version >= 9 else _dump_yaml(qos),
+                "type_description_hash": type_hash,
+            },
+            "message_count": count,
+        })
+    return {
+        "version": version,
+        "storage_identifier": "mcap",
+        "duration": {"nanoseconds": duration},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": total,
+        "topics_with_message_count": entries,
+        "compression_format": "",
+        "compression_mode": "",
+        "relative_file_paths": list(files),
+        "files": [{"path": f, "starting_time": {"nanoseconds_since_epoch": start},
+                   "duration": {"nanoseconds": duration}, "message_count": total}
+                  for f in files],
+        "custom_data": dict(custom_data or {}) or None,
+        "ros_distro": ros_distro,
+    }
+
+
 class BagWriter:
     """Write ROS 2 messages given as plain dicts into a rosbag2-compatible MCAP file.
 
@@ -574,40 +619,13 @@ class BagWriter:
 
     # -- closing ---------------------------------------------------------------------
     def _bag_metadata(self) -> dict[str, Any]:
-        version = self._rosbag2_version
-        start = self._start_ns or 0
-        duration = 0 if self._start_ns is None else self._end_ns - self._start_ns
-        total = sum(self._counts.values())
-        qos = _qos_yaml(version, self._qos_depth)
-        topics = []
-        for topic, (_, msgtype) in self._channels.items():
-            topics.append({
-                "topic_metadata": {
-                    "name": topic,
-                    "type": msgtype,
-                    "serialization_format": "cdr",
-                    "offered_qos_profiles": qos if version >= 9 else _dump_yaml(qos),
-                    "type_description_hash": msgdefs.TYPE_HASHES.get(msgtype, ""),
-                },
-                "message_count": self._counts[topic],
-            })
-        files = [self.path.name] if self.path is not None else []
-        return {
-            "version": version,
-            "storage_identifier": "mcap",
-            "duration": {"nanoseconds": duration},
-            "starting_time": {"nanoseconds_since_epoch": start},
-            "message_count": total,
-            "topics_with_message_count": topics,
-            "compression_format": "",
-            "compression_mode": "",
-            "relative_file_paths": files,
-            "files": [{"path": f, "starting_time": {"nanoseconds_since_epoch": start},
-                       "duration": {"nanoseconds": duration}, "message_count": total}
-                      for f in files],
-            "custom_data": dict(self._custom_data) or None,
-            "ros_distro": os.environ.get("ROS_DISTRO", ""),
-        }
+        qos = _qos_yaml(self._rosbag2_version, self._qos_depth)
+        topics = [(topic, msgtype, "cdr", qos, msgdefs.TYPE_HASHES.get(msgtype, ""),
+                   self._counts[topic]) for topic, (_, msgtype) in self._channels.items()]
+        return rosbag2_bag_metadata(
+            self._rosbag2_version, topics, self._start_ns, self._end_ns,
+            [self.path.name] if self.path is not None else [], self._custom_data,
+            os.environ.get("ROS_DISTRO", ""))
 
     def close(self) -> None:
         """Write the rosbag2 metadata record, the summary and the footer; idempotent."""

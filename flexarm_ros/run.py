@@ -321,14 +321,9 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             codes = g.stop()
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             return RunResult(name, mode, True, record, time.monotonic() - t0,
-<<<<<<< HEAD
-                             interrupted=stop.set, returncodes=codes)
+                             interrupted=stop.set, returncodes=codes, recovered=recovered)
         g = InProcessGraph(scene, mode, duration, record, namespace, progress,
                            fidelity=fidelity)
-=======
-                             interrupted=stop.set, returncodes=codes, recovered=recovered)
-        g = InProcessGraph(scene, mode, duration, record, namespace, progress)
->>>>>>> wtY
         try:
             sim = g["simulator"]
             g.spin_until(lambda: sim.finished, stop=stop)

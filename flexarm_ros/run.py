@@ -18,6 +18,7 @@ every child process.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys

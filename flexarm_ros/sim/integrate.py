@@ -24,6 +24,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
+from flexarm_ros.model.compiled.layout import Workspace
 from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
 from flexarm_ros.model.linear import highest_rate
 from flexarm_ros.model.programs import torque_breakpoints
@@ -249,13 +250,14 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     C = −∂f/∂q̇ of the generalized forces f (central differences of the compiled forces)."""
     model = chain.kernel_args
     ws = kchain.workspace(model)
+    named = Workspace._make(ws)
     free = chain.free
     nf = len(free)
     q, qd = chain.full_state(t, x)
 
     def force(qq, vv):
         kchain.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
-        return ws[kchain.W_F][free].copy()
+        return named.f[free].copy()
 
     K = np.zeros((nf, nf))
     C = np.zeros((nf, nf))
@@ -269,7 +271,7 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
             fm = force(am, qd) if arr is q else force(q, am)
             out[:, j] = -(fp - fm) / (2 * d)
     kchain.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
-    M = ws[kchain.W_M][np.ix_(free, free)]
+    M = named.M[np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 
 

@@ -751,8 +751,8 @@ def test_kernel_matches_numpy_reference_with_drives(case):
         initial_state(ch)                       # sets the hydraulic null bias
     assert ref_chain.nz == fast_chain.nz == 1
     if case == "hydraulic_gravity":
-        bias = ref_chain.actuators[0].par[7]
-        assert bias != 0.0 and fast_chain.kernel_args[kchain.M_APAR][0, 7] == bias
+        bias = ref_chain.actuators[0].par[drives.HYD_VALVE_BIAS]
+        assert bias != 0.0 and fast_chain.model.act_par[0, drives.HYD_VALVE_BIAS] == bias
     nf = len(ref_chain.free)
     rng = np.random.default_rng(7)
     scale_z = {"dc_motor": 5.0, "hydraulic_gravity": 5e6, "backlash": 5.0}[case]

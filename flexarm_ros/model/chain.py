@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled.layout import Model
 from flexarm_ros.model import beams, drives
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.programs import encode, eval_motion, eval_torque
@@ -185,11 +186,13 @@ class Chain:
         self.free = np.array([i for i in range(n) if i not in presc], dtype=int)
         self.presc_idx = np.array(presc, dtype=int)
         self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
-        self.kernel_args = self._pack()
-        self._ws = kchain.workspace(self.kernel_args)
+        self.model = self._pack()                   # the compiled kernel's data, by name
+        self.kernel_args = tuple(self.model)        # ... as its entry points take it
+        self._ws = kchain.workspace(self.model)
 
-    def _pack(self) -> tuple:
-        """The model as flat arrays for the compiled kernel (see :mod:`kernel`)."""
+    def _pack(self) -> Model:
+        """The model as flat arrays for the compiled kernel (:mod:`compiled.chain`), by
+        name (:class:`compiled.layout.Model`)."""
         nl = len(self.links)
         nemax = max(lm.beam.n for lm in self.links)
         pmax = max(len(lm.beam.x) for lm in self.links)
@@ -255,11 +258,16 @@ class Chain:
             EXT[k, len(lm.beam.x)] = lm.beam.n
         mcode = np.array([e[0] for e in self._motion_enc], dtype=np.int64)
         mpar = np.array([e[1] for e in self._motion_enc]).reshape(-1, 8)
-        return (self.n, nl, ij, e0, ne, bodies, joff, rh, npt, X, MP, PHI, SS, SLOPE,
-                self.gravity, self.foreshortening, float(self.scene.base_angle),
-                self.M_drive, self.K, self.D, self.free.astype(np.int64),
-                self.presc_idx.astype(np.int64), mcode, mpar, tidx, tcode, tpar, ttimes,
-                tvalues, tlen, EXT, akind, apar, azi, bidx, bpar, self.nz, zlo, zhi)
+        return Model(
+            n=self.n, nl=nl, nz=self.nz, i_joint=ij, e0=e0, ne=ne, bodies=bodies,
+            joint_offset=joff, hub_radius=rh, slope_tip=SLOPE, npt=npt, abscissa=X,
+            point_mass=MP, phi=PHI, S=SS, ext=EXT, gravity=self.gravity,
+            foreshortening=self.foreshortening, base_angle=float(self.scene.base_angle),
+            M_drive=self.M_drive, K=self.K, D=self.D, free=self.free.astype(np.int64),
+            presc=self.presc_idx.astype(np.int64), motion_code=mcode, motion_par=mpar,
+            act_coord=tidx, prog_code=tcode, prog_par=tpar, prog_times=ttimes,
+            prog_values=tvalues, prog_len=tlen, act_kind=akind, act_par=apar, act_state=azi,
+            z_lo=zlo, z_hi=zhi, backlash_idx=bidx, backlash_par=bpar)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:

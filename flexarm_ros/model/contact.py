@@ -45,6 +45,7 @@ import numpy as np
 
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled.layout import Workspace
 from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.differentiate import jacobian
 
@@ -95,8 +96,8 @@ class WallContact:
         self.mu = wall.friction
         self.mus = wall.mu_static
         self.p = np.asarray(tool.position, float)
-        self.model = chain.kernel_args
-        self.ws = kchain.workspace(self.model)
+        self.kernel_args = chain.kernel_args
+        self.ws = kchain.workspace(self.kernel_args)
         self.free = chain.free
         self.nf = len(chain.free)
         self.c_contact = 0.0       # compliant damping, set from the start (set_start)
@@ -125,20 +126,21 @@ class WallContact:
         """One compiled force evaluation plus the tool kinematics from the last tip frame."""
         ch, ws, nf = self.chain, self.ws, self.nf
         q, qd = ch.full_state(t, x)
-        kchain.forces(float(t), q, qd, x[2 * nf:], self.model, ws)
+        kchain.forces(float(t), q, qd, x[2 * nf:], self.kernel_args, ws)
+        ws = Workspace._make(ws)
         fr = self.free
-        M = ws[kchain.W_M][np.ix_(fr, fr)]
-        f = ws[kchain.W_F][fr].copy()
-        zd = ws[kchain.W_ZD][:ch.nz].copy()
-        o = ws[kchain.W_TIP][0:2]
-        co = ws[kchain.W_TIP][2:4]
-        psi, psid = ws[kchain.W_TIP][4], ws[kchain.W_TIP][5]
+        M = ws.M[np.ix_(fr, fr)]
+        f = ws.f[fr].copy()
+        zd = ws.zd[:ch.nz].copy()
+        o = ws.tip[0:2]
+        co = ws.tip[2:4]
+        psi, psid = ws.tip[4], ws.tip[5]
         cs, sn = math.cos(psi), math.sin(psi)
         ap = np.array([cs * self.p[0] - sn * self.p[1], sn * self.p[0] + cs * self.p[1]])
-        Jfull = ws[kchain.W_JO] + np.outer(_E @ ap, ws[kchain.W_JPSI])
+        Jfull = ws.Jo + np.outer(_E @ ap, ws.Jpsi)
         c = co - psid * psid * ap
         if len(ch.presc_idx):
-            c = c + Jfull[:, ch.presc_idx] @ ws[kchain.W_PDD][:len(ch.presc_idx)]
+            c = c + Jfull[:, ch.presc_idx] @ ws.pdd[:len(ch.presc_idx)]
         return Terms(M, f, zd, o + ap, Jfull[:, fr].copy(), c, Jfull @ qd)
 
     def gap(self, tm: Terms) -> float:
@@ -183,8 +185,8 @@ class WallContact:
                 self._scratch = (kcontact.scratch(self), np.empty(len(x)))
             sc, out = self._scratch
             if kcontact.evaluate(float(t), np.asarray(x, float), int(mode), float(s),
-                                       out, self.model, self.ws,
-                                       kcontact.parameters(self), sc[8], sc):
+                                 out, self.kernel_args, self.ws, kcontact.parameters(self),
+                                 sc):
                 return out[nf:2 * nf].copy()
         return self.rhs(t, x, mode, s)[0][nf:2 * nf]
 

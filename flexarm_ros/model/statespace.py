@@ -71,17 +71,22 @@ def _drive_derivatives(a, w, z):
     p = a.par
     if a.kind == drives.IDEAL:
         return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
+    if a.kind in (drives.DC_QUASI_STATIC, drives.DC_CURRENT):
+        n, kt = p[drives.DC_GEAR_RATIO], p[drives.DC_TORQUE_CONSTANT]
+        kb, R = p[drives.DC_BACK_EMF_CONSTANT], p[drives.DC_RESISTANCE]
     if a.kind == drives.DC_QUASI_STATIC:
-        n, kt, kb, R = p[0], p[1], p[2], p[3]
         i = (0.0 - kb * n * w) / R
-        if abs(i) >= p[6]:                      # at the current limit: no sensitivity
+        if abs(i) >= p[drives.DC_CURRENT_LIMIT]:    # at the current limit: no sensitivity
             return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         return -n * n * kt * kb / R, 0.0, n * kt / R, 0.0, 0.0, 0.0
     if a.kind == drives.DC_CURRENT:
-        n, kt, kb, R, L = p[0], p[1], p[2], p[3], p[4]
+        L = p[drives.DC_INDUCTANCE]
         return 0.0, n * kt, 0.0, -kb * n / L, -R / L, 1.0 / L
-    D_m, eta, ctm, kv, ps, vt, beta = p[:7]
-    i = 0.0 + p[7]
+    D_m, eta = p[drives.HYD_DISPLACEMENT], p[drives.HYD_TORQUE_EFFICIENCY]
+    ctm, kv = p[drives.HYD_LEAKAGE], p[drives.HYD_VALVE_GAIN]
+    ps, vt, beta = p[drives.HYD_SUPPLY_PRESSURE], p[drives.HYD_TOTAL_VOLUME], \
+        p[drives.HYD_BULK_MODULUS]
+    i = 0.0 + p[drives.HYD_VALVE_BIAS]
     dp = ps - z if i >= 0.0 else ps + z
     gain = 4.0 * beta / vt
     root = math.sqrt(max(dp, 0.0))

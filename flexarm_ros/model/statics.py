@@ -73,11 +73,11 @@ def initial_state(chain: Chain):
                 lk = chain.scene.links[a.link]
                 raise SceneError(
                     f"links[{a.link}].joint.drive.supply_pressure: got "
-                    f"{a.par[4]:.6g} Pa, expected more than the {abs(p_hold):.6g} Pa needed "
-                    f"to hold {lk.name} at its initial angle")
+                    f"{a.par[drives.HYD_SUPPLY_PRESSURE]:.6g} Pa, expected more than the "
+                    f"{abs(p_hold):.6g} Pa needed to hold {lk.name} at its initial angle")
             z0[a.state] = p_hold
             drive = chain.scene.links[a.link].joint.drive
-            a.par[7] = i_bias if drive.null_bias in (None, True) else 0.0
+            a.par[drives.HYD_VALVE_BIAS] = i_bias if drive.null_bias in (None, True) else 0.0
     return q0, qd0, z0
 
 

@@ -69,6 +69,7 @@ class ContactStepper:
         self.compiled = not self.compliant and chain.backend == "numba"
         if self.compiled:
             self._sc = kcontact.scratch(contact)
+            self._res = kcontact.Scratch._make(self._sc).res      # what evaluate() leaves
             self._xdot = np.empty(len(self.x))
             self._cp = kcontact.parameters(contact)
 
@@ -159,7 +160,7 @@ class ContactStepper:
                 code, t, x, dp, nst, calls, drift, x_bad = kcontact.span(
                     x, float(t), float(t_target), hh, int(mode), float(s),
                     chain.fidelity.max_deflection_ratio, chain.fidelity.contact_tolerance,
-                    self.contact.model, self.contact.ws, cp, self._sc)
+                    self.contact.kernel_args, self.contact.ws, cp, self._sc)
                 self.normal_impulse += dp
                 self.steps += nst
                 self.calls += calls
@@ -232,9 +233,9 @@ class ContactStepper:
         phase is 'impact' once after an impact."""
         c = self.contact
         if self.compiled:
-            res = self._sc[8]
+            res = self._res
             if kcontact.evaluate(float(self.t), self.x, int(self.mode), float(self.s),
-                                       self._xdot, c.model, c.ws, self._cp, res, self._sc):
+                                 self._xdot, c.kernel_args, c.ws, self._cp, self._sc):
                 ph = PHASE_CODE["impact"] if self.impact_pending else self.mode
                 self.impact_pending = False
                 R = kcontact

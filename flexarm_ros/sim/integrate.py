@@ -21,6 +21,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
+from flexarm_ros.model.compiled.layout import Workspace
 from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.programs import torque_breakpoints
 from flexarm_ros.sim.guard import DivergenceGuard
@@ -174,17 +175,18 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     C = −∂f/∂q̇ of the generalized forces f (central differences of the compiled forces)."""
     model = chain.kernel_args
     ws = kchain.workspace(model)
+    named = Workspace._make(ws)
     free = chain.free
     q, qd = chain.full_state(t, x)
 
     def force(qq, vv):
         kchain.forces(float(t), qq.copy(), vv.copy(), x[:0], model, ws)
-        return ws[kchain.W_F][free].copy()
+        return named.f[free].copy()
 
     K = -jacobian(lambda qq: force(qq, qd), q, ITERATION_REL_STEP, columns=free)
     C = -jacobian(lambda vv: force(q, vv), qd, ITERATION_REL_STEP, columns=free)
     kchain.forces(float(t), q.copy(), qd.copy(), x[:0], model, ws)
-    M = ws[kchain.W_M][np.ix_(free, free)]
+    M = named.M[np.ix_(free, free)]
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 
 

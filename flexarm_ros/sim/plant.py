@@ -24,6 +24,7 @@ import numpy as np
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled import sensors as ksensors
+from flexarm_ros.model.compiled.layout import Workspace
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASES, build_contact
 from flexarm_ros.sim.contact_stepper import ContactStepper
@@ -104,9 +105,9 @@ class Plant:
             raise SceneError(f"torques: got {tau!r}, expected {len(self.chain.links)} finite "
                              f"values (N·m, joint order)")
         self.torques = tau.copy()
-        tpar = self.chain.kernel_args[kchain.M_TPAR]
+        prog_par = self.chain.model.prog_par
         for link, j in self._act.items():
-            tpar[j, 0] = tau[link]
+            prog_par[j, 0] = tau[link]                     # a constant program's value
             self.chain.actuators[j].enc[1][0] = tau[link]   # the numpy path's copy
 
     # --------------------------------------------------------------------- stepping
@@ -213,10 +214,10 @@ class Plant:
         if ch.backend != "numba":
             return ch.tip_position(ch.full_state(self.t, self.x)[0])
         self._frames_now()
-        return self.ws[kchain.W_FR][-1, 1, 0:2].copy()
+        return Workspace._make(self.ws).frames[-1, 1, 0:2].copy()
 
     def _frames_now(self) -> None:
-        """The kernel's frames (``ws[W_FR]``, ``ws[W_FJ]``) at the current state, evaluated
+        """The kernel's frames (``ws.frames``, ``ws.frame_jac``) at the current state, evaluated
         once per state (the accelerometers and the tip of one instant share them)."""
         if self._frames_at == (self.t, self.k):
             return

@@ -168,10 +168,11 @@ def actuator_columns(chain: Chain, run: Integration) -> dict:
         if a.kind == drives.IDEAL:
             cols[f"{name}_torque_cmd"] = uj
         elif a.kind == drives.HYDRAULIC:
-            cols[f"{name}_valve_current"] = uj + a.par[7]
-            cols[f"{name}_pressure"] = np.clip(z, -a.par[4], a.par[4])
+            cols[f"{name}_valve_current"] = uj + a.par[drives.HYD_VALVE_BIAS]
+            cols[f"{name}_pressure"] = np.clip(z, *drives.state_bounds(a.kind, a.par))
         else:
-            cols[f"{name}_voltage"] = np.clip(uj, -a.par[5], a.par[5])
+            v_max = a.par[drives.DC_SUPPLY_VOLTAGE]
+            cols[f"{name}_voltage"] = np.clip(uj, -v_max, v_max)
             cols[f"{name}_current"] = np.array(
                 [drives.motor_current(a.kind, a.par, ui, wi, zi) for ui, wi, zi in zip(uj, w, z)])
         cols[f"{name}_drive_torque"] = np.array(

@@ -163,8 +163,10 @@ class DriverCore:
     armature current, seed 001 Sec. 4) or hydraulic servovalve (seed 002), turning commands
     (V, A; N·m for a joint without a drive) into joint torques held over the next period.
 
-    The electrical / hydraulic state is advanced over the period with the drive rate held
-    (zero-order hold): the current exactly (linear ODE), the pressure by RK4 sub-steps.
+    The electrical / hydraulic state is advanced over the period with the command and the
+    drive rate held (zero-order hold) by :func:`drives.advance_state`, which integrates the
+    plant's own :func:`drives.actuator_rate` (the current exactly, the pressure by RK4
+    sub-steps).
     A command older than ``control.watchdog_s`` drops to 0 V (closed valve); NaN, inf or
     wrong-length commands are rejected (counted) and never reach the plant."""
 
@@ -208,7 +210,7 @@ class DriverCore:
             cmd = np.zeros(self.n)
             for k in range(self.n):          # closed valve: no current at all
                 if self.kind[k] == drives.HYDRAULIC:
-                    cmd[k] = -self.par[k][7]
+                    cmd[k] = -self.par[k][drives.HYD_VALVE_BIAS]
             return cmd
         return self.command
 
@@ -223,33 +225,18 @@ class DriverCore:
         w = np.asarray(drive_rates, float)
         tau = np.zeros(self.n)
         for k in range(self.n):
-            kind, p = self.kind[k], self.par[k]
             tau[k] = self._torque(k, w[k], u[k])
-            if kind == drives.DC_CURRENT:        # exact: L di/dt = v − R i − K_b n w
-                v = min(max(u[k], -p[5]), p[5])
-                i_ss = (v - p[2] * p[0] * w[k]) / p[3]
-                i1 = i_ss + (self.z[k] - i_ss) * math.exp(-p[3] / p[4] * dt)
-                self.z[k] = min(max(i1, -p[6]), p[6])
-            elif kind == drives.HYDRAULIC:
-                n_sub = 20
-                h = dt / n_sub
-                z = self.z[k]
-                for _ in range(n_sub):
-                    f = drives.actuator_rate
-                    k1 = f(kind, p, u[k], w[k], z)
-                    k2 = f(kind, p, u[k], w[k], z + 0.5 * h * k1)
-                    k3 = f(kind, p, u[k], w[k], z + 0.5 * h * k2)
-                    k4 = f(kind, p, u[k], w[k], z + h * k3)
-                    z = min(max(z + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), -p[4]), p[4])
-                self.z[k] = z
+            self.z[k] = drives.advance_state(self.kind[k], self.par[k], u[k], w[k], self.z[k],
+                                             dt)
         self.torque = tau
         return tau
 
     def motor_states(self, t_ns: int, drive_angles, drive_rates) -> dict:
         """motor_driver/motor_states: motor-shaft angle and speed (× gear ratio) and the
         armature current (A) or load pressure (Pa) in ``effort``."""
-        n = [self.par[k][0] if self.kind[k] in (drives.DC_CURRENT, drives.DC_QUASI_STATIC)
-             else 1.0 for k in range(self.n)]
+        dc = (drives.DC_CURRENT, drives.DC_QUASI_STATIC)
+        n = [self.par[k][drives.DC_GEAR_RATIO] if self.kind[k] in dc else 1.0
+             for k in range(self.n)]
         eff = []
         u = self._effective(self.t_now) if hasattr(self, "t_now") else self.command
         for k in range(self.n):

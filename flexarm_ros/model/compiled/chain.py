@@ -19,6 +19,7 @@ import numpy as np
 from flexarm_ros.model.programs import eval_motion, eval_torque
 
 from flexarm_ros.model.compiled import HAVE_NUMBA, jit as _jit, jit_inline as _jit_inline  # noqa: F401
+from flexarm_ros.model.compiled.layout import named, workspace  # noqa: F401  (kchain.workspace)
 from flexarm_ros.model.drives import actuator_rate, actuator_torque, backlash_torque
 
 eval_torque_c = _jit(eval_torque)
@@ -31,15 +32,6 @@ backlash_torque_c = backlash_torque
 #: jumps exactly on a step boundary is seen with its value on that step (right limit at the
 #: start, left limit at the end) instead of leaking an O(h) impulse into the neighbour.
 STAGE_EPS = 1e-9
-
-# Positions in the model tuple (Chain._pack) used by index, and workspace slots
-# (workspace()); numba folds these module constants at compile time.
-M_N, M_NL, M_E0, M_NE, M_NPT, M_X, M_PHI, M_FREE, M_PRESC = 0, 1, 3, 4, 8, 9, 11, 20, 21
-M_K, M_D, M_MCODE, M_MPAR = 18, 19, 22, 23
-M_TIDX, M_TCODE, M_TPAR, M_TTIMES, M_TVALUES, M_TLEN = 24, 25, 26, 27, 28, 29
-M_AKIND, M_APAR, M_AZI, M_BIDX, M_BPAR, M_NZ, M_ZLO, M_ZHI = 31, 32, 33, 34, 35, 36, 37, 38
-(W_Q, W_QD, W_M, W_H, W_QG, W_JO, W_JPSI, W_SETA, W_JX, W_JY, W_JTX, W_JTY, W_MFF, W_FF,
- W_L, W_Y, W_ACC, W_PDD, W_F, W_XDOT, W_ZD, W_TIP, W_FR, W_FJ) = range(24)
 
 # status codes of the compiled loop
 OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
@@ -66,26 +58,12 @@ def _add_body(M, h, Qg, m, inertia, cgx, cgy, ox, oy, Jo, cox, coy, psi, Jpsi, p
             M[i, j] += m * (Jx[i] * Jx[j] + Jy[i] * Jy[j]) + inertia * Jpsi[i] * Jpsi[j]
 
 
-def workspace(model):
-    """Scratch arrays for :func:`chain_terms` / :func:`rhs_into` (allocated once per run)."""
-    n = model[M_N]
-    nemax = model[M_PHI].shape[2]
-    nf = model[M_FREE].shape[0]
-    npr = model[M_PRESC].shape[0]
-    return (np.empty(n), np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n),
-            np.empty((2, n)), np.empty(n), np.empty(nemax), np.empty(n), np.empty(n),
-            np.empty(n), np.empty(n), np.empty((nf, nf)), np.empty(nf), np.empty((nf, nf)),
-            np.empty(nf), np.empty(nf), np.empty(max(npr, 1)), np.empty(n),
-            np.empty(2 * nf + model[M_NZ]), np.empty(max(model[M_NZ], 1)), np.empty(6),
-            np.empty((model[M_NL], 2, 6)), np.empty((model[M_NL], 2, 3, n)))
-
-
 @_jit_inline
 def _store_frame(ws, k, j, ox, oy, cox, coy, psi, psid, Jo, Jpsi, n):
-    """Keep link k's hub (j = 0) or tip (j = 1) frame: ws[W_FR][k, j] = (o, c_o, ψ, ψ̇),
-    ws[W_FJ][k, j] = (∂o_x/∂q, ∂o_y/∂q, ∂ψ/∂q) — what the sensors read."""
-    fr = ws[W_FR]
-    fj = ws[W_FJ]
+    """Keep link k's hub (j = 0) or tip (j = 1) frame: ws.frames[k, j] = (o, c_o, ψ, ψ̇),
+    ws.frame_jac[k, j] = (∂o_x/∂q, ∂o_y/∂q, ∂ψ/∂q) — what the sensors read."""
+    fr = ws.frames
+    fj = ws.frame_jac
     fr[k, j, 0] = ox
     fr[k, j, 1] = oy
     fr[k, j, 2] = cox
@@ -99,43 +77,85 @@ def _store_frame(ws, k, j, ox, oy, cox, coy, psi, psid, Jo, Jpsi, n):
 
 
 @_jit_inline
+def beam_point(q, qd, s0, ext, phi, S, k, p, fs, x0, c, s, Seta):
+    """A beam point's local kinematics turned into the world by its hub frame A = R(ψ)
+    (c = cos ψ, s = sin ψ), from the leading ``ext`` elastic coordinates η = q[s0:],
+    φ = ``phi[k, p]`` and S = ``S[k, p]`` at its abscissa (the model's per-point layout,
+    indexed in place), x0 = r_h + x:
+
+        s = (x0 − ½ηᵀSη, φᵀη),   ṡ = (−(Sη)ᵀη̇, φᵀη̇),   s̈ = (∂s/∂η) η̈ − (η̇ᵀSη̇) ê₁.
+
+    Returns (A s, A ṡ, −η̇ᵀSη̇) as (Asx, Asy, Adx, Ady, acc_ax) and leaves Sη in
+    ``Seta[:ext]`` (its ∂s_x/∂η = −Sη). Without foreshortening (``fs`` False) Seta is not
+    touched: the caller zeroes it once per evaluation (an array written on both branches
+    here would cost a reference-count update per point once inlined).
+    """
+    uf = 0.0
+    acc_ax = 0.0
+    ud = 0.0
+    w = 0.0
+    wd = 0.0
+    for a in range(ext):
+        w += phi[k, p, a] * q[s0 + a]
+        wd += phi[k, p, a] * qd[s0 + a]
+    if fs:
+        for a in range(ext):
+            acc = 0.0
+            for b in range(ext):
+                acc += S[k, p, a, b] * q[s0 + b]
+            Seta[a] = acc
+            uf -= 0.5 * acc * q[s0 + a]
+            ud -= acc * qd[s0 + a]
+            # −η̇ᵀSη̇ over the upper triangle (S is symmetric)
+            va = qd[s0 + a]
+            accd = 0.5 * S[k, p, a, a] * va
+            for b in range(a + 1, ext):
+                accd += S[k, p, a, b] * qd[s0 + b]
+            acc_ax -= 2.0 * accd * va
+    sx = x0 + uf
+    return c * sx - s * w, s * sx + c * w, c * ud - s * wd, s * ud + c * wd, acc_ax
+
+
+@_jit_inline
 def chain_terms(q, qd, model, ws):
     """Fill ws' M (n, n), h (n,), Qg (n,) at (q, q̇): chain.Chain.kinematics in loops; the
-    last tip frame's (o, c_o, ψ, ψ̇) go to ws[W_TIP], its Jacobians stay in ws[W_JO]/[W_JPSI].
+    last tip frame's (o, c_o, ψ, ψ̇) go to ws.tip, its Jacobians stay in ws.Jo / ws.Jpsi.
 
-    Per mass point only the leading ``EXT[k, p]`` elastic coordinates can be non-zero in
-    φ(x_p) and S(x_p) (finite elements and differences grow from the root), so the loops
+    Per mass point only the leading ``model.ext[k, p]`` elastic coordinates can be non-zero
+    in φ(x_p) and S(x_p) (finite elements and differences grow from the root), so the loops
     stop there.
     """
-    n = model[M_N]
-    nl = model[M_NL]
-    ij = model[2]
-    e0 = model[M_E0]
-    ne = model[M_NE]
-    bodies = model[5]
-    joff = model[6]
-    rh = model[7]
-    npt = model[M_NPT]
-    X = model[M_X]
-    MP = model[10]
-    PHI = model[M_PHI]
-    SS = model[12]
-    SLOPE = model[13]
-    g = model[14]
-    fs = model[15]
-    base_angle = model[16]
-    Mdrive = model[17]
-    EXT = model[30]
-    M = ws[W_M]
-    h = ws[W_H]
-    Qg = ws[W_QG]
-    Jo = ws[W_JO]
-    Jpsi = ws[W_JPSI]
-    Seta = ws[W_SETA]
-    Jx = ws[W_JX]
-    Jy = ws[W_JY]
-    Jtx = ws[W_JTX]
-    Jty = ws[W_JTY]
+    n = model.n
+    nl = model.nl
+    ij = model.i_joint
+    e0 = model.e0
+    ne = model.ne
+    bodies = model.bodies
+    joff = model.joint_offset
+    rh = model.hub_radius
+    npt = model.npt
+    X = model.abscissa
+    MP = model.point_mass
+    PHI = model.phi
+    SS = model.S
+    SLOPE = model.slope_tip
+    g = model.gravity
+    fs = model.foreshortening
+    Mdrive = model.M_drive
+    EXT = model.ext
+    M = ws.M
+    h = ws.h
+    Qg = ws.Qg
+    Jo = ws.Jo
+    Jpsi = ws.Jpsi
+    Seta = ws.Seta
+    Jx = ws.Jx
+    Jy = ws.Jy
+    Jtx = ws.Jtx
+    Jty = ws.Jty
+    if not fs:                  # beam_point leaves Sη alone then
+        for a in range(Seta.shape[0]):
+            Seta[a] = 0.0
     for i in range(n):
         h[i] = 0.0
         Qg[i] = 0.0
@@ -148,7 +168,7 @@ def chain_terms(q, qd, model, ws):
     oy = 0.0
     cox = 0.0
     coy = 0.0
-    psi = base_angle
+    psi = model.base_angle
     psid = 0.0
     has_g = g[0] != 0.0 or g[1] != 0.0
     for k in range(nl):
@@ -187,37 +207,8 @@ def chain_terms(q, qd, model, ws):
         psid2 = psid * psid
         for p in range(P + 1):
             ext = EXT[k, p]
-            uf = 0.0
-            ax_acc = 0.0
-            ud = 0.0
-            w = 0.0
-            wd = 0.0
-            for a in range(ext):
-                w += PHI[k, p, a] * q[s0 + a]
-                wd += PHI[k, p, a] * qd[s0 + a]
-            if fs:
-                for a in range(ext):
-                    acc = 0.0
-                    for b in range(ext):
-                        acc += SS[k, p, a, b] * q[s0 + b]
-                    Seta[a] = acc
-                    uf -= 0.5 * acc * q[s0 + a]
-                    ud -= acc * qd[s0 + a]
-                    # −η̇ᵀSη̇ over the upper triangle (S is symmetric)
-                    va = qd[s0 + a]
-                    accd = 0.5 * SS[k, p, a, a] * va
-                    for b in range(a + 1, ext):
-                        accd += SS[k, p, a, b] * qd[s0 + b]
-                    ax_acc -= 2.0 * accd * va
-            else:
-                for a in range(ext):
-                    Seta[a] = 0.0
-            sx = rh[k] + X[k, p] + uf
-            sy = w
-            Asx = c * sx - s * sy
-            Asy = s * sx + c * sy
-            Adx = c * ud - s * wd
-            Ady = s * ud + c * wd
+            Asx, Asy, Adx, Ady, ax_acc = beam_point(q, qd, s0, ext, PHI, SS, k, p, fs,
+                                                    rh[k] + X[k, p], c, s, Seta)
             cx = cox - psid2 * Asx - 2.0 * psid * Ady + ax_acc * c
             cy = coy - psid2 * Asy + 2.0 * psid * Adx + ax_acc * s
             na = s0 + ext if p < P else nact
@@ -269,8 +260,8 @@ def chain_terms(q, qd, model, ws):
     for i in range(n):
         for j in range(i):
             M[i, j] = M[j, i]
-    # the last tip frame (its Jacobians stay in ws[W_JO], ws[W_JPSI]): the tool's frame
-    tip = ws[W_TIP]
+    # the last tip frame (its Jacobians stay in ws.Jo, ws.Jpsi): the tool's frame
+    tip = ws.tip
     tip[0] = ox
     tip[1] = oy
     tip[2] = cox
@@ -308,33 +299,33 @@ def _cholesky_solve(A, b, nf, L, y, x):
 
 
 @_jit_inline
-def forces(t, q, qd, z, model, ws):
+def _forces(t, q, qd, z, model, ws):
     """Fill ws' M and f = Q_input + Q_coupling + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at
     (t, q, q̇, z), with the prescribed coordinates of q, q̇ set from their programs at time t,
-    and the actuator state rates ż into ws[W_ZD]."""
-    n = model[M_N]
-    K = model[M_K]
-    D = model[M_D]
-    presc = model[M_PRESC]
-    mcode = model[M_MCODE]
-    mpar = model[M_MPAR]
-    tidx = model[M_TIDX]
-    tcode = model[M_TCODE]
-    tpar = model[M_TPAR]
-    ttimes = model[M_TTIMES]
-    tvalues = model[M_TVALUES]
-    tlen = model[M_TLEN]
-    akind = model[M_AKIND]
-    apar = model[M_APAR]
-    azi = model[M_AZI]
-    bidx = model[M_BIDX]
-    bpar = model[M_BPAR]
-    M = ws[W_M]
-    h = ws[W_H]
-    Qg = ws[W_QG]
-    pdd = ws[W_PDD]
-    f = ws[W_F]
-    zd = ws[W_ZD]
+    and the actuator state rates ż into ws.zd."""
+    n = model.n
+    K = model.K
+    D = model.D
+    presc = model.presc
+    mcode = model.motion_code
+    mpar = model.motion_par
+    tidx = model.act_coord
+    tcode = model.prog_code
+    tpar = model.prog_par
+    ttimes = model.prog_times
+    tvalues = model.prog_values
+    tlen = model.prog_len
+    akind = model.act_kind
+    apar = model.act_par
+    azi = model.act_state
+    bidx = model.backlash_idx
+    bpar = model.backlash_par
+    M = ws.M
+    h = ws.h
+    Qg = ws.Qg
+    pdd = ws.pdd
+    f = ws.f
+    zd = ws.zd
     npr = presc.shape[0]
     for j in range(npr):
         th, thd, thdd = eval_motion_c(mcode[j], mpar[j], t)
@@ -370,22 +361,22 @@ def forces(t, q, qd, z, model, ws):
 @_jit
 def rhs_into(t, x, out, model, ws):
     """out = ẋ for x = [q_free, q̇_free, z] (chain.Chain.rhs, compiled, no allocation)."""
-    free = model[M_FREE]
-    q = ws[W_Q]
-    qd = ws[W_QD]
-    M = ws[W_M]
-    Mff = ws[W_MFF]
-    ff = ws[W_FF]
-    L = ws[W_L]
-    y = ws[W_Y]
-    acc = ws[W_ACC]
-    f = ws[W_F]
+    free = model.free
+    q = ws.q
+    qd = ws.qd
+    M = ws.M
+    Mff = ws.Mff
+    ff = ws.ff
+    L = ws.L
+    y = ws.y
+    acc = ws.acc
+    f = ws.f
     nf = free.shape[0]
-    nz = model[M_NZ]
+    nz = model.nz
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    forces(t, q, qd, x[2 * nf:], model, ws)
+    _forces(t, q, qd, x[2 * nf:], model, ws)
     for a in range(nf):
         ff[a] = f[free[a]]
         for b in range(nf):
@@ -396,14 +387,24 @@ def rhs_into(t, x, out, model, ws):
     for a in range(nf):
         out[a] = x[nf + a]
         out[nf + a] = acc[a]
-    zd = ws[W_ZD]
+    zd = ws.zd
     for a in range(nz):
         out[2 * nf + a] = zd[a]
 
 
 @_jit
-def rhs(t, x, model, ws):
-    """ẋ for x = [q_free, q̇_free, z] as a new array."""
+def forces(t, q, qd, z, model_args, ws_args):
+    """:func:`_forces` for Python callers (the model and workspace as plain tuples, see
+    :mod:`layout`): the workspace then holds M, f, ż and the frames at (t, q, q̇, z)."""
+    model, ws = named(model_args, ws_args)
+    _forces(t, q, qd, z, model, ws)
+
+
+@_jit
+def rhs(t, x, model_args, ws_args):
+    """ẋ for x = [q_free, q̇_free, z] as a new array (model and workspace as plain
+    tuples, see :mod:`layout`)."""
+    model, ws = named(model_args, ws_args)
     out = np.empty(x.shape[0])
     rhs_into(t, x, out, model, ws)
     return out
@@ -412,13 +413,12 @@ def rhs(t, x, model, ws):
 @_jit
 def _deflection_ratio(x, model):
     """max over beams of |w(L)|/L (elastic coordinates are never prescribed)."""
-    n = model[M_N]
-    nl = model[M_NL]
-    e0 = model[M_E0]
-    ne = model[M_NE]
-    npt = model[M_NPT]
-    PHI = model[M_PHI]
-    free = model[M_FREE]
+    nl = model.nl
+    e0 = model.e0
+    ne = model.ne
+    npt = model.npt
+    PHI = model.phi
+    free = model.free
     nf = free.shape[0]
     worst = 0.0
     for k in range(nl):
@@ -427,19 +427,7 @@ def _deflection_ratio(x, model):
             j = free[i] - e0[k]
             if j >= 0 and j < ne[k]:
                 w += PHI[k, npt[k], j] * x[i]
-        r = abs(w) / model[M_X][k, npt[k]]   # X at the tip row = beam length
+        r = abs(w) / model.abscissa[k, npt[k]]   # the tip row: the beam length
         if r > worst:
             worst = r
     return worst
-
-
-
-
-
-
-
-
-
-
-
-

@@ -27,12 +27,14 @@ reference, whose least-squares solve handles it. Tests compare both paths to rou
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
+from flexarm_ros.model.compiled.layout import named
 
 FREE, SLIDING, STICKING = 0, 1, 2
 #: return codes of :func:`span` (kchain.OK / NON_FINITE / DEFLECTION shared)
@@ -49,42 +51,64 @@ def parameters(contact) -> np.ndarray:
                      contact.mu, contact.mus, contact.p[0], contact.p[1]])
 
 
+class Scratch(NamedTuple):
+    """Work arrays of :func:`evaluate` / :func:`span` (nf free coordinates, m states)."""
+    jn: np.ndarray      # (nf,) ∂(n·r)/∂q_free of the tool point
+    jt: np.ndarray      # (nf,) ∂(t·r)/∂q_free
+    y1: np.ndarray      # (nf,) M⁻¹f
+    y2: np.ndarray      # (nf,) M⁻¹w (sliding) or M⁻¹j_n
+    y3: np.ndarray      # (nf,) M⁻¹j_t
+    w: np.ndarray       # (nf,) j_n − μ s j_t
+    ff: np.ndarray      # (nf,) f of the free coordinates
+    acc: np.ndarray     # (nf,) constrained accelerations
+    res: np.ndarray     # (12,) the evaluation's results, R_*
+    k1: np.ndarray      # (m,) RK4 stages
+    k2: np.ndarray
+    k3: np.ndarray
+    k4: np.ndarray
+    tmp: np.ndarray     # (m,) stage state
+    x1: np.ndarray      # (m,) end of step
+    xdot: np.ndarray    # (m,) the end state's rate (event functions)
+    x: np.ndarray       # (m,) current state
+
+
 def scratch(contact) -> tuple:
-    """Work arrays for :func:`evaluate` / :func:`span` (allocated once per stepper)."""
+    """Work arrays for :func:`evaluate` / :func:`span` (allocated once per stepper), as the
+    plain tuple they take (see :mod:`layout`; ``Scratch._make(sc).res`` reads the results)."""
     nf = contact.nf
     m = 2 * nf + contact.chain.nz
-    return (np.empty(nf), np.empty(nf), np.empty(nf), np.empty(nf), np.empty(nf),
-            np.empty(nf), np.empty(nf), np.empty(nf), np.empty(12), np.empty(m),
-            np.empty(m), np.empty(m), np.empty(m), np.empty(m), np.empty(m), np.empty(m),
-            np.empty(m))
+    e = np.empty
+    return tuple(Scratch(jn=e(nf), jt=e(nf), y1=e(nf), y2=e(nf), y3=e(nf), w=e(nf),
+                         ff=e(nf), acc=e(nf), res=e(12), k1=e(m), k2=e(m), k3=e(m), k4=e(m),
+                         tmp=e(m), x1=e(m), xdot=e(m), x=e(m)))
 
 
 @_jit
-def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
+def _eval(t, x, mode, s, out, model, ws, cp, sc):
     """ẋ of mode (``s`` the slip direction when sliding) into ``out``; the contact forces,
-    gap and tool state into ``res`` (R_*). Returns False at a singular constraint."""
-    free = model[kchain.M_FREE]
-    presc = model[kchain.M_PRESC]
-    n = model[kchain.M_N]
-    nz = model[kchain.M_NZ]
+    gap and tool state into ``sc.res`` (R_*). Returns False at a singular constraint."""
+    res = sc.res
+    free = model.free
+    presc = model.presc
+    n = model.n
+    nz = model.nz
     nf = free.shape[0]
-    q = ws[kchain.W_Q]
-    qd = ws[kchain.W_QD]
-    jn, jt, y1, y2, y3, w, ff, acc, g2 = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], \
-        sc[7], sc[8]
+    q = ws.q
+    qd = ws.qd
+    jn, jt, y1, y2, y3, w, ff, acc = sc.jn, sc.jt, sc.y1, sc.y2, sc.y3, sc.w, sc.ff, sc.acc
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    kchain.forces(t, q, qd, x[2 * nf:], model, ws)
-    M = ws[kchain.W_M]
-    f = ws[kchain.W_F]
-    Mff = ws[kchain.W_MFF]
-    L = ws[kchain.W_L]
-    yy = ws[kchain.W_Y]
-    tip = ws[kchain.W_TIP]
-    Jo = ws[kchain.W_JO]
-    Jpsi = ws[kchain.W_JPSI]
-    pdd = ws[kchain.W_PDD]
+    kchain._forces(t, q, qd, x[2 * nf:], model, ws)
+    M = ws.M
+    f = ws.f
+    Mff = ws.Mff
+    L = ws.L
+    yy = ws.y
+    tip = ws.tip
+    Jo = ws.Jo
+    Jpsi = ws.Jpsi
+    pdd = ws.pdd
     nx, ny, tx, ty = cp[CP_NX], cp[CP_NY], cp[CP_TX], cp[CP_TY]
     c = math.cos(tip[4])
     s_ = math.sin(tip[4])
@@ -175,7 +199,7 @@ def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
             acc[a] = y1[a]
     res[R_LN] = ln
     res[R_LT] = lt
-    zd = ws[kchain.W_ZD]
+    zd = ws.zd
     for a in range(nf):
         out[a] = x[nf + a]
         out[nf + a] = acc[a] if ok else np.nan
@@ -184,8 +208,12 @@ def _eval(t, x, mode, s, out, model, ws, cp, res, sc):
     return ok
 
 
-#: :func:`_eval` for Python callers (the stepper's samples)
-evaluate = _eval
+@_jit
+def evaluate(t, x, mode, s, out, model_args, ws_args, cp, sc_args):
+    """:func:`_eval` for Python callers (the stepper's samples; model, workspace and
+    scratch as plain tuples, see :mod:`layout`)."""
+    model, ws = named(model_args, ws_args)
+    return _eval(t, x, mode, s, out, model, ws, cp, Scratch(*sc_args))
 
 
 @_jit_inline
@@ -203,7 +231,7 @@ def _indicators(mode, s, mus, res, ind):
 
 
 @_jit
-def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
+def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args):
     """RK4 steps of at most ``h`` in one contact mode from (t0, x0) towards ``t_target``
     (the reference's step sequence: dt = min(h, t_target − t)), projecting after each
     step in contact. Stops at the start of the first step with an event, excess drift or a
@@ -212,16 +240,19 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
     Returns (code, t, x, normal impulse ∫λ dt of the accepted steps, accepted steps,
     evaluations, largest drift, offending state) with code kchain.OK (t_target reached),
     EVENT, DRIFT, SINGULAR, kchain.NON_FINITE or kchain.DEFLECTION (t, x the last good
-    state; the offending state last).
+    state; the offending state last). Model, workspace and scratch come as plain tuples
+    (see :mod:`layout`).
     """
+    model, ws = named(model_args, ws_args)
+    sc = Scratch(*sc_args)
     m = x0.shape[0]
-    nf = model[kchain.M_FREE].shape[0]
-    nz = model[kchain.M_NZ]
-    zlo = model[kchain.M_ZLO]
-    zhi = model[kchain.M_ZHI]
-    res = sc[8]
-    k1, k2, k3, k4, tmp, x1, xdot, x = sc[9], sc[10], sc[11], sc[12], sc[13], sc[14], \
-        sc[15], sc[16]
+    nf = model.free.shape[0]
+    nz = model.nz
+    zlo = model.z_lo
+    zhi = model.z_hi
+    res = sc.res
+    k1, k2, k3, k4, tmp, x1, xdot, x = sc.k1, sc.k2, sc.k3, sc.k4, sc.tmp, sc.x1, sc.xdot, \
+        sc.x
     ind0 = np.empty(2)
     ind1 = np.empty(2)
     for i in range(m):
@@ -236,19 +267,19 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
     eps = kchain.STAGE_EPS
     while t < t_target - 1e-15:
         dt = min(h, t_target - t)
-        ok = _eval(t + eps * dt, x, mode, s, k1, model, ws, cp, res, sc)
+        ok = _eval(t + eps * dt, x, mode, s, k1, model, ws, cp, sc)
         l1 = res[R_LN]
         for i in range(m):
             tmp[i] = x[i] + 0.5 * dt * k1[i]
-        ok = _eval(t + 0.5 * dt, tmp, mode, s, k2, model, ws, cp, res, sc) and ok
+        ok = _eval(t + 0.5 * dt, tmp, mode, s, k2, model, ws, cp, sc) and ok
         l2 = res[R_LN]
         for i in range(m):
             tmp[i] = x[i] + 0.5 * dt * k2[i]
-        ok = _eval(t + 0.5 * dt, tmp, mode, s, k3, model, ws, cp, res, sc) and ok
+        ok = _eval(t + 0.5 * dt, tmp, mode, s, k3, model, ws, cp, sc) and ok
         l3 = res[R_LN]
         for i in range(m):
             tmp[i] = x[i] + dt * k3[i]
-        ok = _eval(t + (1.0 - eps) * dt, tmp, mode, s, k4, model, ws, cp, res, sc) and ok
+        ok = _eval(t + (1.0 - eps) * dt, tmp, mode, s, k4, model, ws, cp, sc) and ok
         l4 = res[R_LN]
         calls += 4
         if not ok:
@@ -264,10 +295,10 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
         if not finite:
             return kchain.NON_FINITE, t, x.copy(), impulse, steps, calls, drift_max, x1.copy()
         if not have_ind0:
-            _eval(t, x, mode, s, xdot, model, ws, cp, res, sc)
+            _eval(t, x, mode, s, xdot, model, ws, cp, sc)
             calls += 1
             ni = _indicators(mode, s, mus, res, ind0)
-        ok = _eval(t + dt, x1, mode, s, xdot, model, ws, cp, res, sc)
+        ok = _eval(t + dt, x1, mode, s, xdot, model, ws, cp, sc)
         calls += 1
         ni = _indicators(mode, s, mus, res, ind1)
         if not ok:
@@ -279,10 +310,10 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model, ws, cp, sc):
             # M-orthogonal projection onto g = 0, v_n = 0 (and v_t = 0 when sticking) with
             # M, j_n, j_t of the unprojected end state (the reference's `project`)
             gap = res[R_GAP]
-            jn, jt, y2, y3 = sc[0], sc[1], sc[3], sc[4]
-            Mff = ws[kchain.W_MFF]
-            L = ws[kchain.W_L]
-            yy = ws[kchain.W_Y]
+            jn, jt, y2, y3 = sc.jn, sc.jt, sc.y2, sc.y3
+            Mff = ws.Mff
+            L = ws.L
+            yy = ws.y
             kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
             gnn = 0.0
             vn = 0.0

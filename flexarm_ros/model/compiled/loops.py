@@ -8,10 +8,10 @@ import math
 import numpy as np
 
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
+from flexarm_ros.model.compiled.layout import Model
 from flexarm_ros.model.compiled.chain import (
-    DEFLECTION, M_FREE, M_NZ, M_TCODE, M_TIDX, M_TLEN, M_TPAR, M_TTIMES, M_TVALUES, M_ZHI,
-    M_ZLO, NEWTON, NON_FINITE, OK, STAGE_EPS, W_F, W_H, W_M, W_Q, W_QD, W_QG, W_XDOT,
-    _deflection_ratio, eval_torque_c, forces, rhs, rhs_into, workspace)
+    DEFLECTION, NEWTON, NON_FINITE, OK, STAGE_EPS, _deflection_ratio, _forces, eval_torque_c,
+    named, rhs, rhs_into, workspace)
 
 
 @_jit_inline
@@ -19,9 +19,9 @@ def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
     """One RK4 step x → xn from time t; actuator states clamped to their bounds. Returns
     False when xn is not finite."""
     m = x.shape[0]
-    nz = model[M_NZ]
-    zlo = model[M_ZLO]
-    zhi = model[M_ZHI]
+    nz = model.nz
+    zlo = model.z_lo
+    zhi = model.z_hi
     rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
     for i in range(m):
         tmp[i] = x[i] + 0.5 * h * k1[i]
@@ -43,14 +43,45 @@ def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
     return finite
 
 
+@_jit_inline
+def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4):
+    """``nsteps`` RK4 steps of size h from (t0, x), advancing x in place: the one loop of
+    :func:`rk4_span` and :func:`rk4_loop`. Returns (status, steps taken, time reached); on
+    NON_FINITE or DEFLECTION x is the last good state and xn the offending one."""
+    m = x.shape[0]
+    for j in range(nsteps):
+        t = t0 + j * h
+        if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+            return NON_FINITE, j + 1, t + h
+        if _deflection_ratio(xn, model) > max_ratio:
+            return DEFLECTION, j + 1, t + h
+        for i in range(m):
+            x[i] = xn[i]
+    return OK, nsteps, t0 + nsteps * h
+
+
 @_jit
-def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
-    """Fixed-step RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt), storing
-    every ``per`` steps into xs[k + 1].
+def rk4_span(x0, t0, h, nsteps, max_ratio, model_args, ws_args):
+    """``nsteps`` fixed RK4 steps of size h from (t0, x0): the co-simulation plant's
+    advance. Returns (status, time, last good state, offending state)."""
+    model, ws = named(model_args, ws_args)
+    m = x0.shape[0]
+    x = x0.copy()
+    xn = np.empty(m)
+    status, _, t = _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, np.empty(m),
+                            np.empty(m), np.empty(m), np.empty(m), np.empty(m))
+    return status, t, x, (x if status == OK else xn)
+
+
+@_jit
+def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
+    """Fixed-step RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt), ``per``
+    steps each (:func:`_rk4_run` from k·out_dt), storing the state into xs[k + 1].
 
     Returns (status, time, steps, last good state, offending state): status OK,
     NON_FINITE or DEFLECTION.
     """
+    model, ws = named(model_args, ws_args)
     m = x0.shape[0]
     x = x0.copy()
     xn = np.empty(m)
@@ -61,63 +92,35 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws):
     k4 = np.empty(m)
     steps = 0
     for k in range(k0, n_out):
-        t0 = k * out_dt
-        for j in range(per):
-            t = t0 + j * h
-            finite = _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws)
-            steps += 1
-            if not finite:
-                return NON_FINITE, t + h, steps, x, xn
-            if _deflection_ratio(xn, model) > max_ratio:
-                return DEFLECTION, t + h, steps, x, xn
-            for i in range(m):
-                x[i] = xn[i]
+        status, done, t = _rk4_run(x, k * out_dt, h, per, max_ratio, model, ws, xn, tmp, k1,
+                                   k2, k3, k4)
+        steps += done
+        if status != OK:
+            return status, t, steps, x, xn
         for i in range(m):
             xs[k + 1, i] = x[i]
     return OK, n_out * out_dt, steps, x, x
 
 
 @_jit
-def rk4_span(x0, t0, h, nsteps, max_ratio, model, ws):
-    """``nsteps`` fixed RK4 steps of size h from (t0, x0): the co-simulation plant's
-    advance. Returns (status, time, last good state, offending state)."""
-    m = x0.shape[0]
-    x = x0.copy()
-    xn = np.empty(m)
-    tmp = np.empty(m)
-    k1 = np.empty(m)
-    k2 = np.empty(m)
-    k3 = np.empty(m)
-    k4 = np.empty(m)
-    for j in range(nsteps):
-        t = t0 + j * h
-        if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
-            return NON_FINITE, t + h, x, xn
-        if _deflection_ratio(xn, model) > max_ratio:
-            return DEFLECTION, t + h, x, xn
-        for i in range(m):
-            x[i] = xn[i]
-    return OK, t0 + nsteps * h, x, x
-
-
-@_jit
 def _torque_jumps(t, model):
     """True when a torque program differs just before and just after time t."""
-    tidx = model[M_TIDX]
-    for j in range(tidx.shape[0]):
-        Lj = model[M_TLEN][j]
-        a = eval_torque_c(model[M_TCODE][j], model[M_TPAR][j], model[M_TTIMES][j, :Lj], model[M_TVALUES][j, :Lj],
-                          t - 1e-12)
-        b = eval_torque_c(model[M_TCODE][j], model[M_TPAR][j], model[M_TTIMES][j, :Lj], model[M_TVALUES][j, :Lj],
-                          t + 1e-12)
+    for j in range(model.act_coord.shape[0]):
+        Lj = model.prog_len[j]
+        code = model.prog_code[j]
+        par = model.prog_par[j]
+        times = model.prog_times[j, :Lj]
+        values = model.prog_values[j, :Lj]
+        a = eval_torque_c(code, par, times, values, t - 1e-12)
+        b = eval_torque_c(code, par, times, values, t + 1e-12)
         if a != b:
             return True
     return False
 
 
 @_jit
-def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws, Sinv, tol,
-                   max_iter):
+def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args,
+                   Sinv, tol, max_iter):
     """Implicit trapezoidal rule (Newmark average acceleration, β = 1/4, γ = 1/2) from output
     interval k0; modified Newton on the new accelerations with the frozen iteration matrix
     Sinv = (M + h/2·D + h²/4·K_t)⁻¹ of the free coordinates.
@@ -128,12 +131,13 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
     NEWTON the state is the one at the start of that output interval, so the caller can
     refresh Sinv there and resume.
     """
-    free = model[M_FREE]
+    model, ws = named(model_args, ws_args)
+    free = model.free
     nf = free.shape[0]
-    q = ws[W_Q]
-    qd = ws[W_QD]
-    M = ws[W_M]
-    f = ws[W_F]
+    q = ws.q
+    qd = ws.qd
+    M = ws.M
+    f = ws.f
     qf = x[:nf].copy()
     vf = x[nf:].copy()
     a0 = acc0.copy()
@@ -156,9 +160,9 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
                 for i in range(nf):
                     xk[i] = qf[i]
                     xk[nf + i] = vf[i]
-                rhs_into(t + STAGE_EPS * h, xk, ws[W_XDOT], model, ws)
+                rhs_into(t + STAGE_EPS * h, xk, ws.xdot, model, ws)
                 for i in range(nf):
-                    a0[i] = ws[W_XDOT][nf + i]
+                    a0[i] = ws.xdot[nf + i]
             for i in range(nf):
                 a1[i] = a0[i]
             converged = False
@@ -168,15 +172,15 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
                     v1[i] = vf[i] + 0.5 * h * (a0[i] + a1[i])
                     q[free[i]] = q1[i]
                     qd[free[i]] = v1[i]
-                forces(t + (1.0 - STAGE_EPS) * h, q, qd, x[:0], model, ws)
+                _forces(t + (1.0 - STAGE_EPS) * h, q, qd, x[:0], model, ws)
                 for i in range(nf):
                     ma = 0.0
                     for jj in range(nf):
                         ma += M[free[i], free[jj]] * a1[jj]
                     r[i] = ma - f[free[i]]
                     # magnitude of the terms that cancel in the residual (round-off scale)
-                    sc[i] = (abs(ma) + abs(f[free[i]]) + abs(ws[W_H][free[i]])
-                             + abs(ws[W_QG][free[i]]))
+                    sc[i] = (abs(ma) + abs(f[free[i]]) + abs(ws.h[free[i]])
+                             + abs(ws.Qg[free[i]]))
                 dmax = 0.0
                 amax = 0.0
                 fscale = 0.0
@@ -223,13 +227,13 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model, ws,
 
 def warm_up(integrator, model, x0, xs):
     """Compile (or load from cache) the loop of ``integrator`` with zero steps, so that
-    wall-time measurements count integration only."""
+    wall-time measurements count integration only (``model`` the plain tuple)."""
     ws = workspace(model)
     x = np.array(x0, float)
     if integrator == "rk4":
         rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
     elif integrator == "trapezoid":
-        nf = model[M_FREE].shape[0]
+        nf = Model._make(model).free.shape[0]
         trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,
                        np.eye(nf), 1e-10, 1)
     else:

@@ -1,5 +1,6 @@
 """Compiled accelerometer read-out: :func:`sensors.true_value` for accelerometers, from the
-frames the kernel left in its workspace (``kchain.W_FR``/``W_FJ``) at the instant's state.
+frames the kernel left in its workspace (``ws.frames`` / ``ws.frame_jac``) at the instant's
+state, the beam point through the kernel's own :func:`chain.beam_point`.
 
 The equations are those of :meth:`chain.Chain.point_kinematics` (the numpy reference):
 on a beam at abscissa x, with the hub frame (o, J_o, c_o, ψ, J_ψ, ψ̇) and the basis
@@ -24,6 +25,7 @@ import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import jit as _jit
+from flexarm_ros.model.compiled.layout import named
 
 HUB, TIP, BEAM = 0, 1, 2
 
@@ -31,15 +33,16 @@ HUB, TIP, BEAM = 0, 1, 2
 def pack(chain, sensors) -> tuple:
     """The accelerometers of ``sensors`` (SensorModels) as arrays for :func:`readings`:
     (index into ``sensors``, ints (m, 3) = link, body, e0; floats (m, 5) = p_x, p_y, axis
-    x, axis y, r_h; basis φ, φ′ (m, ne_max) and S (m, ne_max, ne_max))."""
+    x, axis y, r_h; basis φ (m, 1, ne_max), φ′ (m, ne_max) and S (m, 1, ne_max, ne_max):
+    φ and S in the model's per-point layout, one point per accelerometer)."""
     acc = [j for j, sm in enumerate(sensors) if sm.spec.kind == "accelerometer"]
     nemax = max(lm.beam.n for lm in chain.links)
     m = len(acc)
     ints = np.zeros((m, 3), dtype=np.int64)
     flt = np.zeros((m, 5))
-    phi = np.zeros((m, nemax))
+    phi = np.zeros((m, 1, nemax))
     slope = np.zeros((m, nemax))
-    S = np.zeros((m, nemax, nemax))
+    S = np.zeros((m, 1, nemax, nemax))
     for r, j in enumerate(acc):
         sm = sensors[j]
         lm = chain.links[sm.link]
@@ -51,27 +54,31 @@ def pack(chain, sensors) -> tuple:
         if body == BEAM:
             ne = lm.beam.n
             ph, sl, SS = sm.basis
-            phi[r, :ne], slope[r, :ne], S[r, :ne, :ne] = ph, sl, SS
+            phi[r, 0, :ne], slope[r, :ne], S[r, 0, :ne, :ne] = ph, sl, SS
     return np.array(acc, dtype=np.int64), ints, flt, phi, slope, S
 
 
 @_jit
-def readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
+def readings(q, qd, qdd, model_args, ws_args, ints, flt, phi, slope, S, out):
     """out[r] = specific force (m/s²) of accelerometer r on its axis, from the frames in
-    ``ws`` (filled by a kernel evaluation at this (q, q̇)) and q̈ of every coordinate."""
-    n = model[kchain.M_N]
-    ne_all = model[kchain.M_NE]
-    fs = model[15]
-    g = model[14]
-    FR = ws[kchain.W_FR]
-    FJ = ws[kchain.W_FJ]
+    the workspace (filled by a kernel evaluation at this (q, q̇)) and q̈ of every
+    coordinate (model and workspace as plain tuples, see :mod:`layout`)."""
+    model, ws = named(model_args, ws_args)
+    n = model.n
+    ne_all = model.ne
+    fs = model.foreshortening
+    g = model.gravity
+    FR = ws.frames
+    FJ = ws.frame_jac
+    Seta = ws.Seta
+    if not fs:                  # kchain.beam_point leaves Sη alone then
+        for a in range(Seta.shape[0]):
+            Seta[a] = 0.0
     for r in range(ints.shape[0]):
         k = ints[r, 0]
         body = ints[r, 1]
         e0 = ints[r, 2]
         fj = 0 if body == BEAM else body
-        ox = FR[k, fj, 0]
-        oy = FR[k, fj, 1]
         cox = FR[k, fj, 2]
         coy = FR[k, fj, 3]
         psi = FR[k, fj, 4]
@@ -89,36 +96,14 @@ def readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
         angle = psi
         if body == BEAM:
             ne = ne_all[k]
-            x = flt[r, 0]
-            seta_eta = 0.0
-            w = 0.0
-            wd = 0.0
+            Asx, Asy, Adx, Ady, acc_ax = kchain.beam_point(q, qd, e0, ne, phi, S, r, 0, fs,
+                                                           flt[r, 4] + flt[r, 0], c, s, Seta)
             wdd = 0.0
-            ud = 0.0
             udd_q = 0.0     # −(Sη)·η̈
-            acc_ax = 0.0
             for a in range(ne):
-                w += phi[r, a] * q[e0 + a]
-                wd += phi[r, a] * qd[e0 + a]
-                wdd += phi[r, a] * qdd[e0 + a]
+                wdd += phi[r, 0, a] * qdd[e0 + a]
+                udd_q -= Seta[a] * qdd[e0 + a]
                 angle += slope[r, a] * q[e0 + a]
-                if fs:
-                    se = 0.0
-                    sed = 0.0
-                    for b in range(ne):
-                        se += S[r, a, b] * q[e0 + b]
-                        sed += S[r, a, b] * qd[e0 + b]
-                    seta_eta += se * q[e0 + a]
-                    ud -= se * qd[e0 + a]
-                    udd_q -= se * qdd[e0 + a]
-                    acc_ax -= sed * qd[e0 + a]
-            sx = flt[r, 4] + x - 0.5 * seta_eta
-            sy = w
-            Asx = c * sx - s * sy
-            Asy = s * sx + c * sy
-            # A ṡ
-            Adx = c * ud - s * wd
-            Ady = s * ud + c * wd
             # A (∂s/∂η) η̈
             Addx = c * udd_q - s * wdd
             Addy = s * udd_q + c * wdd

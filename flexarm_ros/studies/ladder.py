@@ -11,10 +11,9 @@ Reference
     frequency. Why not DOP853 at a tight tolerance: on a fine mesh every explicit method
     is held to a step near the stability limit ``~1.5/|λ|max`` of the highest beam mode,
     which is orders of magnitude below the period of the modes that move the tip, so
-    RK4's time error of the tip path, O((ω h)⁴), is negligible, while DOP853 at rtol 1e-10
-    costs about 13× more (measured on ``link_tipmass``, 0.1 s: fem 8 RK4 vs DOP853 1e-10
-    tip paths differ by 1e-11 m RMS, while fem 8 and fem 16 differ by 4e-9 m). The
-    reference can be replaced (``reference=`` spec) and the test suite checks an RK4
+    RK4's time error of the tip path, O((ω h)⁴), is negligible next to the mesh error,
+    while DOP853 at a tight tolerance costs many times more (the comparison is in
+    docs/design_notes.md). The reference can be replaced (``reference=`` spec) and the test suite checks an RK4
     reference against a DOP853 rtol 1e-10 one.
 
 Columns of a row

@@ -4,10 +4,9 @@
 exactly the same M(q), h(q, q̇) and Q_grav (same points, same S(x), same propagation) in
 loops that numba compiles, and runs a whole fixed-step RK4 integration inside compiled
 code. Tests check both give the same numbers to round-off; without numba (or with
-``FLEXARM_NO_NUMBA=1``) the chain falls back to the numpy path.
-
-Measured on this machine (bench/bench_ladder.py): one right-hand side of the two-link
-cubic arm takes ~250 µs in numpy and a few µs compiled.
+``FLEXARM_NO_NUMBA=1``) the chain falls back to the numpy path. The cost of one
+right-hand side on either path is measured by ``bench/bench_ladder.py`` (README,
+Performance).
 """
 
 from __future__ import annotations

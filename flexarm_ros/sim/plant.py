@@ -135,6 +135,7 @@ class Plant:
 
     def _advance(self, t_end):
         dt = t_end - self.t
+        x_before = self.x
         if self.stepper is not None:
             self.stepper.advance(t_end)
             self.x = self.stepper.x
@@ -148,6 +149,11 @@ class Plant:
                 self.guard.last = x_last
                 self.guard.check(t_fail, x_bad)
             self.x = x_last
+        if not np.all(np.isfinite(self.x)):
+            # the compiled loops' own finiteness tests can be optimized away under fast
+            # math: this numpy test is the one nothing non-finite gets past
+            self.guard.last = x_before
+            self.guard.check(t_end, self.x)
         self.t = t_end
 
     def _sample_due(self) -> list[Sample]:

@@ -185,7 +185,7 @@ def cmd_run(args):
         print(res.summary())
     if res.diverged:                          # like simulate: the message once, status 3
         if not res.processes:
-            print(f"flexarm run: {res.diverged}", file=sys.stderr)
+            print(f"flexarm: {res.diverged}", file=sys.stderr)
         return 3
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
     if bad:

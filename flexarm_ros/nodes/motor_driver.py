@@ -75,7 +75,7 @@ class MotorDriverNode(Node):
     def rejected(self) -> int:
         return self.core.rejected
 
-    def _on_command(self, m, info=None):
+    def _on_command(self, m, info):
         """Validated where it enters; only an accepted command is queued (lockstep) or
         held (realtime, fast)."""
         data = m.data
@@ -97,7 +97,7 @@ class MotorDriverNode(Node):
         else:
             self.core.accept(self.t, list(data))
 
-    def _on_state(self, m, info=None):
+    def _on_state(self, m, info):
         who = self.state_source.verdict(info)
         if who is not None:
             self.rejections.refused(self.state_source.topic, "a state", None, who,

@@ -172,7 +172,6 @@ class RecorderNode(Node):
 
     def _on(self, topic, tp, m, info=None):
         self.last_rx = time.monotonic()
-        self.received[topic] = self.received.get(topic, 0) + 1
         ts = int(info.get("source_timestamp") or 0) if info else 0
         v = self.validators.get(topic)
         why = v.reason(m.data) if v is not None else None
@@ -187,6 +186,7 @@ class RecorderNode(Node):
         if not finite(data):
             self._reject(topic, NON_FINITE, _text(m), ts, self._name(info))
             return
+        self.received[topic] = self.received.get(topic, 0) + 1      # taken messages only
         if topic == T.CLOCK:
             self._on_clock(ts, data, C.stamp_ns(m.clock))
         else:

@@ -123,7 +123,7 @@ class SimulatorNode(Node):
     def rejected(self) -> int:
         return self.core.validator.rejected
 
-    def _on_effort(self, msg, info=None):
+    def _on_effort(self, msg, info):
         """Validated where it enters: taken (held, and in lockstep stepped on) only when
         it comes from the source and passes the validator; else counted and logged."""
         data = msg.data

@@ -141,6 +141,18 @@ def test_a_diverging_plant_raises_before_any_message_is_built():
     assert exc.value.time <= sim.t + sim.period
 
 
+def test_a_diverging_plant_without_sensors_raises_too():
+    """link has no sensors: nothing but the plant's own state test stands between a
+    huge torque and a NaN joint_states message."""
+    sim = SimulatorCore(load_scene("link"))
+    sim.step([0.55])
+    with pytest.raises(SimulationDiverged) as exc:
+        for _ in range(3):
+            sim.step([1e300])
+    assert exc.value.quantity.startswith(("coordinate", "rate"))
+    assert np.all(np.isfinite(sim.plant.x))                 # the last finite state stays
+
+
 def test_open_loop_programs_beyond_the_default_limit_are_refused(tmp_path):
     text = (Path(__file__).resolve().parents[1] / "config" / "link_motor.yaml").read_text()
     p = tmp_path / "hot.yaml"
@@ -350,6 +362,45 @@ def test_realtime_under_attack_stays_finite_and_within_the_drive_limits(tmp_path
     assert counts["sim"][NON_FINITE] > 0 and counts["drv"][FOREIGN] > 0
     assert max(t for t, _ in bag.messages["/clock"]) == round(counts["t"] * 1e9)
     assert max(t for topic in bag.topics for t, _ in bag[topic]) <= round(counts["t"] * 1e9)
+
+
+def test_recorder_stamps_with_the_simulators_clock_when_sent(tmp_path):
+    """The recorder alone; a test node owns /clock (no simulator on the graph) and sends,
+    per tick, /clock then joint_states and encoder counts. Every message is logged at the
+    clock value published before it; a stamp beyond that (1e6 s) gets that time instead;
+    nothing is logged past the last /clock."""
+    from builtin_interfaces.msg import Time
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Int32MultiArray
+
+    from flexarm_ros.nodes._common import QOS
+    path = tmp_path / "rec.mcap"
+    g = _graph(scene="two_link_case1", mode="fast", nodes=(), record=path)
+    try:
+        rec = g["recorder"]
+        node = Node("my_simulator", namespace=NS, context=g.context)
+        g.executor.add_node(node)
+        g.nodes["my_simulator"] = node
+        pubs = [node.create_publisher(Clock, T.CLOCK, QOS),
+                node.create_publisher(JointState, T.JOINT_STATES, QOS),
+                node.create_publisher(Int32MultiArray, T.ENCODER_COUNTS, QOS)]
+        assert g.spin_until(lambda: all(p.get_subscription_count() for p in pubs), 30)
+        for k in range(4):
+            pubs[0].publish(Clock(clock=Time(nanosec=k * 1_000_000)))
+            js = JointState()
+            js.header.stamp = Time(sec=1_000_000) if k == 2 else Time(nanosec=k * 1_000_000)
+            pubs[1].publish(js)
+            pubs[2].publish(Int32MultiArray(data=[k, k]))
+        assert g.spin_until(lambda: all(rec.received.get(t, 0) == 4 for t in
+                                        (T.CLOCK, T.JOINT_STATES, T.ENCODER_COUNTS)), 30)
+    finally:
+        g.close()
+    bag = read_bag(path)
+    want = [k * 1_000_000 for k in range(4)]
+    for topic in ("/clock", f"{NS}/{T.JOINT_STATES}", f"{NS}/{T.ENCODER_COUNTS}"):
+        assert [t for t, _ in bag[topic]] == want, topic
 
 
 def test_one_source_per_topic_the_latest_wins_and_a_successor_takes_over():

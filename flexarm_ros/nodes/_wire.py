@@ -52,8 +52,9 @@ class Source:
         self.expected = expected
         self.ns = node.get_namespace()
         self.owner: set = set()                # GIDs taken
-        self.refused: dict = {}                # GID -> publisher node name
-        self._count = -1                       # publishers when ``refused`` was decided
+        self._snap: dict = {}                  # GID -> (node name, namespace)
+        self._count = -1                       # publishers when _snap was taken
+        self._waited: set = set()              # GIDs already waited for
 
     def _graph(self) -> dict:
         """GID -> (node name, namespace) of the topic's publishers now."""
@@ -62,9 +63,23 @@ class Source:
             out[bytes(info.endpoint_gid)] = (info.node_name, info.node_namespace)
         return out
 
-    def _expected(self, graph) -> set:
-        return {g for g, (name, ns) in graph.items()
-                if self.expected and name == self.expected and ns == self.ns}
+    def _snapshot(self, gid) -> dict:
+        """The topic's publishers, queried again only when their number changed or
+        ``gid`` is not resolved in the last answer (waited for once per GID)."""
+        count = self.node.count_publishers(self.topic)
+        if count == self._count and gid in self._snap and self._snap[gid][0] != UNKNOWN:
+            return self._snap
+        self._snap, self._count = self._graph(), count
+        if (gid not in self._snap or self._snap[gid][0] == UNKNOWN) and \
+                gid not in self._waited:
+            self._waited.add(gid)
+            t0 = time.monotonic()
+            while (gid not in self._snap or self._snap[gid][0] == UNKNOWN) and \
+                    time.monotonic() - t0 < RESOLVE_S:
+                time.sleep(0.002)              # rmw's discovery thread fills the graph
+                self._snap = self._graph()
+            self._count = self.node.count_publishers(self.topic)
+        return self._snap
 
     def verdict(self, info, valid: bool = True) -> str | None:
         """None: the message may be taken (it still has to pass validation); else the
@@ -73,32 +88,20 @@ class Source:
         gid = gid_of(info)
         if gid is None or gid in self.owner:
             return None
-        if gid in self.refused:
-            count = self.node.count_publishers(self.topic)
-            if count == self._count:              # graph unchanged: same verdict
-                return self.refused[gid]
-        graph = self._graph()
-        t0 = time.monotonic()
-        while (gid not in graph or graph[gid][0] == UNKNOWN) and \
-                time.monotonic() - t0 < RESOLVE_S:
-            time.sleep(0.002)                     # rmw's discovery thread fills the graph
-            graph = self._graph()
-        expected = self._expected(graph)
+        graph = self._snapshot(gid)
+        expected = {g for g, (name, ns) in graph.items()
+                    if self.expected and name == self.expected and ns == self.ns}
         if expected:
             self.owner = expected
         else:
             self.owner = {g for g in self.owner if g in graph}   # owners still there
         if gid in self.owner:
-            self.refused.pop(gid, None)
             return None
         if not self.owner:
             if valid:
                 self.owner.add(gid)
-                self.refused.pop(gid, None)
             return None
-        self.refused[gid] = graph.get(gid, ("an unknown node",))[0]
-        self._count = len(graph)
-        return self.refused[gid]
+        return graph.get(gid, ("an unknown node",))[0]
 
 
 class Rejections:

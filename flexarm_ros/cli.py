@@ -224,6 +224,10 @@ def cmd_run(args):
     else:
         res = run(args.scene or DEFAULT_SCENE, record=record, **kw)
         print(res.summary())
+    if res.diverged:                          # like simulate: the message once, status 3
+        if not res.processes:
+            print(f"flexarm: {res.diverged}", file=sys.stderr)
+        return 3
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
     if bad:
         print(f"flexarm run: nodes exited with {bad}", file=sys.stderr)

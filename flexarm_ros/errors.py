@@ -20,6 +20,7 @@ class SimulationDiverged(RuntimeError):
         self.time = time
         self.last_value = last_value
         self.suggestion = suggestion
+        self.detail = detail
         msg = (f"simulation diverged: {quantity} at t = {time:.6g} s "
                f"(last finite value {last_value:.6g})")
         if detail:

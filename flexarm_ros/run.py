@@ -45,7 +45,9 @@ class RunResult:
     ticks: int | None = None
     real_time_factor: float | None = None
     overruns: int | None = None
-    rejected_commands: int | None = None
+    rejected_commands: int | None = None     # on both command topics
+    rejected: dict | None = None              # topic -> {reason: count}, every node input
+    diverged: str | None = None               # the divergence message (exit status 3)
     interrupted: bool = False
     returncodes: dict = field(default_factory=dict)
     recovered: str | None = None            # what recover_killed_bag() did, if anything
@@ -61,8 +63,43 @@ class RunResult:
             s += f", {self.wall_s:.3g} s wall"
         if self.interrupted:
             s += ", interrupted"
+        if self.diverged:
+            s += ", diverged"
+        if self.rejected:
+            s += "; rejected: " + "; ".join(
+                f"{t} {sum(by.values())} (" + ", ".join(f"{n} {r}" for r, n in
+                                                        sorted(by.items())) + ")"
+                for t, by in sorted(self.rejected.items()))
+        elif self.rejected is not None:
+            s += "; no message rejected"
         s += f" → {self.record}" if self.record else ""
         return s + (f" ({self.recovered})" if self.recovered else "")
+
+
+def _bag_rejections(path) -> dict | None:
+    """The recorder's ``rejected_messages`` metadata of a finalized bag (None: none)."""
+    import json
+
+    from mcap.reader import make_reader
+    try:
+        with open(path, "rb") as f:
+            for rec in make_reader(f).iter_metadata():
+                if rec.name == "rejected_messages":
+                    return json.loads(rec.metadata["by_topic"])
+    except Exception:                         # a truncated bag has no summary: no counts
+        return None
+    return None
+
+
+def _node_rejections(nodes) -> dict:
+    """topic -> {reason: count} over the graph's nodes (absolute topic names)."""
+    out: dict = {}
+    for name in ("simulator", "motor_driver", "controller"):
+        node = nodes.get(name)
+        rej = getattr(node, "rejections", None)
+        for topic, by in (rej.counts.items() if rej is not None else ()):
+            out.setdefault(topic, {}).update(by)
+    return out
 
 
 def _params(scene, mode, duration, record, node, progress, fidelity=None) -> dict:
@@ -321,8 +358,13 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                     pass
             codes = g.stop()
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
-            return RunResult(name, mode, True, record, time.monotonic() - t0,
-                             interrupted=stop.set, returncodes=codes, recovered=recovered)
+            res = RunResult(name, mode, True, record, time.monotonic() - t0,
+                            interrupted=stop.set, returncodes=codes, recovered=recovered)
+            if codes.get("simulator") == 3:
+                res.diverged = "the simulator reported a divergence (its message above)"
+            if record:
+                res.rejected = _bag_rejections(record)
+            return res
         g = InProcessGraph(scene, mode, duration, record, namespace, progress,
                            fidelity=fidelity)
         try:
@@ -331,10 +373,14 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             sim.halt()
             if record:
                 g.spin_until(g.recorded_all, timeout=10.0, stop=None if stop.set else stop)
+            for node in (g["motor_driver"], g["controller"]):
+                node.finish(g.executor)                  # their final log lines
             return RunResult(name, mode, False, record, time.monotonic() - t0,
                              sim_s=sim.core.t, ticks=sim.core.k, real_time_factor=sim.rtf(),
                              overruns=sim.overruns,
-                             rejected_commands=g["motor_driver"].rejected,
+                             rejected_commands=g["motor_driver"].rejected + sim.rejected,
+                             rejected=_node_rejections(g.nodes),
+                             diverged=str(sim.diverged) if sim.diverged else None,
                              interrupted=stop.set)
         finally:
             g.close()

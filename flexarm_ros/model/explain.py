@@ -78,6 +78,9 @@ def explain(scene) -> str:
     where = " at the static deflection" if scene.initial.static_equilibrium else ""
     lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
                  f"{m.frequencies_hz[-1]:.4g} Hz sets the explicit step)")
+    from flexarm_ros.model.limits import joint_limits
+    lines.append("wire limits (ROS twin: commands and efforts beyond them are rejected):")
+    lines.extend(f"  {lim.text()}" for lim in joint_limits(scene))
     for a in scene.assumptions:
         lines.append(f"assumption {a.key}: {a.note}")
     return "\n".join(lines)

@@ -243,6 +243,10 @@ def _node_main(cls, args=None) -> int:
         if hasattr(node, "finish"):
             node.finish(exe)
         exe.shutdown()
+        diverged = getattr(node, "diverged", None)
+        if diverged is not None:                 # like flexarm simulate: the message, 3
+            print(f"{cls.EXECUTABLE}: {diverged}", file=sys.stderr)
+            return 3
         return 0
     except KeyboardInterrupt:
         return 130

@@ -6,6 +6,9 @@ with a wall ``tool/contact`` and ``tool/wrench``. Publishes: ``motor_driver/comm
 one per joint state it answers. The control law comes from the scene's ``control:``
 section (open_loop programs, position PD with inverse kinematics, sanding).
 
+Its inputs are taken from the ``simulator`` only (a second publisher of any of them is
+refused, counted and logged: :mod:`flexarm_ros.nodes._wire`).
+
 Time: the state's stamp (simulation time) is the controller's time; no timer, no clock.
 In ``lockstep`` the k-th joint state is paired with the k-th contact and wrench messages
 (count-based FIFO, the same tick); in ``realtime`` / ``fast`` the latest contact and
@@ -25,6 +28,7 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import ControllerCore
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import to_msg
+from flexarm_ros.nodes._wire import Rejections, Source
 
 
 class ControllerNode(Node):
@@ -47,12 +51,21 @@ class ControllerNode(Node):
             self.queues[T.TOOL_CONTACT] = deque()
             self.queues[T.TOOL_WRENCH] = deque()
         self.latest = {T.TOOL_CONTACT: False, T.TOOL_WRENCH: 0.0}
+        self.sources = {}
+        self.rejections = Rejections(self)
         for topic in self.queues:
-            C.subscription(self, T.TYPES[topic], topic, lambda m, topic=topic: self._on(topic, m))
+            sub = C.subscription(self, T.TYPES[topic], topic,
+                                 lambda m, info, topic=topic: self._on(topic, m, info))
+            self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
         self.published = {T.COMMANDS: 0}
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
-    def _on(self, topic, m):
+    def _on(self, topic, m, info=None):
+        who = self.sources[topic].verdict(info)
+        if who is not None:
+            self.rejections.refused(self.sources[topic].topic, "a message", None, who,
+                                    self.sources[topic].expected)
+            return
         if topic == T.TOOL_CONTACT:
             m = bool(m.data)
         elif topic == T.TOOL_WRENCH:
@@ -82,6 +95,11 @@ class ControllerNode(Node):
             self.pub.publish(to_msg(T.TYPES[T.COMMANDS], msg.float64_multiarray(cmd,
                                                                                   ("joint",))))
             self.published[T.COMMANDS] += 1
+
+    def finish(self, executor=None):
+        """The final log line: commands published, inputs refused."""
+        self.get_logger().info(f"{self.published[T.COMMANDS]} commands published; "
+                               f"{self.rejections.summary()}")
 
 
 def main(args=None):

@@ -7,12 +7,21 @@ and rates, ``<link>_drive``, of the current tick). Publishes, once per tick:
 the next period) and ``motor_driver/motor_states`` (motor-shaft angle/speed, armature
 current or load pressure in ``effort``).
 
-Time: the ground-truth stamp is the driver's time. ``lockstep`` pairs the k-th command
-with the k-th state (count-based FIFO); ``realtime`` / ``fast`` take each command when it
-arrives and answer every state with the latest one. Commands with NaN/inf or the wrong
-length are rejected (``rejected`` counts them, a throttled warning is logged) and never
-reach the plant; a command older than ``control.watchdog_s`` of simulated time gives
-0 V / a closed valve (``tripped``), so a dead controller lets the arm coast.
+Commands are validated where they enter: a message is taken only from the topic's source
+(the ``command_source`` node, ``controller``, when it is on the graph, else the first
+publisher; :mod:`flexarm_ros.nodes._wire`) and only when it holds one finite value per
+joint within the joint's command limit (V, A or N·m; :mod:`flexarm_ros.model.limits`).
+Anything else is rejected (``rejected``, by reason in ``core.validator.counts``; a
+throttled warning) and changes nothing: not the held command, not the pairing. States
+are taken from the ``simulator`` only.
+
+Time: the ground-truth stamp is the driver's time. ``lockstep`` pairs the k-th accepted
+command with the k-th state (a FIFO of accepted commands: a rejected one never takes a
+state's place); ``realtime`` / ``fast`` take each accepted command when it arrives and
+answer every state with the latest one (the source's latest wins). A command older than
+``control.watchdog_s`` of simulated time gives 0 V / a closed valve (``tripped``), so a
+dead controller lets the arm coast. The final log line gives the rejected messages by
+topic and reason.
 """
 
 from __future__ import annotations
@@ -27,16 +36,20 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import to_msg
+from flexarm_ros.nodes._wire import Rejections, Source
+from flexarm_ros.twin.validation import FOREIGN
 
 
 class MotorDriverNode(Node):
     """flexarm twin motor driver node: commands in, joint torques out (with watchdog)."""
 
     EXECUTABLE = "motor_driver"
+    PARAMS = {"command_source": (T.SOURCE[T.COMMANDS], "node whose commands are taken while "
+                                 "it is on the graph ('': the first publisher)")}
 
     def __init__(self, **kwargs):
         super().__init__("motor_driver", **kwargs)
-        self.p, scene, self.n_end = C.load(self, {})
+        self.p, scene, self.n_end = C.load(self, self.PARAMS)
         self.lockstep = self.p["mode"] == "lockstep"
         self.scene = scene
         self.core = DriverCore(scene)
@@ -49,8 +62,12 @@ class MotorDriverNode(Node):
         self.pub_ms = C.publisher(self, T.TYPES[T.MOTOR_STATES], T.MOTOR_STATES)
         self.ready = C.Barrier(self, [(self.pub_eff, 1 + r), (self.pub_ms, r)], r)
         self.commands, self.states = deque(), deque()
-        C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS, self._on_command)
-        C.subscription(self, T.TYPES[T.GT_JOINT_STATES], T.GT_JOINT_STATES, self._on_state)
+        sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS, self._on_command)
+        self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
+        sub = C.subscription(self, T.TYPES[T.GT_JOINT_STATES], T.GT_JOINT_STATES,
+                             self._on_state)
+        self.state_source = Source(self, sub.topic_name, T.SOURCE[T.GT_JOINT_STATES])
+        self.rejections = Rejections(self)
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
@@ -58,22 +75,45 @@ class MotorDriverNode(Node):
     def rejected(self) -> int:
         return self.core.rejected
 
-    def _accept(self, t, data):
-        if not self.core.accept(t, data):
-            self.get_logger().warning(
-                f"rejected command {data!r} (expected {self.n} finite values); "
-                f"{self.core.rejected} rejected so far", throttle_duration_sec=1.0)
-
-    def _on_command(self, m):
+    def _on_command(self, m, info):
+        """Validated where it enters; only an accepted command is queued (lockstep) or
+        held (realtime, fast)."""
+        data = m.data
+        v = self.core.validator
+        why = v.reason(data)
+        who = self.source.verdict(info, valid=why is None)
+        if who is not None:
+            v.refuse(FOREIGN)
+            self.rejections.refused(self.source.topic, "command", data, who,
+                                    self.source.expected)
+            return
+        if why is not None:
+            v.check(data)
+            self.rejections.invalid(self.source.topic, "command", data, why, v.expectation())
+            return
         if self.lockstep:
-            self.commands.append(list(m.data))
+            self.commands.append(list(data))
             self._drain()
         else:
-            self._accept(self.t, list(m.data))
+            self.core.accept(self.t, list(data))
 
-    def _on_state(self, m):
+    def _on_state(self, m, info):
+        who = self.state_source.verdict(info)
+        if who is not None:
+            self.rejections.refused(self.state_source.topic, "a state", None, who,
+                                    self.state_source.expected)
+            return
         self.states.append(m)
         self._drain()
+
+    def finish(self, executor=None):
+        """The final log line: what was published and what was rejected."""
+        self.get_logger().info(f"{self.published[T.EFFORTS]} efforts published; "
+                               f"{T.COMMANDS}: {self.core.validator.summary()}"
+                               + (f"; {self.rejections.summary()}"
+                                  if self.rejections.total(self.state_source.topic) else "")
+                               + (f"; torque held at the limit in {self.core.held} periods"
+                                  if self.core.held else ""))
 
     def _drain(self):
         if not self.ready():
@@ -87,7 +127,7 @@ class MotorDriverNode(Node):
                 continue
             self.t = t = self.sim_time(t_ns)
             if self.lockstep:
-                self._accept(t, self.commands.popleft())
+                self.core.accept(t, self.commands.popleft())
             angles = list(gt.position[self.n:2 * self.n])
             rates = list(gt.velocity[self.n:2 * self.n])
             tau = self.core.update(t, self.period, rates)

@@ -11,15 +11,23 @@ built model, ``flexarm explain``). With fidelity overrides (``-p rung:=rigid``, 
 run --rung rigid``) the embedded scene YAML is the scene file with its ``fidelity`` section
 updated, so whoever rebuilds the model from the bag builds the one that ran.
 
-Log time = simulation time: the header stamp where the message has one, ``/clock`` its
-value. Headerless messages are paired by count: the n-th ``encoders/counts`` and
-``tool/contact`` message (any mode: the simulator publishes them every tick) and, in
-``lockstep``, the n-th ``motor_driver/commands`` and ``effort_controller/commands``
-message belong to tick n (its stamp replayed from the scene, :class:`~._common.SimTime`;
-this needs every message from the first on, which the nodes' start barrier ensures); a
-sensor batch ends with sample C (cumulative rows) at C·Ts, so it belongs to tick
-ceil(C·Ts/T) (any mode). In ``realtime`` / ``fast`` commands and efforts get the latest
-``/clock`` received (the tick they answer, or a later one when the recorder lags).
+Log time = the simulation time at which the message was sent, never a count of messages:
+the value of the latest ``/clock`` the simulator had published when the message was
+published (both moments are the DDS source timestamps of one host's clock; a message is
+held until a later ``/clock`` arrives, so delivery order does not matter). A message with a
+header keeps its stamp when that lies between 0 and that time (an answer to an earlier
+state: the driver's ``motor_states``), else it gets that time. So in ``lockstep`` every
+message of tick k — commands and efforts included — is logged at t_k exactly as
+``cosimulate`` gives it, and no burst of foreign messages can log anything past the last
+``/clock``, the run's end.
+
+What the twin's nodes refused never reaches a topic of the bag as if it had been taken: a
+message from a second publisher of a topic (:mod:`~flexarm_ros.nodes._wire`, the same rule
+the nodes apply), a command or effort the nodes' validator rejects
+(:mod:`~flexarm_ros.twin.validation`, the same check), or any message holding a
+non-finite number goes to ``diagnostics/rejected`` instead (std_msgs/String, one JSON
+object: ``topic``, ``reason``, ``publisher``, ``data`` as text), and the counts by topic and
+reason go into the metadata record ``rejected_messages`` when the file is closed.
 
 Each message is decoded by rclpy and re-encoded with our CDR encoder (rmw leaves
 alignment padding uninitialized, so raw bytes would not be reproducible). Chunks are
@@ -30,7 +38,9 @@ finalizes the file.
 
 from __future__ import annotations
 
+import bisect
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -43,12 +53,34 @@ from flexarm_ros import __version__
 from flexarm_ros.bag import BagWriter
 from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.twin import topics as T
-from flexarm_ros.twin.cores import control_period
+from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, Validator
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
+from flexarm_ros.nodes._wire import Rejections, Source, gid_of, show
 
-_TICK_TOPICS = (T.ENCODER_COUNTS, T.TOOL_CONTACT, T.COMMANDS, T.EFFORTS)
+_HISTORY = 20_000           # /clock values kept for stamping late messages (20 s at 1 kHz)
+
+
+def finite(obj) -> bool:
+    """Every number in a message dict is finite."""
+    if isinstance(obj, float):
+        return math.isfinite(obj)
+    if isinstance(obj, dict):
+        return all(finite(v) for v in obj.values())
+    if isinstance(obj, list):
+        if obj and isinstance(obj[0], float):
+            return all(map(math.isfinite, obj))
+        return all(finite(v) for v in obj)
+    return True
+
+
+def _text(m) -> str:
+    """A message's content as a short text for ``diagnostics/rejected``."""
+    data = getattr(m, "data", None)
+    if data is not None and not isinstance(data, (str, bool)):
+        return show(data)
+    return str(m)[:200]
 
 
 class RecorderNode(Node):
@@ -72,23 +104,22 @@ class RecorderNode(Node):
                 "fidelity_overrides": json.dumps(over, sort_keys=True)}
         self.writer = BagWriter(self.p["output"], metadata=info, qos_depth=C.DEPTH)
         self.writer.add_metadata("model", {"explain": explain(scene)})
-        self.period_ns = int(round(control_period(scene) * 1e9))
-        self.every_ns = {}
-        for topic, kind in T.BATCH_KINDS.items():
-            rates = [s.rate_hz for s in scene.sensors if s.kind == kind]
-            if rates:
-                self.every_ns[topic] = int(round(1e9 / rates[0]))
-        self.ticks = C.SimTime(scene)       # lockstep: the stamp of tick n
-        self.latest_clock = 0
-        self.index = {t: 0 for t in _TICK_TOPICS}
-        self.rows = {t: 0 for t in T.BATCH_KINDS}
+        self.validators = {T.COMMANDS: Validator(scene, "command"),
+                           T.EFFORTS: Validator(scene, "effort")}
+        self.rejections = Rejections(self, period_s=float("inf"))   # the nodes log them
+        self.clock_ts: list = []          # source timestamps of the simulator's /clock
+        self.clock_ns: list = []          # their values
+        self.pending: list = []           # (source ts, topic, type, data, header ns)
         self.received = {}
         self.last_rx = time.monotonic()
         self._flushed = time.monotonic()
-        for topic in sorted(T.TYPES, key=lambda t: t == T.CLOCK):   # /clock last: of two
-            tp = T.TYPES[topic]                   # ready messages the older is taken first
-            C.subscription(self, tp, topic, lambda m, topic=topic, tp=tp: self._on(topic, tp, m))
-        self.abs = {t: T.resolve(ns, t) for t in T.TYPES}
+        self.sources = {}
+        for topic in sorted(T.TYPES, key=lambda t: t == T.CLOCK):
+            tp = T.TYPES[topic]
+            sub = C.subscription(self, tp, topic, lambda m, info, topic=topic, tp=tp:
+                                 self._on(topic, tp, m, info))
+            self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
+        self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
 
     def _write(self, topic, tp, data, t_ns):
         self.writer.write(self.abs[topic], tp, data, t_ns)
@@ -97,26 +128,81 @@ class RecorderNode(Node):
             self.writer.flush()
             self._flushed = now
 
-    def _on(self, topic, tp, m):
-        self.last_rx = time.monotonic()
-        self.received[topic] = self.received.get(topic, 0) + 1
-        data = to_dict(m)
-        if topic == T.CLOCK:
-            t_ns = C.stamp_ns(m.clock)
-            self.latest_clock = t_ns
-            self._write(topic, tp, data, t_ns)
-        elif "header" in data:
-            self._write(topic, tp, data, C.stamp_ns(m.header.stamp))
-        elif topic in T.BATCH_KINDS:
-            self.rows[topic] += data["layout"]["dim"][0]["size"]
-            every = self.every_ns.get(topic, self.period_ns)
-            tick = -(-self.rows[topic] * every // self.period_ns)
-            self._write(topic, tp, data, tick * self.period_ns)
-        elif self.lockstep or topic in (T.ENCODER_COUNTS, T.TOOL_CONTACT):
-            self._write(topic, tp, data, self.ticks.tick_ns(self.index[topic]))
-            self.index[topic] += 1
+    # ----------------------------------------------------------------- time stamps
+    def _sim_ns(self, ts: int) -> int:
+        """The simulator's latest /clock value published at or before source time ts."""
+        i = bisect.bisect_right(self.clock_ts, ts)
+        return self.clock_ns[i - 1] if i else (self.clock_ns[0] if self.clock_ns else 0)
+
+    def _emit(self, ts, topic, tp, data, header_ns=None):
+        """Write now when the simulator's time at ``ts`` is known (a later /clock has
+        arrived), else hold the message until it is."""
+        if not ts or (self.clock_ts and ts < self.clock_ts[-1]):
+            self._stamp_write(ts, topic, tp, data, header_ns)
         else:
-            self._write(topic, tp, data, self.latest_clock)
+            self.pending.append((ts, topic, tp, data, header_ns))
+
+    def _stamp_write(self, ts, topic, tp, data, header_ns):
+        t_ns = self._sim_ns(ts) if ts else (self.clock_ns[-1] if self.clock_ns else 0)
+        if header_ns is not None and 0 <= header_ns <= t_ns:
+            t_ns = header_ns
+        self._write(topic, tp, data, t_ns)
+
+    def _release(self, upto=None):
+        """Write the held messages sent before source time ``upto`` (all: None)."""
+        keep = []
+        for item in self.pending:
+            if upto is None or (item[0] and item[0] < upto):
+                self._stamp_write(*item)
+            else:
+                keep.append(item)
+        self.pending = keep
+
+    def _on_clock(self, ts, data, t_ns):
+        if self.clock_ns and t_ns < self.clock_ns[-1]:
+            self._reject(T.CLOCK, "time went backwards", str(t_ns), ts, "the source")
+            return
+        if not ts and self.clock_ts:
+            ts = self.clock_ts[-1] + 1
+        self.clock_ts.append(ts)
+        self.clock_ns.append(t_ns)
+        if len(self.clock_ts) > 2 * _HISTORY:
+            del self.clock_ts[:_HISTORY], self.clock_ns[:_HISTORY]
+        self._write(T.CLOCK, T.TYPES[T.CLOCK], data, t_ns)
+        self._release(ts)
+
+    # ------------------------------------------------------------------- receiving
+    def _reject(self, topic, reason, text, ts, who):
+        self.rejections.add(self.abs[topic], reason, "")
+        entry = {"topic": self.abs[topic], "reason": reason, "publisher": who, "data": text}
+        self._emit(ts, T.REJECTED, "std_msgs/msg/String", {"data": json.dumps(entry)})
+
+    def _on(self, topic, tp, m, info=None):
+        self.last_rx = time.monotonic()
+        ts = int(info.get("source_timestamp") or 0) if info else 0
+        v = self.validators.get(topic)
+        why = v.reason(m.data) if v is not None else None
+        who = self.sources[topic].verdict(info, valid=why is None)
+        if who is not None:
+            self._reject(topic, FOREIGN, _text(m), ts, who)
+            return
+        if why is not None:
+            self._reject(topic, why, _text(m), ts, self._name(info))
+            return
+        data = to_dict(m)
+        if not finite(data):
+            self._reject(topic, NON_FINITE, _text(m), ts, self._name(info))
+            return
+        self.received[topic] = self.received.get(topic, 0) + 1      # taken messages only
+        if topic == T.CLOCK:
+            self._on_clock(ts, data, C.stamp_ns(m.clock))
+        else:
+            header = C.stamp_ns(m.header.stamp) if "header" in data else None
+            self._emit(ts, topic, tp, data, header)
+
+    def _name(self, info) -> str:
+        gid = gid_of(info)
+        return "the source" if gid is None else gid.hex()
 
     def finish(self, executor, quiet=0.3, limit=5.0):
         """Keep reading until nothing arrived for ``quiet`` s (at most ``limit`` s)."""
@@ -126,7 +212,13 @@ class RecorderNode(Node):
             executor.spin_once(timeout_sec=quiet / 4)
 
     def close(self):
-        """Finalize the file (idempotent)."""
+        """Write what is held, the rejection counts, and finalize the file (idempotent)."""
+        if not self.writer.closed:
+            self._release()
+            counts = self.rejections.counts
+            self.writer.add_metadata("rejected_messages", {
+                "total": str(self.rejections.total()),
+                "by_topic": json.dumps(counts, sort_keys=True)})
         self.writer.close()
 
     @property

@@ -7,15 +7,31 @@ Publishes (node-relative, reliable keep_last 1000): ``/clock``, ``joint_states``
 one control tick, in that order. Subscribes: ``effort_controller/commands`` (N·m per
 joint, held over the next control period).
 
+Efforts are validated where they enter: a message is taken only from the topic's source
+(the ``command_source`` node, ``motor_driver``, when it is on the graph, else the first
+publisher; :mod:`flexarm_ros.nodes._wire`) and only when it holds one finite value per
+joint within the joint's torque limit (:mod:`flexarm_ros.model.limits`). Anything else is
+rejected: counted by reason, logged (throttled), and it changes nothing — it neither
+steps the plant nor replaces the held torque.
+
 Time modes (parameter ``mode``):
 
-* ``lockstep``: publishes tick k, then waits for the k-th effort message and steps
-  (count-based pairing, no timer): deterministic, equal to ``cosimulate``.
-* ``realtime``: a wall-clock timer at the control period steps with the latest effort
-  (zero-order hold); the real-time factor and overruns (ticks that started more than one
-  period late) are logged every few seconds and at the end.
-* ``fast``: steps as fast as the executor allows with the latest effort; ``/clock`` is the
-  only time (run the other nodes with ``use_sim_time``).
+* ``lockstep``: publishes tick k, then steps on the first accepted effort after it (no
+  timer): deterministic, equal to ``cosimulate``. Every accepted message from the source
+  steps one period (the source is the tick); rejected ones and a second publisher's never
+  do, so a hostile publisher cannot change a lockstep run.
+* ``realtime``: a wall-clock timer at the control period steps with the latest accepted
+  effort (zero-order hold; the source's latest message wins); the real-time factor and
+  overruns (ticks that started more than one period late) are logged every few seconds
+  and at the end.
+* ``fast``: steps as fast as the executor allows with the latest accepted effort;
+  ``/clock`` is the only time (run the other nodes with ``use_sim_time``).
+
+A diverging plant stops the node like ``flexarm simulate``: nothing of the diverged state
+is published, ``diverged`` holds the :class:`~flexarm_ros.errors.SimulationDiverged`
+(what, when, what to change), and the node's process exits with status 3 printing it once.
+The final log line gives the simulated time, ticks, real-time factor and the rejected
+efforts by reason.
 
 Publishing starts once every topic is matched (``recorders`` + the controller/driver).
 With a finite ``duration`` the node stops after the state at that time (and its process
@@ -31,17 +47,22 @@ import time
 import numpy as np
 from rclpy.node import Node
 
+from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
+from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import to_msg
+from flexarm_ros.nodes._wire import Rejections, Source
 
 
 class SimulatorNode(Node):
     """flexarm twin simulator node: plant, sensors, contact and /clock."""
 
     EXECUTABLE = "simulator"
-    PARAMS = {"progress": (False, "print the simulated time on stderr")}
+    PARAMS = {"progress": (False, "print the simulated time on stderr"),
+              "command_source": (T.SOURCE[T.EFFORTS], "node whose efforts are taken while "
+                                 "it is on the graph ('': the first publisher)")}
 
     def __init__(self, **kwargs):
         super().__init__("simulator", **kwargs)
@@ -53,7 +74,10 @@ class SimulatorNode(Node):
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
         self.pubs = pubs
-        C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort)
+        sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort)
+        self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
+        self.rejections = Rejections(self)
+        self.diverged: SimulationDiverged | None = None
         r = self.p["recorders"]
         to_nodes = (T.JOINT_STATES, T.TOOL_CONTACT, T.TOOL_WRENCH, T.GT_JOINT_STATES)
         self.ready = C.Barrier(self, [(p, r + (t in to_nodes)) for t, p in pubs.items()], r)
@@ -84,26 +108,42 @@ class SimulatorNode(Node):
             self.timer.cancel()
             self.report(final=True)
 
-    def _step(self, torque):
-        tau = np.asarray(torque, float)
-        if tau.shape != self.torque.shape or not np.all(np.isfinite(tau)):
-            self.get_logger().error(f"effort {tau.tolist()} rejected (expected "
-                                    f"{self.torque.size} finite values); holding the last",
-                                    throttle_duration_sec=1.0)
-            tau = self.torque
+    def _step(self, tau):
         self.torque = tau
-        self.core.step(tau)
+        try:
+            self.core.step(tau)
+        except SimulationDiverged as exc:        # nothing of the diverged state goes out
+            self.diverged = exc
+            self.halt()
+            return
         self._publish_state()
         self.report()
 
-    def _on_effort(self, msg):
-        data = list(msg.data)
-        if self.mode != "lockstep":
-            self.torque = np.asarray(data, float) if len(data) == self.torque.size and \
-                all(map(math.isfinite, data)) else self.torque
+    @property
+    def rejected(self) -> int:
+        return self.core.validator.rejected
+
+    def _on_effort(self, msg, info):
+        """Validated where it enters: taken (held, and in lockstep stepped on) only when
+        it comes from the source and passes the validator; else counted and logged."""
+        data = msg.data
+        v = self.core.validator
+        why = v.reason(data)
+        who = self.source.verdict(info, valid=why is None)
+        if who is not None:
+            v.refuse(FOREIGN)
+            self.rejections.refused(self.source.topic, "effort", data, who,
+                                    self.source.expected)
             return
-        if self.started and not self.finished:
-            self._step(data)
+        if why is not None:
+            v.check(data)
+            self.rejections.invalid(self.source.topic, "effort", data, why, v.expectation())
+            return
+        tau = np.array(data, float)
+        if self.mode != "lockstep":
+            self.torque = tau
+        elif self.started and not self.finished:
+            self._step(tau)
 
     def _on_timer(self):
         if not self.started:
@@ -148,7 +188,9 @@ class SimulatorNode(Node):
             self._last_log = now
             self.get_logger().info(f"{self.mode}: {self.core.t:.3f} s simulated, "
                                    f"{self.core.k} ticks, real-time factor {self.rtf():.3g}, "
-                                   f"{self.overruns} overruns")
+                                   f"{self.overruns} overruns; {T.EFFORTS}: "
+                                   f"{self.core.validator.summary()}"
+                                   + ("; diverged" if self.diverged else ""))
 
 
 def main(args=None):

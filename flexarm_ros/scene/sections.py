@@ -106,10 +106,17 @@ class Drive:
                                             "quasi-static)")
     supply_voltage: Optional[float] = param(None, unit="V", gt=0.0,
                                             doc="dc_motor: |V| is clipped to this (amplifier "
-                                                "supply); none: no limit")
+                                                "supply), and the ROS twin's motor driver "
+                                                "rejects commands beyond it; none: the model "
+                                                "does not clip and the driver accepts up to "
+                                                "48 V (the stated default)")
     current_limit: Optional[float] = param(None, unit="A", gt=0.0,
-                                           doc="dc_motor: |i| is limited to this; none: no "
-                                               "limit")
+                                           doc="dc_motor: |i| is limited to this; the ROS "
+                                               "twin's simulator rejects efforts beyond "
+                                               "n·K_t·current_limit; none: no limit in the "
+                                               "model, the twin's torque limit is "
+                                               "n·K_t·2·V_max/R (the plugging current from "
+                                               "the no-load speed)")
     # hydraulic
     displacement: Optional[float] = param(None, unit="m³/rad", gt=0.0,
                                           doc="hydraulic: actuator displacement D_m")
@@ -175,6 +182,12 @@ class Joint:
                                                    "coordinate)")
     drive: Optional[Drive] = param(None, doc="actuator (dc_motor or hydraulic); none: the "
                                              "joint takes torque programs directly")
+    torque_limit: Optional[float] = param(None, unit="N·m", gt=0.0,
+                                          doc="joint without a drive: the ROS twin rejects "
+                                              "torque commands and efforts beyond ±this; "
+                                              "none: 1000 N·m (the stated default). A joint "
+                                              "with a drive takes its limit from the drive "
+                                              "(flexarm explain prints every limit)")
 
     def validate(self, where):
         if self.flexibility is not None and self.backlash is not None:
@@ -183,6 +196,11 @@ class Joint:
         if self.backlash is not None and self.drive_inertia == 0.0:
             raise SceneError(f"{where}.drive_inertia: got 0.0, expected > 0 kg·m² with "
                              f"backlash (the motor-side coordinate needs inertia)")
+        if self.torque_limit is not None and self.drive is not None:
+            raise SceneError(f"{where}.torque_limit: got {self.torque_limit}, expected no "
+                             f"torque_limit on a joint with a {self.drive.type} drive (its "
+                             f"limit follows from the drive: current_limit, supply_voltage "
+                             f"or supply_pressure)")
         if self.initial_angle_deg is not None and self.initial_angle != 0.0:
             raise SceneError(f"{where}.initial_angle_deg: got {self.initial_angle_deg}, "
                              f"expected only one of initial_angle / initial_angle_deg")

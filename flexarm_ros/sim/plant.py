@@ -132,8 +132,7 @@ class Plant:
         dt = t_end - self.t
         if self.stepper is not None:
             self.stepper.advance(t_end)
-            self.x = self.stepper.x
-            self.contact_sample = self.stepper.sample()
+            x_new = self.stepper.x
         else:
             n = max(1, int(math.ceil(dt / self.h - 1e-9)))
             code, t_fail, x_last, x_bad = kloops.rk4_span(
@@ -142,7 +141,16 @@ class Plant:
             if code != kchain.OK:
                 self.guard.last = x_last
                 self.guard.check(t_fail, x_bad)
-            self.x = x_last
+            x_new = x_last
+        if not np.all(np.isfinite(x_new)):
+            # the compiled loops' own finiteness tests can be optimized away under fast
+            # math: this numpy test is the one nothing non-finite gets past (the plant
+            # keeps its last finite state)
+            self.guard.last = self.x
+            self.guard.check(t_end, x_new)
+        self.x = x_new
+        if self.stepper is not None:
+            self.contact_sample = self.stepper.sample()
         self.t = t_end
 
     def _sample_due(self) -> list[Sample]:

@@ -23,11 +23,13 @@ from flexarm_ros.control.kinematics import PlanarTwoLink
 from flexarm_ros.control.sanding import SandingTask
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
-from flexarm_ros.errors import SceneError
+from flexarm_ros.model.limits import joint_limits
+from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.sim.plant import Plant
 from flexarm_ros.model.programs import encode, eval_torque
 from flexarm_ros.model.statics import initial_state
 from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.validation import Validator
 
 
 def _ns(t: float) -> int:
@@ -44,11 +46,18 @@ class SimulatorCore:
 
     ``outputs()`` gives the messages of the current instant (joint states from the
     quantized encoders, counts, sensor batches collected since the previous tick, contact,
-    ground truth, clock); ``step(torques)`` holds the torques over one control period."""
+    ground truth, clock); ``step(torques)`` holds the torques over one control period.
+
+    ``validator`` checks an effort command (one finite value per joint within its torque
+    limit, :mod:`flexarm_ros.model.limits`) before the node steps with it. A diverging
+    plant raises :class:`SimulationDiverged` from ``step`` before any message of the
+    diverged state can be built: every sample is checked, and the plant checks its state
+    after every sensor-grid interval."""
 
     def __init__(self, scene):
         self.scene = scene
         self.plant = Plant(scene)
+        self.validator = Validator(scene, "effort")
         self.period = control_period(scene)
         g = self.plant.grid_ns
         if g and abs(self.period * 1e9 / g - round(self.period * 1e9 / g)) > 1e-6:
@@ -142,9 +151,22 @@ class SimulatorCore:
     def step(self, torques) -> None:
         """Hold ``torques`` (N·m, joint order) over one control period."""
         self.plant.set_torques(torques)
-        samples = self.plant.step(self.period)
+        try:
+            samples = self.plant.step(self.period)
+        except SimulationDiverged as exc:           # name the input held over the period
+            held = np.array2string(self.plant.torques, precision=4)
+            raise SimulationDiverged(
+                exc.quantity, exc.time, exc.last_value,
+                f"check the joint torques (held {held} N·m from t = {self.t:.6g} s); "
+                f"else {exc.suggestion}", detail=exc.detail) from None
         by_time: dict = {}
         for s in samples:
+            if not (math.isfinite(s.value) and math.isfinite(s.true)):
+                raise SimulationDiverged(
+                    f"sensor {s.sensor}", s.t, float("nan"),
+                    f"check the joint torques (held "
+                    f"{np.array2string(self.plant.torques, precision=4)} N·m); reduce the "
+                    f"step (fidelity.dt)", detail="a sensor reading became non-finite")
             by_time.setdefault(s.t, {})[s.sensor] = s.value
         for t in sorted(by_time):
             vals = by_time[t]
@@ -166,9 +188,13 @@ class DriverCore:
     The electrical / hydraulic state is advanced over the period with the command and the
     drive rate held (zero-order hold) by :func:`drives.advance_state`, which integrates the
     plant's own :func:`drives.actuator_rate` (the current exactly, the pressure by RK4
-    sub-steps).
-    A command older than ``control.watchdog_s`` drops to 0 V (closed valve); NaN, inf or
-    wrong-length commands are rejected (counted) and never reach the plant."""
+    sub-steps). A command older than ``control.watchdog_s`` drops to 0 V (closed valve). A command
+    is validated where it enters (``accept``, :class:`~flexarm_ros.twin.validation.Validator`):
+    wrong length, NaN/inf or beyond the joint's command limit (V, A or N·m,
+    :mod:`flexarm_ros.model.limits`) is rejected (counted by reason) and changes nothing.
+    The published torque never exceeds the joint's torque limit (the simulator would
+    reject it): it is held there (``held`` counts the periods), which only a DC drive
+    without ``current_limit`` turned beyond its no-load speed can reach."""
 
     def __init__(self, scene):
         self.scene = scene
@@ -189,17 +215,22 @@ class DriverCore:
         self.command = np.zeros(self.n)
         self.t_command = 0.0
         self.watchdog = scene.control.watchdog_s
-        self.rejected = 0
+        self.validator = Validator(scene, "command")
+        self.torque_limit = np.array([lim.torque_limit for lim in joint_limits(scene)])
+        self.held = 0
         self.tripped = False
         self.torque = np.array([self._torque(k, 0.0, self.command[k]) for k in range(self.n)])
 
+    @property
+    def rejected(self) -> int:
+        return self.validator.rejected
+
     def accept(self, t: float, command) -> bool:
-        """Take a command vector; False (counted, ignored) when malformed."""
-        c = np.asarray(command, dtype=float) if _is_numeric(command) else None
-        if c is None or c.shape != (self.n,) or not np.all(np.isfinite(c)):
-            self.rejected += 1
+        """Take a command vector; False (counted by reason in ``validator``, nothing
+        changed) when it is not one finite value per joint within the command limits."""
+        if self.validator.check(command) is not None:
             return False
-        self.command = c.copy()
+        self.command = np.array([float(v) for v in command])
         self.t_command = t
         self.tripped = False
         return True
@@ -228,6 +259,9 @@ class DriverCore:
             tau[k] = self._torque(k, w[k], u[k])
             self.z[k] = drives.advance_state(self.kind[k], self.par[k], u[k], w[k], self.z[k],
                                              dt)
+        if np.any(np.abs(tau) > self.torque_limit):       # never beyond the wire limit
+            self.held += 1
+            tau = np.clip(tau, -self.torque_limit, self.torque_limit)
         self.torque = tau
         return tau
 
@@ -250,15 +284,30 @@ class DriverCore:
                                np.multiply(n, drive_rates), eff)
 
 
-def _is_numeric(c) -> bool:
-    try:
-        np.asarray(c, dtype=float)
-        return True
-    except (TypeError, ValueError):
-        return False
-
-
 # ========================================================================== controller
+def _check_programs(scene, lims) -> None:
+    """Open loop: every program within what the motor driver accepts, or a SceneError
+    naming the key to change. A voltage program beyond an explicit ``supply_voltage`` is
+    saturated there (the drive model clips it the same way in ``flexarm simulate``)."""
+    from flexarm_ros.scene.sections import program_range
+    for k, inp in enumerate(scene.inputs):
+        if inp.motion is not None:
+            continue
+        j = inp.joint - 1
+        lim = lims[j]
+        drive = scene.links[j].joint.drive
+        if drive is not None and drive.type == "dc_motor" and drive.supply_voltage:
+            continue
+        peak = max(abs(v) for v in program_range(inp.program))
+        if peak > lim.command_limit:
+            key = (f"links[{j}].joint.torque_limit" if drive is None else
+                   f"links[{j}].joint.drive.supply_voltage")
+            raise SceneError(f"inputs[{k}].{inp.kind}: got a program reaching {peak:.6g} "
+                             f"{lim.command_unit}, expected within the motor driver's "
+                             f"command limit ±{lim.command_limit:.6g} {lim.command_unit} "
+                             f"({lim.command_from}); set {key}")
+
+
 def arm_geometry(scene) -> PlanarTwoLink:
     """Rigid-arm link lengths for inverse kinematics: hub radius + beam + joint offset (or
     tool offset on the last link)."""
@@ -289,7 +338,10 @@ class ControllerCore:
         by_joint = {inp.joint: inp for inp in scene.inputs if inp.motion is None}
         self.programs = [encode(by_joint[j + 1].program) if j + 1 in by_joint else None
                          for j in range(self.n)]
+        lims = joint_limits(scene)
+        self.limit = np.array([lim.command_limit for lim in lims])
         if self.mode == "open_loop":
+            _check_programs(scene, lims)
             return
         dr = [lk.joint.drive for lk in scene.links]
         if any(d is None or d.type != "dc_motor" for d in dr):
@@ -297,7 +349,7 @@ class ControllerCore:
                              "on every joint")
         motor = MotorVoltageMap([d.gear_ratio for d in dr], [d.torque_constant for d in dr],
                                 [d.back_emf_constant for d in dr], [d.resistance for d in dr],
-                                [d.supply_voltage or math.inf for d in dr])
+                                list(self.limit))            # saturates at the wire limit
         self.pd = JointPD(ctl.kp, ctl.kd, motor)
         self.velocity = EncoderVelocity(ctl.velocity_filter_hz)
         self.arm = arm_geometry(scene) if (ctl.tip_target is not None or
@@ -332,9 +384,9 @@ class ControllerCore:
     def update(self, t: float, dt: float, joint_angles, in_contact: bool = False,
                normal_force: float = 0.0) -> np.ndarray:
         """Commands for this control period."""
-        if self.mode == "open_loop":
-            return np.array([eval_torque(p[0], p[1], p[2], p[3], t) if p is not None else 0.0
-                             for p in self.programs])
+        if self.mode == "open_loop":      # an explicit supply_voltage saturates, as in simulate
+            return np.clip([eval_torque(p[0], p[1], p[2], p[3], t) if p is not None else 0.0
+                            for p in self.programs], -self.limit, self.limit)
         q = np.asarray(joint_angles, float)
         qd = self.velocity.update(t, dt, q)
         if self.task is not None:

@@ -17,6 +17,10 @@ against the twin unchanged). Standard message types only.
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
+| ``diagnostics/rejected`` | std_msgs/String | recorder → bag only | one JSON object per message a node refused or rejected (``topic``, ``reason``, ``publisher``, ``data`` as text); written into the bag by the recorder, never published |
+
+Each input topic has one source (:data:`SOURCE`: the node expected to publish it); a
+message from a second publisher is refused (``flexarm_ros.nodes._wire``).
 """
 
 CLOCK = "/clock"
@@ -33,6 +37,7 @@ GT_COORDINATES = "ground_truth/coordinates"
 COMMANDS = "motor_driver/commands"
 EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
+REJECTED = "diagnostics/rejected"
 
 #: Sensor batch topic -> the scene sensor kind whose channels it carries (scene order).
 BATCH_KINDS = {ACCEL_BATCH: "accelerometer", STRAIN_BATCH: "strain",
@@ -54,6 +59,11 @@ TYPES = {
     EFFORTS: "std_msgs/msg/Float64MultiArray",
     MOTOR_STATES: "sensor_msgs/msg/JointState",
 }
+
+#: Topic -> the twin's node that publishes it (the "from" column above).
+SOURCE = {topic: "simulator" for topic in TYPES}
+SOURCE.update({COMMANDS: "controller", EFFORTS: "motor_driver",
+               MOTOR_STATES: "motor_driver"})
 
 
 def resolve(namespace: str, topic: str) -> str:

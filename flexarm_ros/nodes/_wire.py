@@ -1,0 +1,157 @@
+"""Who may talk to a node: one publisher per input topic (the *source*), identified by the
+publisher GID that comes with every message (rclpy ``MessageInfo``).
+
+Rule, the same in every time mode and for every input of the twin's nodes:
+
+* When the graph shows a publisher of the topic belonging to the node the twin expects
+  there (``motor_driver`` for ``effort_controller/commands``, ``controller`` for
+  ``motor_driver/commands``, ``simulator`` for the state topics and ``/clock``) in the
+  subscriber's namespace, only that node's messages are taken.
+* Otherwise the first publisher whose message is taken owns the topic until it leaves the
+  graph; then the next one may take over (a user's own controller in place of ours).
+* A message from any other publisher is refused: it is counted and logged (throttled) and
+  changes nothing — in ``lockstep`` it does not step the plant.
+
+This guards against a second publisher by mistake (a stray ``ros2 topic pub``, a replay
+into a live twin); it is not a security boundary (a node may take any name). A publisher
+whose GID the graph does not show yet (discovery still under way) is looked up again for
+up to :data:`RESOLVE_S` of wall time before the rule is applied without it.
+
+DDS itself keeps messages of another type away: rclpy refuses to create a publisher of a
+second type on a topic in the same process, and across processes the endpoints of
+different types never match, so nothing arrives.
+"""
+
+from __future__ import annotations
+
+import time
+
+from flexarm_ros.twin.validation import FOREIGN
+
+RESOLVE_S = 0.5
+UNKNOWN = "_NODE_NAME_UNKNOWN_"
+
+
+def gid_of(info) -> bytes | None:
+    """The publisher GID of a message (``MessageInfo``), or None when rmw gives none."""
+    if not info:
+        return None
+    gid = info.get("publisher_gid") if isinstance(info, dict) else None
+    if not gid:
+        return None
+    data = gid.get("data")
+    return bytes(data) if data is not None else None
+
+
+class Source:
+    """The source rule for one topic of one node."""
+
+    def __init__(self, node, topic: str, expected: str | None):
+        self.node = node
+        self.topic = topic                     # absolute name
+        self.expected = expected
+        self.ns = node.get_namespace()
+        self.owner: set = set()                # GIDs taken
+        self._snap: dict = {}                  # GID -> (node name, namespace)
+        self._count = -1                       # publishers when _snap was taken
+        self._waited: set = set()              # GIDs already waited for
+
+    def _graph(self) -> dict:
+        """GID -> (node name, namespace) of the topic's publishers now."""
+        out = {}
+        for info in self.node.get_publishers_info_by_topic(self.topic):
+            out[bytes(info.endpoint_gid)] = (info.node_name, info.node_namespace)
+        return out
+
+    def _snapshot(self, gid) -> dict:
+        """The topic's publishers, queried again only when their number changed or
+        ``gid`` is not resolved in the last answer (waited for once per GID)."""
+        count = self.node.count_publishers(self.topic)
+        if count == self._count and gid in self._snap and self._snap[gid][0] != UNKNOWN:
+            return self._snap
+        self._snap, self._count = self._graph(), count
+        if (gid not in self._snap or self._snap[gid][0] == UNKNOWN) and \
+                gid not in self._waited:
+            self._waited.add(gid)
+            t0 = time.monotonic()
+            while (gid not in self._snap or self._snap[gid][0] == UNKNOWN) and \
+                    time.monotonic() - t0 < RESOLVE_S:
+                time.sleep(0.002)              # rmw's discovery thread fills the graph
+                self._snap = self._graph()
+            self._count = self.node.count_publishers(self.topic)
+        return self._snap
+
+    def verdict(self, info, valid: bool = True) -> str | None:
+        """None: the message may be taken (it still has to pass validation); else the
+        name of the refused publisher. Only a ``valid`` message makes its publisher the
+        owner of a topic nobody owns."""
+        gid = gid_of(info)
+        if gid is None or gid in self.owner:
+            return None
+        graph = self._snapshot(gid)
+        expected = {g for g, (name, ns) in graph.items()
+                    if self.expected and name == self.expected and ns == self.ns}
+        if expected:
+            self.owner = expected
+        else:
+            self.owner = {g for g in self.owner if g in graph}   # owners still there
+        if gid in self.owner:
+            return None
+        if not self.owner:
+            if valid:
+                self.owner.add(gid)
+            return None
+        return graph.get(gid, ("an unknown node",))[0]
+
+
+class Rejections:
+    """Counts and throttled log lines of what a node refused or rejected, per topic."""
+
+    def __init__(self, node, period_s: float = 1.0):
+        self.node = node
+        self.period = period_s
+        self.counts: dict = {}                   # topic -> {reason: n}
+        self._said: dict = {}
+
+    def add(self, topic: str, reason: str, text: str) -> None:
+        by = self.counts.setdefault(topic, {})
+        by[reason] = by.get(reason, 0) + 1
+        now = time.monotonic()
+        if now - self._said.get(topic, -1e9) >= self.period:
+            self._said[topic] = now
+            total = sum(by.values())
+            self.node.get_logger().warning(f"{topic}: rejected {text}; {total} rejected on "
+                                           f"this topic so far, nothing changed")
+
+    def refused(self, topic: str, what: str, data, who: str, source: str | None) -> None:
+        """A message from a second publisher."""
+        what = what if data is None else f"{what} {show(data)}"
+        self.add(topic, FOREIGN, f"{what} from {who} (a second publisher; the source is "
+                                 f"{source or 'the first publisher'})")
+
+    def invalid(self, topic: str, what: str, data, why: str, expected: str) -> None:
+        """A message that failed validation."""
+        self.add(topic, why, f"{what} {show(data)} ({why}; expected {expected})")
+
+    def total(self, topic: str | None = None) -> int:
+        if topic is not None:
+            return sum(self.counts.get(topic, {}).values())
+        return sum(sum(by.values()) for by in self.counts.values())
+
+    def summary(self) -> str:
+        """``topic: N rejected (a reason, …)`` per topic, or ``no message rejected``."""
+        if not self.counts:
+            return "no message rejected"
+        return "; ".join(f"{t}: {sum(by.values())} rejected ("
+                         + ", ".join(f"{n} {r}" for r, n in sorted(by.items())) + ")"
+                         for t, by in sorted(self.counts.items()))
+
+
+def show(data, limit: int = 6) -> str:
+    """A short text of a message's values for a log line (``[nan, 1.0, …]``)."""
+    try:
+        vals = list(data)
+    except TypeError:
+        return repr(data)[:80]
+    text = ", ".join(f"{v:.6g}" if isinstance(v, float) else repr(v) for v in vals[:limit])
+    return f"[{text}{', …' if len(vals) > limit else ''}] ({len(vals)} values)"

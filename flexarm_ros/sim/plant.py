@@ -28,6 +28,7 @@ from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASES, build_contact, constrained_rate, contact_rate
 from flexarm_ros.sim.contact_stepper import ContactStepper
 from flexarm_ros.errors import SceneError
+from flexarm_ros.sim.budget import check_work
 from flexarm_ros.sim.integrate import RK4_AUTO, _Guard, choose_step
 from flexarm_ros.scene import Input, Program
 from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
@@ -58,9 +59,11 @@ class Sample:
 
 
 class Plant:
-    """A scene's arm advanced by :meth:`step` with held joint torques."""
+    """A scene's arm advanced by :meth:`step` with held joint torques. ``duration``: the
+    run's length, s, when known: a run that would need more RK4 steps than
+    ``fidelity.max_steps`` is refused here (:func:`budget.check_work`)."""
 
-    def __init__(self, scene, physics_dt: float = 0.0):
+    def __init__(self, scene, physics_dt: float = 0.0, duration: float | None = None):
         self.scene = scene
         self.chain = ch = Chain(plant_scene(scene))
         self.contact = build_contact(ch)
@@ -92,6 +95,8 @@ class Plant:
         if physics_dt > 0:
             h = min(h, physics_dt)
         self.h = h
+        if duration is not None:        # the work budget of a run of that length
+            check_work(ch, self.x, h, duration, "rk4", self.contact)
         self.guard = _Guard(ch, fid.max_deflection_ratio, "rk4", h)
         self.guard.check(0.0, self.x)
         self.ws = kchain.workspace(ch.kernel_args)

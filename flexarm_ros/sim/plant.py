@@ -27,10 +27,11 @@ from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASES, build_contact, constrained_rate, contact_rate
 from flexarm_ros.sim.contact_stepper import ContactStepper
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.sim.budget import check_work
 from flexarm_ros.sim.integrate import RK4_AUTO, _Guard, choose_step
 from flexarm_ros.scene import Input, Program
+from flexarm_ros.scene.sections import ENCODER_REVOLUTIONS, INT32_MAX
 from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
 from flexarm_ros.model.statics import initial_state
 
@@ -183,6 +184,13 @@ class Plant:
                 out.append(Sample(f"{sm.name}_x", self.t, val[0], val[0]))
                 out.append(Sample(f"{sm.name}_y", self.t, val[1], val[1]))
                 continue
+            if sm.spec.kind == "encoder" and abs(val) > INT32_MAX:
+                raise SimulationDiverged(
+                    f"encoder {sm.name} counts", self.t, val,
+                    "check the drive's input and the joint's damping; the scene's encoders "
+                    f"are sized for ±{ENCODER_REVOLUTIONS} output revolutions",
+                    detail=f"{val:.0f} counts leave the int32 range (±{INT32_MAX}) of the "
+                           f"encoder_counts message (std_msgs/Int32MultiArray)")
             out.append(Sample(sm.name, self.t, float(self._measure(sm, val)), val))
         return out
 

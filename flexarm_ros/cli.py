@@ -6,20 +6,23 @@
 
 Every command that builds a model (simulate, modes, linearize, explain, run) takes the
 fidelity overrides ``--rung``, ``--refine``, ``--integrator``, ``--rtol``, ``--atol``,
-``--dt`` and ``--no-foreshortening``; ``study`` varies rung, refinement and integrator itself
+``--dt``, ``--no-foreshortening`` and ``--max-steps``; ``study`` varies rung, refinement and integrator itself
 and takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped
 scene (``flexarm simulate link_tipmass``); without it every command uses
 :data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress,
 never the final summary line.
 
 Exit codes: 0 done, 1 failed (``run``: a node exited with an error; ``compare``: a check
-failed; ``replay``: no subscriber in time), 2 bad input, 3 the simulation diverged.
+failed; ``replay``: no subscriber in time), 2 bad input (one line on stderr naming the key,
+the value and the expectation; arguments, scene, output paths and the work budget are
+checked before the work starts), 3 the simulation diverged, 130 interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -29,6 +32,30 @@ from flexarm_ros.nodes import environment
 from flexarm_ros.scene import DEFAULT_SCENE
 
 SCENE_HELP = f"scene YAML path or shipped scene name (default {DEFAULT_SCENE})"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line (exit 2), like every other bad input."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _fail(text):
+    from flexarm_ros.errors import SceneError
+    raise SceneError(text)
+
+
+def check_duration(value, allow_inf=False):
+    """``--duration``: None (the scene's) or a number > 0 s, finite unless ``allow_inf``
+    (``run``: inf = until Ctrl-C)."""
+    if value is None:
+        return None
+    if math.isnan(value) or not value > 0 or (math.isinf(value) and not allow_inf):
+        _fail(f"--duration: got {value}, expected a "
+              + ("number > 0 s (inf: until Ctrl-C)" if allow_inf else
+                 "finite number > 0 s"))
+    return value
 
 
 def _scene_arg(p):
@@ -46,12 +73,15 @@ def _fidelity_args(p):
     g.add_argument("--dt", type=float, help="fixed step (rk4) or max step, s; 0 = automatic")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
+    g.add_argument("--max-steps", type=float, metavar="N",
+                   help="work budget: refuse a run needing more integrator steps "
+                        "(fidelity.max_steps, default 1e8)")
 
 
 def _overrides(args) -> dict:
     """The fidelity options given → ``Scene.with_fidelity`` keywords (None: not given)."""
     over = {k: getattr(args, k, None) for k in
-            ("rung", "refine", "integrator", "rtol", "atol", "dt")}
+            ("rung", "refine", "integrator", "rtol", "atol", "dt", "max_steps")}
     if getattr(args, "no_foreshortening", False):
         over["foreshortening"] = False
     return over
@@ -62,23 +92,44 @@ def _load(args):
     return load_scene(args.scene or DEFAULT_SCENE).with_fidelity(**_overrides(args))
 
 
-def _progress(quiet):
-    if quiet:
-        return None
+class _Progress:
+    """The progress line on stderr (simulated time / total), at most once per wall second
+    (the integrators call it), cleared at the end; nothing with ``quiet``."""
 
-    def report(frac):
-        print(f"\r  {100 * frac:5.1f} %", end="", file=sys.stderr, flush=True)
-    return report
+    WIDTH = 48
+
+    def __init__(self, total_s, quiet):
+        self.total = total_s
+        self.quiet = quiet
+
+    def __call__(self, frac):
+        print(f"\r  t = {frac * self.total:.4g} / {self.total:.4g} s ({100 * frac:5.1f} %)"
+              .ljust(self.WIDTH), end="", file=sys.stderr, flush=True)
+
+    @property
+    def callback(self):
+        return None if self.quiet else self
+
+    def clear(self):
+        if not self.quiet:
+            print("\r" + " " * self.WIDTH + "\r", end="", file=sys.stderr, flush=True)
 
 
 def cmd_simulate(args):
     from flexarm_ros.sim.simulate import simulate
+    from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.io.tables import write_table
     from flexarm_ros.io.units import table_units
+    check_duration(args.duration)
+    if args.out:
+        check_output_file("--out", args.out, (".csv", ".npz"))
     scene = _load(args)
-    res = simulate(scene, args.duration, progress=_progress(args.quiet or args.json))
-    if not (args.quiet or args.json):
-        print("\r" + " " * 12 + "\r", end="", file=sys.stderr, flush=True)
+    progress = _Progress(scene.duration if args.duration is None else args.duration,
+                         args.quiet or args.json)
+    try:
+        res = simulate(scene, args.duration, progress=progress.callback)
+    finally:
+        progress.clear()
     summ = res.summary()
     if args.out:
         write_table(args.out, res.columns, table_units(res.columns, scene))
@@ -111,6 +162,8 @@ def cmd_modes(args):
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.linear import natural_modes
     from flexarm_ros.model.statics import initial_state
+    if args.count < 1:
+        _fail(f"--count: got {args.count}, expected an integer >= 1 (modes to print)")
     scene = _load(args)
     chain = Chain(scene)
     q0 = initial_state(chain)[0]
@@ -148,14 +201,14 @@ def cmd_linearize(args):
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.controllability import pbh_test
     from flexarm_ros.model.statespace import linearize
+    from flexarm_ros.io.paths import check_output_file
+    if args.out:
+        check_output_file("--out", args.out, (".npz",))
     scene = _load(args)
     ss = linearize(Chain(scene))
     pbh = pbh_test(ss.A, ss.B)
     if args.out:
         out = Path(args.out)
-        if out.suffix != ".npz":
-            from flexarm_ros.errors import SceneError
-            raise SceneError(f"--out: got {str(out)!r}, expected a .npz file")
         np.savez(out, A=ss.A, B=ss.B, C=ss.C, D=ss.D, x0=ss.x0,
                  states=np.array(ss.states), inputs=np.array(ss.inputs),
                  outputs=np.array(ss.outputs), state_units=np.array(ss.state_units),
@@ -190,10 +243,16 @@ def cmd_explain(args):
 
 
 def cmd_study(args):
+    from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.studies.ladder import run_study, plot_pareto
+    check_duration(args.duration)
+    if args.png:
+        check_output_file("--png", args.png, (".png", ".pdf", ".svg"))
     scene = _load(args)
+    quiet = args.quiet or args.json
     rows = run_study(scene, duration=args.duration, quick=args.quick,
-                     progress=None if args.json else print)
+                     progress=None if quiet else
+                     (lambda text: print(f"  {text}", file=sys.stderr, flush=True)))
     if args.png:
         plot_pareto(rows, args.png, title=scene.name)
     if args.json:
@@ -206,10 +265,18 @@ def cmd_study(args):
 
 def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
+    from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.run import run
-    kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
-              namespace=args.namespace, progress=not args.quiet, fidelity=_overrides(args))
+    check_duration(args.duration, allow_inf=True)
+    from flexarm_ros.nodes.names import check_namespace
+    namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record
+    if record is not None:
+        check_output_file("--record", record)
+    if args.rerun:
+        check_output_file("--rerun", args.rerun, (".rrd",))
+    kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
+              namespace=namespace, progress=not args.quiet, fidelity=_overrides(args))
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
         from flexarm_ros.run import run_with_view
         from flexarm_ros.viz.rerun_view import RerunUnavailable
@@ -267,7 +334,7 @@ def _bag_parser(sub):
 
 
 def build_parser():
-    p = argparse.ArgumentParser(prog="flexarm", description=__doc__.splitlines()[0])
+    p = _Parser(prog="flexarm", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="batch simulation without ROS")
@@ -285,7 +352,7 @@ def build_parser():
     m.add_argument("--joints", choices=("locked", "free"),
                    help="drives clamped or free (default: locked when the scene drives a "
                         "joint, else free)")
-    m.add_argument("--count", type=int, default=10, help="number of modes to print")
+    m.add_argument("--count", type=int, default=10, help="number of modes to print (>= 1)")
     m.add_argument("--json", action="store_true")
     _fidelity_args(m)
     m.set_defaults(func=cmd_modes)
@@ -312,7 +379,10 @@ def build_parser():
     st.add_argument("--duration", type=float, help="simulated seconds per run")
     st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
     st.add_argument("--json", action="store_true")
-    st.add_argument("--png", type=Path, help="write the Pareto plot here")
+    st.add_argument("--png", type=Path, help="write the Pareto plot here (.png, .pdf or "
+                                             ".svg)")
+    st.add_argument("--quiet", action="store_true",
+                    help="no progress on stderr (the table is still printed)")
     # rung, refinement, integrator and tolerances are what the ladder varies: not options
     st.add_argument("--no-foreshortening", action="store_true",
                     help="drop the geometric-stiffening terms in every rung")
@@ -321,7 +391,8 @@ def build_parser():
                                     "recorder nodes")
     _scene_arg(r)
     r.add_argument("--duration", type=float,
-                   help="simulated seconds (default: the scene's); Ctrl-C stops earlier")
+                   help="simulated seconds (default: the scene's; inf: until Ctrl-C); Ctrl-C "
+                        "stops earlier")
     r.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default="lockstep",
                    help="lockstep: message-driven, deterministic, equal to the batch "
                         "co-simulation (default); realtime: paced by the wall clock; fast: "
@@ -405,18 +476,30 @@ def build_parser():
     return p
 
 
+def _one_line(exc) -> str:
+    return " ".join(str(exc).split())
+
+
 def main(argv=None) -> int:
+    """Exit 0 done, 1 failed (see the module doc), 2 bad input (one line: the key, the
+    value, the expectation), 3 diverged, 130 interrupted."""
     environment.use_loopback()
     from flexarm_ros.errors import SceneError, SimulationDiverged
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
     except SceneError as exc:
-        print(f"flexarm: error: {exc}", file=sys.stderr)
+        print(f"flexarm: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except SimulationDiverged as exc:
-        print(f"flexarm: {exc}", file=sys.stderr)
+        print(f"flexarm: {_one_line(exc)}", file=sys.stderr)
         return 3
+    except OSError as exc:          # the environment, not the program: a disk filled up
+        print(f"flexarm: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("flexarm: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

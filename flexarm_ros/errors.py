@@ -38,3 +38,10 @@ class StepTooLarge(SimulationDiverged):
         RuntimeError.__init__(self, f"step refused: {detail}. To fix: {suggestion}")
         self.quantity, self.time, self.last_value = quantity, time, last_value
         self.suggestion = suggestion
+
+
+class WorkTooLarge(SceneError):
+    """A run would take more integrator steps than ``fidelity.max_steps`` (a collapsed step
+    or a huge duration); raised before integrating, or as soon as an adaptive run's pace
+    projects beyond the budget. The message names the eigenvalue and the coordinate (and
+    its scene keys) that set the step, and what to change. Bad input: exit 2."""

@@ -232,15 +232,27 @@ def command(args) -> int:
     """``flexarm replay`` (arguments from :func:`flexarm_ros.cli.build_parser`): exit 0
     done or interrupted, 1 no subscriber in time, 2 bad bag/arguments or rerun missing."""
     import json
+    import math
     import sys
 
     def fail(text, code=2):
         print(f"flexarm replay: error: {text}", file=sys.stderr)
         return code
 
-    if not args.rate >= 0:
-        return fail(f"--rate: got {args.rate}, expected >= 0 (1 real time, 0 as fast as "
-                    "possible)")
+    if not (args.rate >= 0 and math.isfinite(args.rate)):
+        return fail(f"--rate: got {args.rate}, expected a finite number >= 0 (1 real time, "
+                    "0 as fast as possible)")
+    if not (args.delay >= 0 and math.isfinite(args.delay)):
+        return fail(f"--delay: got {args.delay}, expected a finite number >= 0 s")
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.io.paths import check_output_file
+    from flexarm_ros.nodes.names import check_namespace
+    try:
+        args.namespace = check_namespace("--namespace", args.namespace)
+        if args.rerun is not None:
+            check_output_file("--rerun", args.rerun, (".rrd",))
+    except SceneError as exc:
+        return fail(exc)
     options = None
     if args.rerun is not None:
         from flexarm_ros.viz.rerun_view import RerunUnavailable, ViewOptions, require_rerun

@@ -342,7 +342,10 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     if mode not in MODES:
         raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
     # fails early on a bad scene or override (SceneError, exit 2)
-    name = load_scene(scene).with_fidelity(**(fidelity or {})).name
+    loaded = load_scene(scene).with_fidelity(**(fidelity or {}))
+    name = loaded.name
+    from flexarm_ros.sim.budget import check_plant_work
+    check_plant_work(loaded, duration)          # the work budget, before any node starts
     record = Path(record) if record else None
     stop = StopFlag()
     t0 = time.monotonic()

@@ -63,6 +63,9 @@ def run_cli(args) -> int:
     """``flexarm compare`` (options parsed in :mod:`flexarm_ros.cli`): prints the summary
     or the JSON, writes the report; returns 0 = pass, 1 = fail. Bad input raises
     :class:`~flexarm_ros.io.experiment.CompareInputError` (exit status 2)."""
+    if args.report:                      # checked before the comparison, not after it
+        from flexarm_ros.io.paths import check_output_dir
+        check_output_dir("--report", args.report)
     channels = None
     if args.channels:
         channels = [c for item in args.channels for c in item.split(",") if c.strip()]

@@ -124,12 +124,14 @@ def _hermite_eval(x, length, n_el):
 
 
 def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
-                 breaks, evaluate, K=None, gauss_points=_GAUSS_POINTS):
+                 breaks, evaluate, K=None, gauss_points=_GAUSS_POINTS, with_S=True):
     """Mass points, S(x) and matrices of a basis that is polynomial between ``breaks``.
 
     S(x) = ∫₀ˣ φ′φ′ᵀ ds is integrated element by element with Gauss–Legendre quadrature
     (exact for the piecewise-cubic bases used here); the mass points are the Gauss points
-    with mass ρA·weight. K = EI ∫ φ″φ″ᵀ dx unless given (rigid rung).
+    with mass ρA·weight. K = EI ∫ φ″φ″ᵀ dx unless given (rigid rung). ``with_S=False``:
+    matrices only (S, S_tip and the point function are None): the fine eigen-solve mesh of
+    the modal rung, whose S tensor (points × coordinates²) would take gigabytes.
     """
     gx, gw = np.polynomial.legendre.leggauss(gauss_points)
     a, b = breaks[:-1], breaks[1:]
@@ -138,6 +140,17 @@ def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
     ws = (half[:, None] * gw[None, :]).ravel()
     phi, dphi, ddphi = evaluate(xs)
     ne = phi.shape[1]
+    if not with_S:
+        mass = rho_a * ws
+        M_e = np.einsum("p,pi,pj->ij", mass, phi, phi)
+        if K is None:
+            K = EI * np.einsum("p,pi,pj->ij", ws, ddphi, ddphi)
+        phiL, dphiL, _ = evaluate(np.array([length]))
+        D = damping.viscous_per_length / rho_a * M_e + damping.stiffness_proportional * K
+        return BeamDiscretization(rung, refine, tuple(suffixes), length, hub_radius, xs, mass,
+                                  phi, None, phiL[0], dphiL[0], None, _sym(K), _sym(D),
+                                  _sym(M_e), lambda x: evaluate(x)[2],
+                                  lambda x: evaluate(x)[0], None)
     # element integrals of φ′φ′ᵀ, cumulative at element starts
     elem = np.einsum("p,pi,pj->pij", ws, dphi, dphi).reshape(len(a), gauss_points, ne, ne)
     elem_tot = elem.sum(axis=1)
@@ -179,14 +192,15 @@ def _sym(a):
     return a
 
 
-def hermite_fem(beam, n_el, rung="fem", suffixes=None, refine=None):
+def hermite_fem(beam, n_el, rung="fem", suffixes=None, refine=None, with_S=True):
     """Hermite cubic finite elements, ``n_el`` per beam (2 coordinates per node)."""
     L = beam.length
     if suffixes is None:
         suffixes = [f"{k}{i}" for i in range(1, n_el + 1) for k in ("w", "th")]
     return _gauss_build(rung, n_el if refine is None else refine, suffixes, L, beam.hub_radius,
                         beam.mass_per_length, beam.EI, beam.damping,
-                        np.linspace(0.0, L, n_el + 1), lambda x: _hermite_eval(x, L, n_el))
+                        np.linspace(0.0, L, n_el + 1), lambda x: _hermite_eval(x, L, n_el),
+                        with_S=with_S)
 
 
 def cubic(beam):
@@ -221,7 +235,7 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     """
     L = beam.length
     n_fe = mesh or max(48, 12 * n_modes)   # eigen-solve error < 1e-6 up to 12 modes
-    fe = hermite_fem(beam, n_fe)
+    fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
     K, M = np.array(fe.K), np.array(fe.M_e)
     if with_tip and (tip.mass > 0 or tip.inertia > 0):
         M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
@@ -329,6 +343,36 @@ def finite_differences(beam, n_seg):
                               beam.hub_radius, x, mass, E.copy(), S, E[-1].copy(), slope,
                               S[-1].copy(), _sym(K), _sym(D), _sym(M_e), curvature, shape,
                               point)
+
+
+#: elastic coordinates of all beams of a chain together: a finer model takes minutes to
+#: build and to linearize (measured on 2 cores: fem 100 elements = 200 coordinates builds in
+#: 3 s and its RK4 step choice takes 30 s; fem 200 builds in 27 s), and its highest element
+#: mode forces explicit steps of ~1e-8 s
+MAX_ELASTIC_COORDINATES = 200
+
+
+def elastic_coordinates(rung: str, refine: int) -> int:
+    """Elastic coordinates one beam gets on ``rung`` refined ``refine`` (0: the default)."""
+    n = refine or DEFAULT_REFINE[rung]
+    return {"rigid": 1, "cubic": 2, "modal": n, "fem": 2 * n, "fd": n}[rung]
+
+
+def check_model_size(n_beams: int, fidelity) -> None:
+    """SceneError, before anything is built, when the beams would get more than
+    :data:`MAX_ELASTIC_COORDINATES` elastic coordinates together."""
+    per = elastic_coordinates(fidelity.rung, fidelity.refine)
+    if per * n_beams <= MAX_ELASTIC_COORDINATES:
+        return
+    what = {"modal": "modes", "fem": "elements", "fd": "segments"}.get(fidelity.rung, "")
+    n = fidelity.refine or DEFAULT_REFINE[fidelity.rung]
+    most = MAX_ELASTIC_COORDINATES // n_beams // (2 if fidelity.rung == "fem" else 1)
+    raise SceneError(
+        f"fidelity.refine: got {n} {what} on the {fidelity.rung} rung, {per} elastic "
+        f"coordinates per beam × {n_beams} beam(s) = {per * n_beams}, expected at most "
+        f"{MAX_ELASTIC_COORDINATES} in the chain (here refine <= {most}): a finer model takes "
+        f"minutes to build and linearize and forces explicit steps of ~1e-8 s; the modal "
+        f"rung keeps the low modes exactly with few coordinates")
 
 
 def discretize(beam, tip, fidelity) -> BeamDiscretization:

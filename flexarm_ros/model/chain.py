@@ -106,6 +106,7 @@ class Chain:
             "numpy" if backend == "auto" else backend)
         self.scene = scene
         self.fidelity = fidelity or scene.fidelity
+        beams.check_model_size(len(scene.links), self.fidelity)   # before a minutes-long build
         self.links: list[_LinkModel] = []
         names: list[str] = []
         units: list[str] = []                     # SI unit of each coordinate

@@ -4,7 +4,8 @@ them through :mod:`flexarm_ros.nodes._common`).
 
 Each entry is ``name: (default, description)``; the default's type is the parameter's type.
 The fidelity parameters mirror ``flexarm simulate``'s options ``--rung``, ``--refine``,
-``--integrator``, ``--rtol``, ``--atol``, ``--dt`` and ``--no-foreshortening``; at its
+``--integrator``, ``--rtol``, ``--atol``, ``--dt``, ``--no-foreshortening`` and
+``--max-steps``; at its
 default a parameter keeps the scene's value.
 """
 
@@ -34,10 +35,12 @@ FIDELITY = {
     "atol": (0.0, "absolute tolerance of adaptive integrators (0: the scene's)"),
     "dt": (-1.0, "fixed step (rk4) or max step, s; 0 automatic (negative: the scene's)"),
     "no_foreshortening": (False, "drop the geometric-stiffening (foreshortening) terms"),
+    "max_steps": (0.0, "work budget: most integrator steps a run may need (0: the scene's)"),
 }
 
 #: the keyword arguments of :meth:`~flexarm_ros.scene.Scene.with_fidelity` they stand for
-FIDELITY_KEYS = ("rung", "refine", "integrator", "rtol", "atol", "dt", "foreshortening")
+FIDELITY_KEYS = ("rung", "refine", "integrator", "rtol", "atol", "dt", "foreshortening",
+                 "max_steps")
 
 
 def fidelity_parameters(overrides: dict | None) -> dict:
@@ -67,7 +70,7 @@ def fidelity_overrides(params: dict) -> dict:
             out[key] = params[key]
     if params.get("refine", -1) >= 0:
         out["refine"] = params["refine"]
-    for key in ("rtol", "atol"):
+    for key in ("rtol", "atol", "max_steps"):
         if params.get(key, 0.0) != 0.0:
             out[key] = params[key]
     if params.get("dt", -1.0) >= 0.0:

@@ -25,9 +25,20 @@ def load_scene(path) -> Scene:
     """Load and validate a scene YAML file (a path, or a name of a shipped scene)."""
     p = resolve_scene_path(path)
     try:
-        data = yaml.safe_load(p.read_text())
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{p}: got byte 0x{exc.object[exc.start]:02x} at offset {exc.start}, "
+                         f"expected a UTF-8 text file (a scene is YAML text)") from None
+    except OSError as exc:
+        raise SceneError(f"{p}: cannot read the scene ({exc.strerror or exc}), expected a "
+                         f"readable YAML file") from None
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise SceneError(f"{p}: not valid YAML: {exc}") from None
+        where = getattr(exc, "problem_mark", None)
+        at = f" at line {where.line + 1}, column {where.column + 1}" if where else ""
+        what = getattr(exc, "problem", None) or " ".join(str(exc).split())
+        raise SceneError(f"{p}: not valid YAML{at}: {what}") from None
     try:
         return load_scene_dict(data)
     except SceneError as exc:

@@ -10,6 +10,8 @@ coordinate).
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 from dataclasses import dataclass
 from typing import Optional
 
@@ -23,6 +25,26 @@ TORQUE_PROGRAMS = ("constant", "step", "pulse", "square", "piecewise_constant",
 MOTION_PROGRAMS = ("spin_up", "smooth_step", "hold")
 INPUT_KINDS = ("torque", "voltage", "current", "motion")
 SENSOR_KINDS = ("encoder", "accelerometer", "strain", "potentiometer", "tip_position")
+
+#: link and sensor names become table columns (``<link>_joint``, ``<sensor>_true``), channel
+#: and ROS joint names: ASCII letters, digits and underscores, starting with a letter (a
+#: comma, a space or an empty name would break the CSV header or the message contract)
+NAME_PATTERN = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+NAME_RULE = ("a non-empty name of ASCII letters, digits and underscores that starts with a "
+             "letter")
+#: the encoder counts travel as int32 (std_msgs/Int32MultiArray): a scene's encoders must
+#: count this many output revolutions either way without leaving int32
+ENCODER_REVOLUTIONS = 1000
+INT32_MAX = 2**31 - 1
+#: a beam's hub radius beyond this many beam lengths is refused (see Link.validate)
+HUB_RADIUS_PER_LENGTH = 100.0
+
+
+def check_name(where: str, name: str) -> None:
+    """SceneError unless ``name`` follows :data:`NAME_RULE`."""
+    if not NAME_PATTERN.fullmatch(name):
+        raise SceneError(f"{where}: got {name!r}, expected {NAME_RULE} (it becomes a table "
+                         f"column and a channel name)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -222,6 +244,24 @@ class Link:
     hub: RigidBody = param(default_factory=RigidBody, doc="hub body at the joint")
     tip: TipBody = param(default_factory=TipBody, doc="body at the beam tip")
 
+    def validate(self, where):
+        check_name(f"{where}.name", self.name)
+        b = self.beam
+        if b.hub_radius > HUB_RADIUS_PER_LENGTH * b.length:
+            ratio = b.hub_radius / b.length
+            raise SceneError(
+                f"{where}.beam.hub_radius: got {b.hub_radius} m, expected at most "
+                f"{HUB_RADIUS_PER_LENGTH:g} beam lengths ({HUB_RADIUS_PER_LENGTH * b.length:g} "
+                f"m for length {b.length} m): the beam's mass sits at the hub radius, so the "
+                f"joint inertia (~ m·r²) outweighs the beam's bending inertia by ~{ratio**2:.0e} "
+                f"and the mass matrix loses the elastic coordinates to round-off")
+
+    @property
+    def reach(self) -> float:
+        """Joint axis to the next joint (or the tip) with the beam straight, m."""
+        return (self.beam.hub_radius + self.beam.length
+                + math.hypot(*self.tip.joint_offset))
+
 
 @dataclass(frozen=True, kw_only=True)
 class Program:
@@ -329,6 +369,7 @@ class Sensor:
     adc_bits: Optional[int] = param(None, ge=1, le=32, doc="ADC resolution (needs adc_range)")
 
     def validate(self, where):
+        check_name(f"{where}.name", self.name)
         if self.kind in ("encoder", "potentiometer") and self.joint == 0:
             raise SceneError(f"{where}.joint: missing, expected the joint number for a "
                              f"{self.kind}")
@@ -474,6 +515,11 @@ class Fidelity:
                                          "off the wall while in contact")
     max_deflection_ratio: float = param(0.5, gt=0.0, doc="stop when |w_tip|/L exceeds this "
                                         "(small-deflection model no longer valid)")
+    max_steps: float = param(1.0e8, unit="steps", ge=1.0,
+                             doc="work budget: a run whose integrator needs more steps than "
+                                 "this (duration / step, estimated before integrating) is "
+                                 "refused with the eigenvalue and coordinate that set the "
+                                 "step and what to change (--max-steps)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -590,6 +636,69 @@ class Scene:
                 raise SceneError(f"{where}.on_motor_shaft: got true on joint {sn.joint} "
                                  f"without a dc_motor drive (no gear ratio), expected false "
                                  f"or a dc_motor drive")
+            if sn.kind == "encoder":
+                self._check_encoder_range(k, sn, drive)
+        self._check_sensor_columns()
+        self._check_reach()
+        if self.fidelity.output_dt > self.duration:
+            raise SceneError(f"fidelity.output_dt: got {self.fidelity.output_dt} s, expected "
+                             f"at most the duration {self.duration} s (the output would hold "
+                             f"the start sample only)")
+
+    def _check_encoder_range(self, k, sn, drive):
+        """Counts per output revolution × ENCODER_REVOLUTIONS must fit int32."""
+        per_rev = sn.lines_per_rev * sn.quadrature
+        ratio = drive.gear_ratio if sn.on_motor_shaft else 1.0
+        if ratio * per_rev * ENCODER_REVOLUTIONS <= INT32_MAX:
+            return
+        limit = INT32_MAX / ENCODER_REVOLUTIONS
+        if sn.on_motor_shaft and per_rev <= limit:          # the gear ratio is too large
+            key = f"links[{sn.joint - 1}].joint.drive.gear_ratio"
+            got = (f"got {ratio} with encoder sensors[{k}] ({sn.name!r}: "
+                   f"{sn.lines_per_rev} lines × {sn.quadrature} on the motor shaft)")
+        else:
+            key = f"sensors[{k}].lines_per_rev"
+            got = f"got {sn.lines_per_rev} (× {sn.quadrature} counts per line" + (
+                f" × gear ratio {ratio:g})" if ratio != 1.0 else ")")
+        raise SceneError(f"{key}: {got}: {ratio * per_rev:.6g} counts per output revolution, "
+                         f"expected at most {limit:.6g} so that ±{ENCODER_REVOLUTIONS} "
+                         f"revolutions fit the int32 counts of the encoder_counts message")
+
+    def _check_sensor_columns(self):
+        """The sensor tables' columns (``t``, ``<name>``/``<name>_true``, ``<name>_x``/
+        ``_y``) must be unique."""
+        seen = {"t": None}
+        for k, sn in enumerate(self.sensors):
+            cols = ([f"{sn.name}_x", f"{sn.name}_y"] if sn.kind == "tip_position"
+                    else [sn.name, f"{sn.name}_true"])
+            for c in cols:
+                if c in seen:
+                    other = ("the time column" if seen[c] is None
+                             else f"a column of sensors[{seen[c]}]")
+                    raise SceneError(f"sensors[{k}].name: got {sn.name!r}, whose column "
+                                     f"{c!r} is also {other}; expected names whose table "
+                                     f"columns are unique")
+                seen[c] = k
+
+    def _check_reach(self):
+        """The tool point and the wall must be within reach of the arm (a tool 5 m off a
+        1 m arm, or a wall 1 km away, is a typo, and the tool's lever arm collapses the
+        integration step)."""
+        reach = sum(lk.reach for lk in self.links)
+        tool = math.hypot(*self.tool.position)
+        if tool > reach:
+            raise SceneError(f"tool.position: got {list(self.tool.position)} m "
+                             f"({tool:.6g} m from the last tip frame), expected at most the "
+                             f"arm's reach {reach:.6g} m (sum of hub radii, beam lengths and "
+                             f"joint offsets)")
+        for k, w in enumerate(self.walls):
+            n = math.hypot(*w.normal)
+            d = abs(w.normal[0] * w.point[0] + w.normal[1] * w.point[1]) / n
+            if d > 2.0 * (reach + tool):
+                raise SceneError(f"walls[{k}].point: got {list(w.point)} m, a wall line "
+                                 f"{d:.6g} m from the base, expected at most twice the reach "
+                                 f"of arm and tool ({2.0 * (reach + tool):.6g} m): a wall "
+                                 f"the tool can never touch")
 
     def with_fidelity(self, **overrides) -> "Scene":
         """A copy with fidelity fields replaced (None values are ignored), validated."""

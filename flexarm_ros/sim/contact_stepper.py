@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
+from flexarm_ros.sim.budget import Pace
 from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
@@ -267,10 +268,12 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
     modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
     impulse = np.zeros(N)
     st = ContactStepper(chain, contact, x0, h, guard)
+    pace = Pace(chain, t_end, "contact rk4", explain=lambda t, x: _why_contact_step(st, h))
     last_report = time.perf_counter()
     for k in range(N):
         if k:
             st.advance(k * output_dt)
+            pace.check(st.steps, k * output_dt, st.x)
         xs[k] = st.x
         phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], _ = st.sample()
         modes[k], signs[k] = st.mode, st.s
@@ -281,3 +284,17 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
             last_report = now
     return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
                           modes, signs, impulse), st.steps, st.calls
+
+
+def _why_contact_step(st, h) -> str:
+    """What shortened the contact stepper's steps below the free step ``h``."""
+    w = st.contact.wall
+    if st.contact.method == "compliant":
+        return (f"In contact the compliant step follows the wall's own rate: walls[0]."
+                f"stiffness = {w.stiffness:g} N/m^e, walls[0].exponent = {w.exponent:g}, "
+                f"walls[0].damping_ratio = {w.damping_ratio:g}. To fix: a softer "
+                f"walls[0].stiffness, or fidelity.contact: impulse")
+    return (f"The contact events (impacts, stick–slip) cut the step {h:.3g} s: walls[0]."
+            f"friction = {w.friction:g}, fidelity.contact_tolerance = "
+            f"{st.chain.fidelity.contact_tolerance:g} m. To fix: fidelity.contact: compliant, "
+            f"or a larger fidelity.contact_tolerance")

@@ -26,6 +26,7 @@ from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.programs import torque_breakpoints
 from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.step import choose_step, rk4_step
+from flexarm_ros.sim.budget import Pace, check_work
 
 SOLVE_IVP = {"rk45": RK45, "dop853": DOP853, "radau": Radau, "bdf": BDF, "lsoda": LSODA}
 
@@ -87,6 +88,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     t_out = np.arange(n_out + 1) * output_dt
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     h = choose_step(chain, x0, integrator, dt, output_dt)
+    if integrator in ("rk4", "trapezoid"):
+        check_work(chain, x0, h, t_end, integrator)         # before the work: no silent hang
     guard = DivergenceGuard(chain, max_deflection_ratio, integrator, h)
     f = _Counted(chain)
     xs = np.empty((len(t_out), len(x0)))
@@ -133,6 +136,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                       for b in torque_breakpoints(a.program, t_end)} | {t_end})
         t_lo, x = 0.0, np.array(x0, float)
         k_out = 1
+        pace = Pace(chain, t_end, integrator)
         for t_hi in bps:   # restart at input discontinuities
             solver = SOLVE_IVP[integrator](f, t_lo, x, t_hi, rtol=rtol, atol=atol,
                                            **({"max_step": dt} if dt > 0 else {}))
@@ -151,6 +155,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                         "rung", detail=str(msg))
                 steps += 1
                 guard.check(solver.t, solver.y)
+                pace.check(steps, solver.t, solver.y)
                 if k_out <= n_out and t_out[k_out] <= solver.t + 1e-12:
                     dense = solver.dense_output()
                     while k_out <= n_out and t_out[k_out] <= solver.t + 1e-12:

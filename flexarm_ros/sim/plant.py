@@ -28,10 +28,12 @@ from flexarm_ros.model.compiled.layout import Workspace
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASES, build_contact
 from flexarm_ros.sim.contact_stepper import ContactStepper
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.sim.budget import check_work
 from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.step import choose_step
 from flexarm_ros.scene import Input, Program
+from flexarm_ros.scene.sections import ENCODER_REVOLUTIONS, INT32_MAX
 from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
 from flexarm_ros.model.statics import initial_state
 
@@ -60,9 +62,11 @@ class Sample:
 
 
 class Plant:
-    """A scene's arm advanced by :meth:`step` with held joint torques."""
+    """A scene's arm advanced by :meth:`step` with held joint torques. ``duration``: the
+    run's length, s, when known: a run that would need more RK4 steps than
+    ``fidelity.max_steps`` is refused here (:func:`budget.check_work`)."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, duration: float | None = None):
         self.scene = scene
         self.chain = ch = Chain(plant_scene(scene))
         self.contact = build_contact(ch)
@@ -87,6 +91,8 @@ class Plant:
         fid = ch.fidelity
         # the step of a batch run (fidelity.dt checked against the stability limit)
         self.h = h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt, contact=self.contact)
+        if duration is not None:        # the work budget of a run of that length
+            check_work(ch, self.x, h, duration, "rk4", self.contact)
         self.guard = DivergenceGuard(ch, fid.max_deflection_ratio, "rk4", h)
         self.guard.check(0.0, self.x)
         self.ws = kchain.workspace(ch.kernel_args)
@@ -181,6 +187,13 @@ class Plant:
                 out.append(Sample(f"{sm.name}_x", self.t, val[0], val[0]))
                 out.append(Sample(f"{sm.name}_y", self.t, val[1], val[1]))
                 continue
+            if sm.spec.kind == "encoder" and abs(val) > INT32_MAX:
+                raise SimulationDiverged(
+                    f"encoder {sm.name} counts", self.t, val,
+                    "check the drive's input and the joint's damping; the scene's encoders "
+                    f"are sized for ±{ENCODER_REVOLUTIONS} output revolutions",
+                    detail=f"{val:.0f} counts leave the int32 range (±{INT32_MAX}) of the "
+                           f"encoder_counts message (std_msgs/Int32MultiArray)")
             out.append(Sample(sm.name, self.t, float(self._measure(sm, val)), val))
         return out
 

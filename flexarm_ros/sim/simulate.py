@@ -4,6 +4,7 @@ and return named output columns plus a run summary (like scipy's result object).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass
 
@@ -15,6 +16,7 @@ from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact, check_integrator
 from flexarm_ros.model.sensors import build_sensors, sample_grid_ns, sensor_tables
 from flexarm_ros.model.statics import initial_state, initial_x
+from flexarm_ros.sim.budget import check_output, check_work
 from flexarm_ros.sim.contact_stepper import integrate_contact
 from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.integrate import Integration, integrate
@@ -47,8 +49,12 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     chain = chain or Chain(scene)
     fid = scene.fidelity
     T = scene.duration if duration is None else duration
-    if not T > 0:
-        raise SceneError(f"duration: got {T}, expected > 0 s")
+    if not (T > 0 and math.isfinite(T)):
+        raise SceneError(f"duration: got {T}, expected a finite number > 0 s")
+    if fid.output_dt > T:
+        raise SceneError(f"fidelity.output_dt: got {fid.output_dt} s, expected at most the "
+                         f"run's duration {T:g} s (the output would hold the start sample "
+                         f"only)")
     q_init = initial_state(chain)[0]
     x0 = initial_x(chain)
     sensors = build_sensors(chain)
@@ -61,6 +67,7 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
                 f"coarser than 1 µs (got {grid_ns} ns), expected rates whose periods are "
                 f"multiples of a common step (e.g. 4000, 1000 and 250 Hz)")
         out_dt = grid_ns * 1e-9
+    check_output(T, fid.output_dt, out_dt, chain)
     contact = build_contact(chain)
     if contact is None:
         run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, out_dt,
@@ -96,6 +103,7 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
                          f"a start on the free side (gap >= 0)")
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact)
+    check_work(chain, x0, h, T, "rk4", contact)
     guard = DivergenceGuard(chain, fid.max_deflection_ratio, "rk4", h)
     wall0 = time.perf_counter()
     xs, crun, steps, calls = integrate_contact(chain, contact, x0, T, h, out_dt, guard,

@@ -91,7 +91,16 @@ class BagView:
         return T.resolve(self.namespace, name)
 
     def messages(self, name: str) -> list:
-        """[(log time ns, decoded message)] of a twin topic (empty when absent)."""
+        """[(log time ns, decoded message)] of a twin topic (empty when absent).
+
+        Raises:
+            BagError: the bag's topic of that name carries another message type than the
+                twin's contract (:data:`flexarm_ros.twin.topics.TYPES`)."""
+        topic = self.topic(name)
+        found, want = self.bag.types.get(topic), T.TYPES.get(name)
+        if found is not None and want is not None and found != want:
+            raise BagError(f"{self.path}: {topic}: got message type {found}, expected {want} "
+                           f"(the twin's {name} topic)")
         return twin_bag.twin_messages(self.bag, name, self.namespace)
 
     @property
@@ -208,6 +217,7 @@ class BagView:
         """Per-sample traces of a batch topic, one per channel, named after the scene's
         sensors of its kind (``<kind>_<j>`` when the counts differ or the scene has none;
         :func:`flexarm_ros.bag.twin_bag.sensor_batches`, whose notes are warned)."""
+        self.messages(topic)                     # the type of the topic: the twin's
         sb = twin_bag.sensor_batches(self.bag, topic, self.scene, self.namespace)
         if sb is None:
             return []

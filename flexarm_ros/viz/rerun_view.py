@@ -17,6 +17,7 @@ Shape frames are the ``ground_truth/coordinates`` messages thinned to at most
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import socket
@@ -109,6 +110,10 @@ def start_viewer(port: int = VIEWER_PORT) -> None:
                            "file with --rerun FILE.rrd instead")
 
 
+#: most points per beam centerline in one drawing
+MAX_SAMPLES = 10_001
+
+
 @dataclass
 class ViewOptions:
     """``shape_rate_hz``: at most this many arm drawings per simulated second (≤ 0: every
@@ -120,10 +125,16 @@ class ViewOptions:
     force_scale: float | None = None
 
     def __post_init__(self):
-        if self.samples < 2:
-            raise ValueError(f"samples: got {self.samples}, expected at least 2")
-        if self.force_scale is not None and not self.force_scale > 0:
-            raise ValueError(f"force_scale: got {self.force_scale}, expected > 0 m/N")
+        if not 2 <= self.samples <= MAX_SAMPLES:
+            raise ValueError(f"samples: got {self.samples}, expected 2 to {MAX_SAMPLES} points "
+                             f"per beam centerline")
+        if math.isnan(self.shape_rate_hz):
+            raise ValueError(f"shape_rate: got {self.shape_rate_hz}, expected a number of arm "
+                             f"drawings per simulated second (<= 0: every message)")
+        if self.force_scale is not None and not (self.force_scale > 0
+                                                 and math.isfinite(self.force_scale)):
+            raise ValueError(f"force_scale: got {self.force_scale}, expected a finite number "
+                             f"> 0 m/N")
 
 
 @dataclass

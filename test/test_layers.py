@@ -74,31 +74,23 @@ def test_the_tree_is_what_this_test_reads():
         "nodes", "twin", "control", "cli"}
 
 
+def _violations(layer, forbidden) -> list[str]:
+    """``module imports dep`` for every import of a module of ``layer`` that
+    ``forbidden(dep)`` refuses."""
+    return [f"{_module_name(p)} imports {dep}" for p in SOURCES
+            if _layer(_module_name(p)) == layer for dep in _imports(p) if forbidden(dep)]
+
+
 @pytest.mark.parametrize("layer", sorted(ALLOWED))
 def test_layer_imports_only_the_layers_below(layer):
-    bad = []
-    for path in SOURCES:
-        me = _module_name(path)
-        if _layer(me) != layer:
-            continue
-        for dep in _imports(path):
-            other = _layer(dep)
-            if other and other != layer and other not in ALLOWED[layer]:
-                bad.append(f"{me} imports {dep}")
+    bad = _violations(layer, lambda dep: _layer(dep) not in {"", layer, *ALLOWED[layer]})
     assert not bad, "\n".join(bad)
 
 
 @pytest.mark.parametrize("layer", ["analysis", "viz"])
 def test_analysis_and_viz_use_only_the_public_model_api(layer):
-    bad = []
-    for path in SOURCES:
-        me = _module_name(path)
-        if _layer(me) != layer:
-            continue
-        for dep in _imports(path):
-            parts = dep.split(".")
-            if _layer(dep) == "sim" or (_layer(dep) == "model" and len(parts) > 2):
-                bad.append(f"{me} imports {dep}")
+    bad = _violations(layer, lambda dep: _layer(dep) == "sim"
+                      or (_layer(dep) == "model" and len(dep.split(".")) > 2))
     assert not bad, "\n".join(bad)
 
 

@@ -6,11 +6,13 @@
 
 Every command that builds a model (simulate, modes, linearize, explain, run) takes the
 fidelity overrides ``--rung``, ``--refine``, ``--integrator``, ``--rtol``, ``--atol``,
-``--dt``, ``--no-foreshortening`` and ``--max-steps``; ``study`` varies rung, refinement and integrator itself
-and takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped
-scene (``flexarm simulate link_tipmass``); without it every command uses
-:data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress,
-never the final summary line.
+``--dt``, ``--no-foreshortening`` and ``--max-steps`` (the work budget,
+:mod:`flexarm_ros.sim.budget`); ``study`` varies rung, refinement and integrator itself and
+takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped scene
+(``flexarm simulate link_tipmass``); without it every command uses
+:data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress
+(``t = simulated / total s`` on stderr, at most once a second), never the final summary
+line.
 
 Exit codes: 0 done, 1 failed (``run``: a node exited with an error; ``compare``: a check
 failed; ``replay``: no subscriber in time), 2 bad input (one line on stderr naming the key,

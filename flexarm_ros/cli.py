@@ -6,11 +6,13 @@
 
 Every command that builds a model (simulate, modes, linearize, explain, run) takes the
 fidelity overrides ``--rung``, ``--refine``, ``--integrator``, ``--rtol``, ``--atol``,
-``--dt``, ``--no-foreshortening`` and ``--max-steps``; ``study`` varies rung, refinement and integrator itself
-and takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped
-scene (``flexarm simulate link_tipmass``); without it every command uses
-:data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress,
-never the final summary line.
+``--dt``, ``--no-foreshortening`` and ``--max-steps`` (the work budget,
+:mod:`flexarm_ros.sim.budget`); ``study`` varies rung, refinement and integrator itself and
+takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped scene
+(``flexarm simulate link_tipmass``); without it every command uses
+:data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress
+(``t = simulated / total s`` on stderr, at most once a second), never the final summary
+line.
 
 Exit codes: 0 done, 1 failed (``run``: a node exited with an error; ``compare``: a check
 failed; ``replay``: no subscriber in time), 2 bad input (one line on stderr naming the key,
@@ -38,7 +40,25 @@ class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line (exit 2), like every other bad input."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        if "expected" not in message:
+            message += f", expected the usage of {self.prog} --help"
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def number(text):
+    """An option's number: got 'abc', expected a number (range checks come later, with
+    the option's name)."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected a number") from None
+
+
+def integer(text):
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer") from None
 
 
 def _fail(text):
@@ -66,14 +86,14 @@ def _fidelity_args(p):
     from flexarm_ros.scene import INTEGRATORS, RUNGS
     g = p.add_argument_group("fidelity overrides (default: the scene's)")
     g.add_argument("--rung", choices=RUNGS, help="beam discretization rung")
-    g.add_argument("--refine", type=int, help="modes / elements / FD segments")
+    g.add_argument("--refine", type=integer, help="modes / elements / FD segments")
     g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
-    g.add_argument("--rtol", type=float, help="relative tolerance (adaptive integrators)")
-    g.add_argument("--atol", type=float, help="absolute tolerance (adaptive integrators)")
-    g.add_argument("--dt", type=float, help="fixed step (rk4) or max step, s; 0 = automatic")
+    g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
+    g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
+    g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
-    g.add_argument("--max-steps", type=float, metavar="N",
+    g.add_argument("--max-steps", type=number, metavar="N",
                    help="work budget: refuse a run needing more integrator steps "
                         "(fidelity.max_steps, default 1e8)")
 
@@ -339,7 +359,7 @@ def build_parser():
 
     s = sub.add_parser("simulate", help="batch simulation without ROS")
     _scene_arg(s)
-    s.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
+    s.add_argument("--duration", type=number, help="simulated seconds (default: the scene's)")
     s.add_argument("--out", type=Path, help="output .csv or .npz")
     s.add_argument("--json", action="store_true", help="print the run summary as JSON")
     s.add_argument("--quiet", action="store_true",
@@ -352,7 +372,7 @@ def build_parser():
     m.add_argument("--joints", choices=("locked", "free"),
                    help="drives clamped or free (default: locked when the scene drives a "
                         "joint, else free)")
-    m.add_argument("--count", type=int, default=10, help="number of modes to print (>= 1)")
+    m.add_argument("--count", type=integer, default=10, help="number of modes to print (>= 1)")
     m.add_argument("--json", action="store_true")
     _fidelity_args(m)
     m.set_defaults(func=cmd_modes)
@@ -376,7 +396,7 @@ def build_parser():
 
     st = sub.add_parser("study", help="speed–accuracy table of the fidelity ladder")
     _scene_arg(st)
-    st.add_argument("--duration", type=float, help="simulated seconds per run")
+    st.add_argument("--duration", type=number, help="simulated seconds per run")
     st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
     st.add_argument("--json", action="store_true")
     st.add_argument("--png", type=Path, help="write the Pareto plot here (.png, .pdf or "
@@ -390,7 +410,7 @@ def build_parser():
     r = sub.add_parser("run", help="the ROS 2 twin: simulator, motor driver, controller and "
                                     "recorder nodes")
     _scene_arg(r)
-    r.add_argument("--duration", type=float,
+    r.add_argument("--duration", type=number,
                    help="simulated seconds (default: the scene's; inf: until Ctrl-C); Ctrl-C "
                         "stops earlier")
     r.add_argument("--mode", choices=("lockstep", "realtime", "fast"), default="lockstep",
@@ -420,7 +440,7 @@ def build_parser():
                                        "rosbag2 needed) and/or convert it to rerun")
     rp.add_argument("bag", type=Path, metavar="BAG.mcap", help="MCAP bag (flexarm run's or "
                                                                "any ROS 2 MCAP)")
-    rp.add_argument("--rate", type=float, default=1.0,
+    rp.add_argument("--rate", type=number, default=1.0,
                     help="pace factor on the log times: 1 real time (default), 2 twice as "
                          "fast, 0 as fast as possible")
     rp.add_argument("--namespace", help="republish the recording namespace's topics under "
@@ -429,22 +449,22 @@ def build_parser():
                     help="only these topics (absolute, or relative to the recording "
                          "namespace); /clock is always published")
     rp.add_argument("--loop", action="store_true", help="start over at the end until Ctrl-C")
-    rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+    rp.add_argument("--wait-subscribers", type=integer, default=0, metavar="N",
                     help="before publishing, wait up to 30 s until every topic has N "
                          "subscribers (default 0: do not wait)")
-    rp.add_argument("--delay", type=float, default=0.5, metavar="S",
+    rp.add_argument("--delay", type=number, default=0.5, metavar="S",
                     help="wall seconds between creating the publishers and the first "
                          "message, for discovery (default 0.5)")
     rp.add_argument("--rerun", type=Path, metavar="FILE.rrd",
                     help="convert the bag to this rerun recording instead of publishing "
                          "(no ROS needed; with --publish: both)")
     rp.add_argument("--publish", action="store_true", help="with --rerun: also publish")
-    rp.add_argument("--shape-rate", type=float, default=100.0, metavar="HZ",
+    rp.add_argument("--shape-rate", type=number, default=100.0, metavar="HZ",
                     help="--rerun: at most this many arm drawings per simulated second "
                          "(default 100; 0: every coordinates message)")
-    rp.add_argument("--samples", type=int, default=21,
+    rp.add_argument("--samples", type=integer, default=21,
                     help="--rerun: points per beam centerline (default 21)")
-    rp.add_argument("--force-scale", type=float, metavar="M_PER_N",
+    rp.add_argument("--force-scale", type=number, metavar="M_PER_N",
                     help="--rerun: contact force arrow length per newton (default: the "
                          "largest force draws a quarter of the arm's reach)")
     rp.add_argument("--json", action="store_true", help="print the counts as JSON")
@@ -463,9 +483,9 @@ def build_parser():
                    "(foreign bag topics/fields, or renamed/rescaled CSV columns)")
     c.add_argument("--offset", default="auto", metavar="auto|none|SECONDS",
                    help="run(t + offset) = reference(t); auto: cross-correlation (default)")
-    c.add_argument("--max-shift", type=float, metavar="S",
+    c.add_argument("--max-shift", type=number, metavar="S",
                    help="search range of --offset auto, s (default 0.5)")
-    c.add_argument("--threshold", type=float, help="pass mark on |relative error| "
+    c.add_argument("--threshold", type=number, help="pass mark on |relative error| "
                                                    "(default 0.10 = ±10 %%)")
     c.add_argument("--channels", nargs="+", metavar="NAME",
                    help="only these channels (default: every common one)")

@@ -92,7 +92,7 @@ def load_plan(path, topics=None, namespace: str | None = None) -> ReplayPlan:
     listing the bag's topics). Raises FileNotFoundError, IsADirectoryError, BagError."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
+        raise FileNotFoundError(f"{path}: no such file, expected an MCAP bag")
     bag = read_bag(path)
     rec_ns = recorded_namespace(bag) or ""
     names = [t for t in bag.topics if t != T.CLOCK]

@@ -93,6 +93,43 @@ class Kinematics:
     points: list = field(default_factory=list)  # per link (r (P,2), J (P,2,n), c (P,2))
 
 
+def _scale_outliers(scene) -> str:
+    """The scene's masses, inertias and lengths at least 4 orders of magnitude from the
+    median of their kind, as ``key = value`` text ("" when none)."""
+    groups = {"kg": [], "kg·m²": [], "m": []}
+    for k, lk in enumerate(scene.links):
+        b, where = lk.beam, f"links[{k}]"
+        groups["kg"] += [(f"{where}.beam.mass_per_length × length", b.mass_per_length
+                          * b.length, f"{b.mass_per_length:g} kg/m × {b.length:g} m"),
+                         (f"{where}.hub.mass", lk.hub.mass, None),
+                         (f"{where}.tip.mass", lk.tip.mass, None)]
+        groups["kg·m²"] += [(f"{where}.hub.inertia", lk.hub.inertia, None),
+                            (f"{where}.tip.inertia", lk.tip.inertia, None),
+                            (f"{where}.joint.drive_inertia", lk.joint.drive_inertia, None)]
+        groups["m"] += [(f"{where}.beam.length", b.length, None),
+                        (f"{where}.beam.hub_radius", b.hub_radius, None)]
+        for body in ("hub", "tip"):
+            groups["m"].append((f"{where}.{body}.cg", float(np.hypot(*getattr(lk, body).cg)),
+                                list(getattr(lk, body).cg)))
+        groups["m"].append((f"{where}.tip.joint_offset",
+                            float(np.hypot(*lk.tip.joint_offset)), list(lk.tip.joint_offset)))
+    found = []
+    for unit, items in groups.items():
+        vals = np.array([v for _, v, _ in items if v > 0])
+        if len(vals) < 2:
+            continue
+        typical = float(np.median(vals))
+        for key, v, shown in items:
+            if v > 0 and abs(np.log10(v / typical)) >= 4:
+                found.append((abs(np.log10(v / typical)), key, v, shown, typical, unit))
+    if not found:
+        return ""
+    found.sort(reverse=True)
+    return "; ".join(f"{key} = {shown if shown is not None else format(v, 'g')} {unit} "
+                     f"(typical {unit} here: {typical:.3g})"
+                     for _, key, v, shown, typical, unit in found[:3])
+
+
 class Chain:
     """The planar flexible chain built from a scene at one rung of the ladder."""
 
@@ -462,6 +499,18 @@ class Chain:
         w, V = np.linalg.eigh(M)
         if w[0] > 1e-12 * max(w[-1], 1e-300):
             return
+        d = np.abs(np.diag(M))
+        outliers = _scale_outliers(self.scene)
+        if outliers and d.min() > 0:
+            # scene values orders of magnitude apart: what double precision cannot hold
+            # together in one matrix (not a missing inertia)
+            hi, lo = int(np.argmax(d)), int(np.argmin(d))
+            raise SceneError(
+                f"mass matrix: not positive definite to double precision (smallest "
+                f"eigenvalue {w[0]:.3g}, largest {w[-1]:.3g}; the inertia on "
+                f"{self.names[self.free[hi]]} is {d[hi] / d[lo]:.2g} times that on "
+                f"{self.names[self.free[lo]]}); expected masses, inertias and lengths of "
+                f"consistent scale: check {outliers}")
         worst = self.names[self.free[int(np.argmax(np.abs(V[:, 0])))]]
         link = worst.rsplit("_", 1)[0]
         raise SceneError(

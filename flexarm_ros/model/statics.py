@@ -22,18 +22,50 @@ def static_equilibrium(chain: Chain, q0: np.ndarray, tol=1e-10, max_iter=50) -> 
     if len(keep) == 0 or not chain.has_gravity:
         return q
     zero = np.zeros(chain.n)
+    lengths = np.array([lm.beam.length for lm in chain.links])
+    limit = chain.fidelity.max_deflection_ratio
     for it in range(max_iter):
         kin = chain.kinematics(q, zero)
         res = (kin.Qg - kin.h - chain.K @ q)[keep]
         Kt = tangent_stiffness(chain, q, keep)
-        dq = np.linalg.solve(Kt, res)
+        try:
+            dq = np.linalg.solve(Kt, res)
+        except np.linalg.LinAlgError:
+            raise SceneError(f"initial.static_equilibrium: got a singular tangent stiffness "
+                             f"(Newton iteration {it + 1}), expected a load the beams carry: "
+                             f"check {_loads(chain, 0)}") from None
         q[keep] += dq
+        ratios = np.abs(chain.tip_deflections(q)) / lengths if np.all(
+            np.isfinite(q)) else np.full(len(lengths), np.inf)
+        worst = int(np.argmax(ratios))
+        if not ratios[worst] <= limit:
+            raise SceneError(
+                f"initial.static_equilibrium: gravity bends {chain.links[worst].name} to "
+                f"|w(L)|/L = {ratios[worst]:.3g}, expected at most "
+                f"fidelity.max_deflection_ratio = {limit:g} (the small-deflection model): "
+                f"check {_loads(chain, worst)}")
         if np.max(np.abs(dq)) < tol * max(1.0, np.max(np.abs(q[keep]))):
             _check_stable(chain, q, keep)
             return q
     raise SceneError(f"initial.static_equilibrium: Newton did not converge in {max_iter} "
                      f"iterations (last correction {np.max(np.abs(dq)):.3g}); the arm may be "
                      f"too flexible for the small-deflection model under this load")
+
+
+def _loads(chain: Chain, k: int) -> str:
+    """The gravity and the scene values that load link ``k``'s beam (its stiffness and
+    everything it carries), as ``key = value`` text."""
+    sc = chain.scene
+    parts = [f"gravity = {list(sc.gravity)} m/s²",
+             f"links[{k}].beam.EI = {sc.links[k].beam.EI:g} N·m²"]
+    for j in range(k, len(sc.links)):
+        lk = sc.links[j]
+        parts += [f"links[{j}].beam.mass_per_length = {lk.beam.mass_per_length:g} kg/m",
+                  f"links[{j}].tip.mass = {lk.tip.mass:g} kg",
+                  f"links[{j}].tip.cg = {list(lk.tip.cg)} m"]
+        if j > k:
+            parts.append(f"links[{j}].hub.mass = {lk.hub.mass:g} kg")
+    return ", ".join(parts)
 
 
 def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:

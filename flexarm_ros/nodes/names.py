@@ -17,12 +17,12 @@ NAMESPACE_MAX_LENGTH = 200
 
 
 def check_namespace(flag: str, value: str | None) -> str | None:
-    """``value`` as an absolute namespace (``flexarm`` → ``/flexarm``), or SceneError
-    naming ``flag``, the value and the rule."""
+    """``value`` as an absolute namespace (``flexarm`` → ``/flexarm``; "" is refused, the
+    root is "/"), or SceneError naming ``flag``, the value and the rule."""
     if value is None:
         return None
     ns = value if value.startswith("/") else "/" + value
-    if not NAMESPACE.fullmatch(ns) or len(ns) > NAMESPACE_MAX_LENGTH:
+    if not value or not NAMESPACE.fullmatch(ns) or len(ns) > NAMESPACE_MAX_LENGTH:
         raise SceneError(f"{flag}: got {value!r}, expected a ROS 2 namespace: '/' or "
                          f"/-separated names of letters, digits and underscores that do not "
                          f"start with a digit, no empty or trailing parts, at most "

@@ -146,8 +146,8 @@ def from_mapping(cls, data: Any, path: str = ""):
         sub = _join(path, name)
         if name not in data:
             if f.default is _MISSING and f.default_factory is _MISSING:
-                raise SceneError(f"{sub}: missing required field "
-                                 f"({_describe(f, hints[name])})")
+                raise SceneError(f"{sub}: missing required field, expected "
+                                 f"{_describe(f, hints[name])}")
             continue
         kwargs[name] = _convert(sub, data[name], hints[name], f.metadata)
     obj = cls(**kwargs)

@@ -625,7 +625,8 @@ class Scene:
                 if (sn.kind == "strain" or sn.body == "beam") and not (
                         0.0 <= sn.position[0] <= beam.length and sn.position[1] == 0.0):
                     raise SceneError(f"{where}.position: got {list(sn.position)}, expected "
-                                     f"(x, 0) with 0 <= x <= {beam.length} m on the beam")
+                                     f"(x, 0) with 0 <= x <= {beam.length} m on the beam "
+                                     f"(links[{names.index(sn.link)}].beam.length)")
                 if sn.kind == "strain" and beam.thickness is None:
                     raise SceneError(f"links[{names.index(sn.link)}].beam.thickness: missing, "
                                      f"expected the section depth for strain sensor "

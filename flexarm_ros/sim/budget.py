@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.linalg
 
 from flexarm_ros.errors import WorkTooLarge
 
@@ -141,7 +142,7 @@ def why_step(chain, x0, h, integrator, contact=None, adaptive=False) -> str:
     what = describe_coordinate(chain, label, kind)
     return (f"The step is set by the eigenvalue λ = {_fmt_complex(lam)} 1/s (|λ| = "
             f"{abs(lam):.3g} 1/s, {abs(lam) / (2 * math.pi):.3g} Hz) of the linearized "
-            f"model, whose eigenvector is dominated by {label} ({what}). To fix: "
+            f"model, in which {label} takes the largest part ({what}). To fix: "
             + _fix(chain, kind, integrator))
 
 
@@ -169,8 +170,9 @@ def dominant_eigenvalue(chain, x0):
     """(λ, state label, kind) of the eigenvalue of largest |λ| of the linearized system
     at x0 (with backlash also with the mesh engaged on either side, where the stiffest
     coupling hides): kind is "coordinate" or "actuator"; the label is the coordinate
-    (``link1_y10``) or actuator state (``link1_current``) that dominates its eigenvector
-    (coordinates weighed as |λ·v_q| + |v_q̇|, actuator states as |v_z|)."""
+    (``link1_y10``) or actuator state (``link1_current``) with the largest participation
+    factor |wᵢvᵢ| in the mode (left and right eigenvectors; a coordinate's q and q̇
+    together)."""
     free = chain.free
     nf = len(free)
     x0 = np.array(x0, float)
@@ -185,13 +187,17 @@ def dominant_eigenvalue(chain, x0):
             states.append(x)
     best = None
     for x in states:
-        w, V = np.linalg.eig(_jacobian(chain, x))
+        w, WL, VR = scipy.linalg.eig(_jacobian(chain, x), left=True, right=True)
         k = int(np.argmax(np.abs(w)))
         if best is None or abs(w[k]) > abs(best[0]):
-            best = (w[k], V[:, k])
-    lam, v = best
-    score_q = np.abs(lam) * np.abs(v[:nf]) + np.abs(v[nf:2 * nf])
-    score_z = np.abs(v[2 * nf:])
+            best = (w[k], WL[:, k], VR[:, k])
+    lam, left, right = best
+    # participation factors |w_i v_i|: how much state i takes part in the mode (scale
+    # free: a damper on a relative joint angle gives a right eigenvector spread over the
+    # coupled coordinates, but its left eigenvector sits on the damped one)
+    p = np.abs(np.conj(left) * right)
+    score_q = p[:nf] + p[nf:2 * nf]
+    score_z = p[2 * nf:]
     if score_z.size and score_z.max() > score_q.max():
         return lam, chain.state_names[int(np.argmax(score_z))], "actuator"
     return lam, chain.names[free[int(np.argmax(score_q))]], "coordinate"

@@ -48,11 +48,13 @@ def check_output(duration, output_dt, grid_dt, chain) -> None:
                           for k, s in enumerate(chain.scene.sensors))
         raise WorkTooLarge(
             f"sensors: the sample grid {grid_dt:.3g} s common to fidelity.output_dt = "
-            f"{output_dt:g} s and {rates} needs {n:.3g} samples over {duration:g} s, "
+            f"{output_dt:g} s and {rates} needs {n:.3g} samples over the duration "
+            f"{duration:g} s, "
             f"expected at most {MAX_OUTPUT_SAMPLES:.3g}: choose rates whose periods share a "
             f"coarser grid, or a shorter duration")
     raise WorkTooLarge(
-        f"fidelity.output_dt: got {output_dt:g} s, {n:.3g} samples over {duration:g} s, "
+        f"fidelity.output_dt: got {output_dt:g} s, {n:.3g} samples over the duration "
+        f"{duration:g} s, "
         f"expected at most {MAX_OUTPUT_SAMPLES:.3g} samples in a run: a larger output_dt or "
         f"a shorter duration")
 
@@ -134,11 +136,19 @@ def why_step(chain, x0, h, integrator, contact=None, adaptive=False) -> str:
         from flexarm_ros.model.contact import constrained_rate
         held = constrained_rate(contact, x0)
         if held > 1.01 * abs(lam):
-            return (f"The step is set by the arm held on the wall (walls[0]): its highest "
-                    f"rate {held:.3g} 1/s ({held / (2 * math.pi):.3g} Hz) with the tool at "
-                    f"tool.position = {list(chain.scene.tool.position)} m. To fix: check "
-                    f"tool.position and the tip body's inertia, or a coarser rung "
-                    f"(--rung)")
+            sc = chain.scene
+            angles = ", ".join(
+                f"links[{k}].joint.initial_angle"
+                + (f"_deg = {lk.joint.initial_angle_deg:g} deg"
+                   if lk.joint.initial_angle_deg is not None
+                   else f" = {lk.joint.initial_angle:g} rad") for k, lk in enumerate(sc.links))
+            return (f"The step is set by the arm held on the wall (walls[0]) in its start "
+                    f"configuration ({angles}): its highest rate {held:.3g} 1/s "
+                    f"({held / (2 * math.pi):.3g} Hz) with the tool at tool.position = "
+                    f"{list(sc.tool.position)} m. To fix: check the start configuration "
+                    f"(an arm pointing straight at the wall is stiff along its axis), "
+                    f"tool.position and the tip body's inertia, or fidelity.contact: "
+                    f"compliant")
     what = describe_coordinate(chain, label, kind)
     return (f"The step is set by the eigenvalue λ = {_fmt_complex(lam)} 1/s (|λ| = "
             f"{abs(lam):.3g} 1/s, {abs(lam) / (2 * math.pi):.3g} Hz) of the linearized "
@@ -249,11 +259,15 @@ def describe_coordinate(chain, label, kind) -> str:
             elif d is not None:
                 parts += [f"links[{k}].joint.drive.displacement = {d.displacement:g} m³/rad",
                           f"links[{k}].joint.drive.bulk_modulus = {d.bulk_modulus:g} Pa"]
+            if any(chain.scene.gravity):
+                parts.append(f"gravity = {list(chain.scene.gravity)} m/s²")
             return f"joint of {lm.name}: " + ", ".join(parts)
         if lm.eta.start <= i < lm.eta.stop:
             b, tip = lk.beam, lk.tip
             fid = chain.fidelity
-            return (f"beam of {lm.name}, rung {fid.rung} {lm.beam.refine}: "
+            g = (f", gravity = {list(chain.scene.gravity)} m/s²" if any(chain.scene.gravity)
+                 else "")
+            return (f"beam of {lm.name}, rung {fid.rung} {lm.beam.refine}{g}: "
                     f"links[{k}].beam.length = {b.length:g} m, links[{k}].beam.EI = "
                     f"{b.EI:g} N·m², links[{k}].beam.mass_per_length = {b.mass_per_length:g} "
                     f"kg/m, links[{k}].beam.damping.viscous_per_length = "

@@ -490,12 +490,10 @@ class Chain:
                 f"consistent scale: check {_inertia_keys(self.scene, k0)}")
         i = self.free[int(np.argmax(np.abs(V[:, 0])))]
         k = self._link_of(i)
-        lm, lk = self.links[k], self.scene.links[k]
+        lm = self.links[k]
         if lm.eta.start <= i < lm.eta.stop:
-            give = (f"links[{k}].beam.mass_per_length = {lk.beam.mass_per_length:g} kg/m, "
-                    f"links[{k}].tip.mass = {lk.tip.mass:g} kg and links[{k}].tip.inertia = "
-                    f"{lk.tip.inertia:g} kg·m² leave the beam without inertia: give it a "
-                    f"realistic mass")
+            give = (f"the beam of links[{k}] has almost no mass, or it is lost to round-off "
+                    f"beside what the beam carries: check {_inertia_keys(self.scene, k)}")
         elif i == lm.i_motor:
             give = (f"give links[{k}].joint.drive_inertia or its motor_inertia a value > 0")
         else:

@@ -142,6 +142,8 @@ def why_step(chain, x0, h, integrator, contact=None, adaptive=False) -> str:
                 + (f"_deg = {lk.joint.initial_angle_deg:g} deg"
                    if lk.joint.initial_angle_deg is not None
                    else f" = {lk.joint.initial_angle:g} rad") for k, lk in enumerate(sc.links))
+            if any(sc.gravity):
+                angles += f"; gravity = {list(sc.gravity)} m/s²"
             return (f"The step is set by the arm held on the wall (walls[0]) in its start "
                     f"configuration ({angles}): its highest rate {held:.3g} 1/s "
                     f"({held / (2 * math.pi):.3g} Hz) with the tool at tool.position = "
@@ -225,7 +227,9 @@ def describe_coordinate(chain, label, kind) -> str:
             tau = d.inductance / d.resistance
             return (f"armature current of {chain.links[k].name}'s dc_motor: {where}.inductance "
                     f"= {d.inductance:g} H, {where}.resistance = {d.resistance:g} Ω, L/R = "
-                    f"{tau:.3g} s; {where}.gear_ratio = {d.gear_ratio:g}")
+                    f"{tau:.3g} s; {where}.gear_ratio = {d.gear_ratio:g}, "
+                    f"{where}.back_emf_constant = {d.back_emf_constant:g} V·s/rad, "
+                    f"{where}.torque_constant = {d.torque_constant:g} N·m/A")
         return (f"load pressure of {chain.links[k].name}'s hydraulic actuator: "
                 f"{where}.bulk_modulus = {d.bulk_modulus:g} Pa, {where}.total_volume = "
                 f"{d.total_volume:g} m³, {where}.displacement = {d.displacement:g} m³/rad, "

@@ -695,8 +695,9 @@ class Scene:
                              f"arm's reach {reach:.6g} m (sum of hub radii, beam lengths and "
                              f"joint offsets)")
         for k, w in enumerate(self.walls):
-            n = math.hypot(*w.normal)
-            d = abs(w.normal[0] * w.point[0] + w.normal[1] * w.point[1]) / n
+            # the base's distance on the free side (a base inside the wall: the tool starts
+            # inside it, which the contact model reports with the start gap)
+            d = -(w.normal[0] * w.point[0] + w.normal[1] * w.point[1]) / math.hypot(*w.normal)
             if d > 2.0 * (reach + tool):
                 raise SceneError(f"walls[{k}].point: got {list(w.point)} m, a wall line "
                                  f"{d:.6g} m from the base, expected at most twice the reach "

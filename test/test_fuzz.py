@@ -42,8 +42,8 @@ CASE_LIMIT_S = 30.0        # longer than this is a hang (the slowest legitimate 
 START_LIMIT_S = 180.0      # the first case of a worker also loads numba's compiled kernels
 FUZZ_MAX_STEPS = 5e4       # the base scenes' work budget
 SEED = 12
-FAST_SCENE_CASES = 240
-FAST_CLI_CASES = 80
+FAST_SCENE_CASES = 300
+FAST_CLI_CASES = 100
 
 NUMBER_MUTATIONS = [("zero", 0), ("negative", None), ("tiny", 1e-12), ("huge", 1e12),
                     ("nan", math.nan), ("inf", math.inf), ("string", "fuzz"),

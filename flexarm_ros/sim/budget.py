@@ -7,12 +7,13 @@ that needs more than ``fidelity.max_steps`` (default 1e8; ``--max-steps``) with 
 step and what to change:
 
 * a fixed step given by the user (``fidelity.dt`` / ``--dt``) or a tiny output period;
-* else the eigenvalue of largest |λ| of the linearized first-order system, its
-  eigenvector's dominant coordinate (``link1_y10``, ``link1_current``…) and the scene
-  keys of that coordinate with their values (a beam's length, EI, mass per length and
-  damping; a joint's drive inertia, gear ratio…; a motor's L and R), so the culprit of a
-  collapsed step (``mass_per_length: 1e-12``, damping 1e12, ``inductance: 1e-12``) is
-  named;
+* else the eigenvalue of largest |λ| of the linearized first-order system, the coordinate
+  with the largest participation factor |wᵢvᵢ| in it (left and right eigenvectors:
+  ``link1_y10``, ``link1_current``…; the right eigenvector alone blames link 1 for a damper
+  on joint 2, whose mode it spreads over M⁻¹e₂) and the scene keys of that coordinate
+  with their values (a beam's length, EI, mass per length and damping; a joint's drive
+  inertia, gear ratio…; a motor's L, R, K_b, K_t), so the culprit of a collapsed step
+  (``mass_per_length: 1e-12``, damping 1e12, ``inductance: 1e-12``) is named;
 * with a wall: the arm held on the wall (impulse contact) when that sets the step.
 
 Integrators whose step is not known before (the adaptive solve_ivp methods, the compliant

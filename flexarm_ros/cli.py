@@ -507,7 +507,10 @@ def main(argv=None) -> int:
     from flexarm_ros.errors import SceneError, SimulationDiverged
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        # overflow / invalid arithmetic of a diverging state is reported by the guard in
+        # one line (exit 3), not as numpy RuntimeWarnings on the way there
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return args.func(args)
     except SceneError as exc:
         print(f"flexarm: error: {_one_line(exc)}", file=sys.stderr)
         return 2

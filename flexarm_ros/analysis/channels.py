@@ -477,7 +477,7 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
     """
     p = str(path)
     if not Path(p).exists():
-        raise CompareInputError(f"{p}: no such file")
+        raise CompareInputError(f"{p}: no such file, expected an MCAP bag or a CSV file")
     if Path(p).suffix.lower() == ".csv":
         columns, comments = read_experiment_csv(p)
         cs = ChannelSet(path=p, kind="csv", comments=comments)

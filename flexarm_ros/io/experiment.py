@@ -115,7 +115,7 @@ def read_experiment_csv(path) -> tuple[dict[str, tuple[str, np.ndarray, np.ndarr
         with open(p, newline="", encoding="utf-8") as fh:
             lines = fh.read().splitlines()
     except FileNotFoundError:
-        raise CompareInputError(f"{p}: no such file") from None
+        raise CompareInputError(f"{p}: no such file, expected a CSV file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise CompareInputError(f"{p}: cannot read the CSV file ({exc})") from None
     comments: list[str] = []

@@ -93,41 +93,26 @@ class Kinematics:
     points: list = field(default_factory=list)  # per link (r (P,2), J (P,2,n), c (P,2))
 
 
-def _scale_outliers(scene) -> str:
-    """The scene's masses, inertias and lengths at least 4 orders of magnitude from the
-    median of their kind, as ``key = value`` text ("" when none)."""
-    groups = {"kg": [], "kg·m²": [], "m": []}
-    for k, lk in enumerate(scene.links):
-        b, where = lk.beam, f"links[{k}]"
-        groups["kg"] += [(f"{where}.beam.mass_per_length × length", b.mass_per_length
-                          * b.length, f"{b.mass_per_length:g} kg/m × {b.length:g} m"),
-                         (f"{where}.hub.mass", lk.hub.mass, None),
-                         (f"{where}.tip.mass", lk.tip.mass, None)]
-        groups["kg·m²"] += [(f"{where}.hub.inertia", lk.hub.inertia, None),
-                            (f"{where}.tip.inertia", lk.tip.inertia, None),
-                            (f"{where}.joint.drive_inertia", lk.joint.drive_inertia, None)]
-        groups["m"] += [(f"{where}.beam.length", b.length, None),
-                        (f"{where}.beam.hub_radius", b.hub_radius, None)]
-        for body in ("hub", "tip"):
-            groups["m"].append((f"{where}.{body}.cg", float(np.hypot(*getattr(lk, body).cg)),
-                                list(getattr(lk, body).cg)))
-        groups["m"].append((f"{where}.tip.joint_offset",
-                            float(np.hypot(*lk.tip.joint_offset)), list(lk.tip.joint_offset)))
-    found = []
-    for unit, items in groups.items():
-        vals = np.array([v for _, v, _ in items if v > 0])
-        if len(vals) < 2:
-            continue
-        typical = float(np.median(vals))
-        for key, v, shown in items:
-            if v > 0 and abs(np.log10(v / typical)) >= 4:
-                found.append((abs(np.log10(v / typical)), key, v, shown, typical, unit))
-    if not found:
-        return ""
-    found.sort(reverse=True)
-    return "; ".join(f"{key} = {shown if shown is not None else format(v, 'g')} {unit} "
-                     f"(typical {unit} here: {typical:.3g})"
-                     for _, key, v, shown, typical, unit in found[:3])
+def _inertia_keys(scene, k0: int) -> str:
+    """The masses, inertias and lengths of link ``k0`` and the links it carries (non-zero
+    ones), as ``key = value`` text: what sets the inertia on its coordinates."""
+    parts = []
+    for k in range(k0, len(scene.links)):
+        lk, w = scene.links[k], f"links[{k}]"
+        vals = [("beam.length", lk.beam.length, "m"),
+                ("beam.mass_per_length", lk.beam.mass_per_length, "kg/m"),
+                ("beam.hub_radius", lk.beam.hub_radius, "m"),
+                ("hub.mass", lk.hub.mass, "kg"), ("hub.inertia", lk.hub.inertia, "kg·m²"),
+                ("hub.cg", list(lk.hub.cg), "m"), ("tip.mass", lk.tip.mass, "kg"),
+                ("tip.inertia", lk.tip.inertia, "kg·m²"), ("tip.cg", list(lk.tip.cg), "m"),
+                ("tip.joint_offset", list(lk.tip.joint_offset), "m"),
+                ("joint.drive_inertia", lk.joint.drive_inertia, "kg·m²")]
+        if lk.joint.flexibility is not None:
+            vals.append(("joint.flexibility.motor_inertia",
+                         lk.joint.flexibility.motor_inertia, "kg·m²"))
+        parts += [f"{w}.{key} = {v if isinstance(v, list) else format(v, 'g')} {unit}"
+                  for key, v, unit in vals if (any(v) if isinstance(v, list) else v)]
+    return ", ".join(parts)
 
 
 class Chain:
@@ -500,24 +485,37 @@ class Chain:
         if w[0] > 1e-12 * max(w[-1], 1e-300):
             return
         d = np.abs(np.diag(M))
-        outliers = _scale_outliers(self.scene)
-        if outliers and d.min() > 0:
-            # scene values orders of magnitude apart: what double precision cannot hold
-            # together in one matrix (not a missing inertia)
+        if d.min() > 0 and d.max() > 1e8 * d.min():
+            # inertias orders of magnitude apart: what double precision cannot hold together
+            # in one matrix (every coordinate has inertia)
             hi, lo = int(np.argmax(d)), int(np.argmin(d))
+            k0 = min(self._link_of(self.free[hi]), self._link_of(self.free[lo]))
             raise SceneError(
                 f"mass matrix: not positive definite to double precision (smallest "
                 f"eigenvalue {w[0]:.3g}, largest {w[-1]:.3g}; the inertia on "
                 f"{self.names[self.free[hi]]} is {d[hi] / d[lo]:.2g} times that on "
                 f"{self.names[self.free[lo]]}); expected masses, inertias and lengths of "
-                f"consistent scale: check {outliers}")
-        worst = self.names[self.free[int(np.argmax(np.abs(V[:, 0])))]]
-        link = worst.rsplit("_", 1)[0]
+                f"consistent scale: check {_inertia_keys(self.scene, k0)}")
+        i = self.free[int(np.argmax(np.abs(V[:, 0])))]
+        k = self._link_of(i)
+        lm = self.links[k]
+        if lm.eta.start <= i < lm.eta.stop:
+            give = (f"the beam of links[{k}] has almost no mass, or it is lost to round-off "
+                    f"beside what the beam carries: check {_inertia_keys(self.scene, k)}")
+        elif i == lm.i_motor:
+            give = (f"give links[{k}].joint.drive_inertia or its motor_inertia a value > 0")
+        else:
+            give = (f"give links[{k}].hub.inertia or links[{k}].joint.drive_inertia a value "
+                    f"> 0, or use a flexible rung (the rigid rung's spring angle and the joint "
+                    f"angle turn the same body)")
         raise SceneError(
-            f"mass matrix: coordinate {worst} has no inertia (smallest eigenvalue "
-            f"{w[0]:.3g} of M); expected a positive-definite mass matrix: give "
-            f"{link}'s hub inertia or joint drive_inertia a value > 0, or use a flexible rung "
-            f"(the rigid rung's spring angle and the joint angle turn the same body)")
+            f"mass matrix: coordinate {self.names[i]} has no inertia (smallest eigenvalue "
+            f"{w[0]:.3g} of M); expected a positive-definite mass matrix: {give}")
+
+    def _link_of(self, i: int) -> int:
+        """The link a coordinate belongs to."""
+        return next(k for k, lm in enumerate(self.links)
+                    if i in (lm.i_joint, lm.i_motor) or lm.eta.start <= i < lm.eta.stop)
 
     def full_state(self, t, x):
         """Assemble (q, q̇) from the first-order state x = [q_free, q̇_free, z] at time t."""

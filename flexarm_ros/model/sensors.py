@@ -152,7 +152,9 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None
     tables = {}
     for rate, group in sorted(by_rate.items()):
         period_ns = int(round(1e9 / rate))
-        idx = np.nonzero(t_ns % period_ns == 0)[0]
+        # a period beyond the run (or int64): the start sample only
+        idx = (np.zeros(1, dtype=int) if period_ns > t_ns[-1]
+               else np.nonzero(t_ns % period_ns == 0)[0])
         table = {"t": run.t[idx]}
         acc = [sm for sm in group if sm.spec.kind == "accelerometer"]
         acc_vals = {sm.name: np.empty(len(idx)) for sm in acc}

@@ -59,6 +59,8 @@ def _loads(chain: Chain, k: int) -> str:
     parts = [f"gravity = {list(sc.gravity)} m/s²",
              f"links[{k}].beam.EI = {sc.links[k].beam.EI:g} N·m²"]
     for j in range(k, len(sc.links)):
+        parts.append(f"links[{j}].beam.length = {sc.links[j].beam.length:g} m")
+    for j in range(k, len(sc.links)):
         lk = sc.links[j]
         parts += [f"links[{j}].beam.mass_per_length = {lk.beam.mass_per_length:g} kg/m",
                   f"links[{j}].tip.mass = {lk.tip.mass:g} kg",
@@ -78,7 +80,8 @@ def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:
             f"initial.static_equilibrium: got an unstable equilibrium (tangent stiffness "
             f"eigenvalue {w[0]:.3g} along {worst}: the load exceeds the buckling load of the "
             f"small-deflection model), expected a stable one; stiffen the beam (EI), lighten "
-            f"the load, or start from another joint angle")
+            f"the load, or start from another joint angle: check "
+            f"{_loads(chain, chain._link_of(keep[int(np.argmax(np.abs(V[:, 0])))]))}")
 
 
 def initial_state(chain: Chain):
@@ -93,6 +96,7 @@ def initial_state(chain: Chain):
     if len(chain.presc_idx):
         p = chain.prescribed_state(0.0)
         q0[chain.presc_idx], qd0[chain.presc_idx] = p[0], p[1]
+    chain.check_mass_matrix(q0)       # before anything solves with M (modes, statics, runs)
     if chain.scene.initial.static_equilibrium:
         q0 = static_equilibrium(chain, q0)
     z0 = np.zeros(chain.nz)
@@ -103,10 +107,14 @@ def initial_state(chain: Chain):
             p_hold, i_bias = drives.hydraulic_hold(a.par, -f[a.coord])
             if not np.isfinite(i_bias):
                 lk = chain.scene.links[a.link]
+                d = lk.joint.drive
                 raise SceneError(
                     f"links[{a.link}].joint.drive.supply_pressure: got "
-                    f"{a.par[drives.HYD_SUPPLY_PRESSURE]:.6g} Pa, expected more than the "
-                    f"{abs(p_hold):.6g} Pa needed to hold {lk.name} at its initial angle")
+                    f"{a.par[drives.HYD_SUPPLY_PRESSURE]:.6g} Pa, expected more than the {abs(p_hold):.6g} Pa needed "
+                    f"to hold {lk.name} at its initial angle (the holding torque / "
+                    f"(torque_efficiency × displacement): links[{a.link}].joint.drive."
+                    f"torque_efficiency = {d.torque_efficiency or 1.0:g}, links[{a.link}]."
+                    f"joint.drive.displacement = {d.displacement:g} m³/rad)")
             z0[a.state] = p_hold
             drive = chain.scene.links[a.link].joint.drive
             a.par[drives.HYD_VALVE_BIAS] = i_bias if drive.null_bias in (None, True) else 0.0

@@ -18,7 +18,7 @@ Topic names are relative to the node namespace (``flexarm run`` uses ``/flexarm`
 ``/clock`` is global; the contract is :mod:`flexarm_ros.twin.topics`. Every node takes
 the parameters ``scene`` (YAML path or shipped name), ``mode`` (``lockstep``,
 ``realtime`` or ``fast``), ``duration``, ``recorders`` and the fidelity overrides ``rung``,
-``refine``, ``integrator``, ``rtol``, ``atol``, ``dt``, ``no_foreshortening``
+``refine``, ``integrator``, ``rtol``, ``atol``, ``dt``, ``no_foreshortening``, ``max_steps``
 (:mod:`flexarm_ros.nodes.parameters`); ``<executable> --help`` lists them. ``flexarm run``
 (:mod:`flexarm_ros.run`) starts the graph; :mod:`flexarm_ros.nodes.environment` sets the
 ROS environment (importable without rclpy, like ``parameters``).

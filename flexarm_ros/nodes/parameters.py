@@ -5,8 +5,7 @@ them through :mod:`flexarm_ros.nodes._common`).
 Each entry is ``name: (default, description)``; the default's type is the parameter's type.
 The fidelity parameters mirror ``flexarm simulate``'s options ``--rung``, ``--refine``,
 ``--integrator``, ``--rtol``, ``--atol``, ``--dt``, ``--no-foreshortening`` and
-``--max-steps``; at its
-default a parameter keeps the scene's value.
+``--max-steps``; at its default a parameter keeps the scene's value.
 """
 
 from __future__ import annotations

@@ -252,9 +252,19 @@ class Link:
             raise SceneError(
                 f"{where}.beam.hub_radius: got {b.hub_radius} m, expected at most "
                 f"{HUB_RADIUS_PER_LENGTH:g} beam lengths ({HUB_RADIUS_PER_LENGTH * b.length:g} "
-                f"m for length {b.length} m): the beam's mass sits at the hub radius, so the "
+                f"m for {where}.beam.length = {b.length} m): the beam's mass sits at the hub "
+                f"radius, so the "
                 f"joint inertia (~ m·r²) outweighs the beam's bending inertia by ~{ratio**2:.0e} "
                 f"and the mass matrix loses the elastic coordinates to round-off")
+        for key, xy in (("hub.cg", self.hub.cg), ("tip.cg", self.tip.cg),
+                        ("tip.joint_offset", self.tip.joint_offset)):
+            if math.hypot(*xy) > HUB_RADIUS_PER_LENGTH * b.length:
+                raise SceneError(
+                    f"{where}.{key}: got {list(xy)} m, expected within "
+                    f"{HUB_RADIUS_PER_LENGTH:g} beam lengths of its frame "
+                    f"({HUB_RADIUS_PER_LENGTH * b.length:g} m for {where}.beam.length = "
+                    f"{b.length} m): a body or joint that far out makes the mass matrix "
+                    f"lose the beam's coordinates to round-off")
 
     @property
     def reach(self) -> float:
@@ -371,7 +381,8 @@ class Sensor:
     def validate(self, where):
         check_name(f"{where}.name", self.name)
         if self.kind in ("encoder", "potentiometer") and self.joint == 0:
-            raise SceneError(f"{where}.joint: missing, expected the joint number for a "
+            raise SceneError(f"{where}.joint: got 0 (none), expected the joint number "
+                             f"(1-based) for {'an' if self.kind == 'encoder' else 'a'} "
                              f"{self.kind}")
         if self.kind in ("accelerometer", "strain") and not self.link:
             raise SceneError(f"{where}.link: missing, expected the link name for a "
@@ -581,15 +592,18 @@ class Scene:
                     "hydraulic": ("current", "motion")}[jt.drive.type if jt.drive else None]
             if inp.kind not in want:
                 raise SceneError(f"inputs[{k}].{inp.kind}: joint {inp.joint} has "
-                                 f"{'a ' + jt.drive.type if jt.drive else 'no'} drive, "
-                                 f"expected {' or '.join(want)}")
+                                 f"{'a ' + jt.drive.type if jt.drive else 'no'} drive "
+                                 f"(links[{inp.joint - 1}].joint.drive), expected "
+                                 f"{' or '.join(want)}")
             if inp.kind == "current":
                 lo, hi = program_range(inp.current)
                 imax = jt.drive.rated_current
                 if max(abs(lo), abs(hi)) > imax * (1 + 1e-12):
                     raise SceneError(f"inputs[{k}].current: got a program reaching "
-                                     f"{max(abs(lo), abs(hi)):.6g} A, expected within the "
-                                     f"valve's rated current ±{imax:.6g} A")
+                                     f"{max(abs(lo), abs(hi)):.6g} A ("
+                                     f"{program_fields(inp.current, f'inputs[{k}].current')}), "
+                                     f"expected within the valve's rated current ±{imax:.6g} "
+                                     f"A (links[{inp.joint - 1}].joint.drive.rated_current)")
         ctl = self.control
         nj = len(self.links)
         for key in ("kp", "kd", "joint_target"):
@@ -640,6 +654,12 @@ class Scene:
             if sn.kind == "encoder":
                 self._check_encoder_range(k, sn, drive)
         self._check_sensor_columns()
+        for k, sn in enumerate(self.sensors):
+            if 1.0 / sn.rate_hz > self.duration:
+                raise SceneError(f"sensors[{k}].rate_hz: got {sn.rate_hz} Hz, a period "
+                                 f"{1.0 / sn.rate_hz:.6g} s longer than the duration "
+                                 f"{self.duration} s, expected at least "
+                                 f"{1.0 / self.duration:.6g} Hz (a sample after the start)")
         self._check_reach()
         if self.fidelity.output_dt > self.duration:
             raise SceneError(f"fidelity.output_dt: got {self.fidelity.output_dt} s, expected "
@@ -693,8 +713,9 @@ class Scene:
                              f"arm's reach {reach:.6g} m (sum of hub radii, beam lengths and "
                              f"joint offsets)")
         for k, w in enumerate(self.walls):
-            n = math.hypot(*w.normal)
-            d = abs(w.normal[0] * w.point[0] + w.normal[1] * w.point[1]) / n
+            # the base's distance on the free side (a base inside the wall: the tool starts
+            # inside it, which the contact model reports with the start gap)
+            d = -(w.normal[0] * w.point[0] + w.normal[1] * w.point[1]) / math.hypot(*w.normal)
             if d > 2.0 * (reach + tool):
                 raise SceneError(f"walls[{k}].point: got {list(w.point)} m, a wall line "
                                  f"{d:.6g} m from the base, expected at most twice the reach "
@@ -710,6 +731,15 @@ class Scene:
         data.update(changes)
         fid = from_mapping(Fidelity, data, "fidelity")
         return dataclasses.replace(self, fidelity=fid)
+
+
+def program_fields(prog: Program, where: str) -> str:
+    """The fields that set a program's range, as ``key = value`` text."""
+    keys = {"constant": ("value",), "step": ("offset", "amplitude"), "pulse": ("amplitude",),
+            "square": ("offset", "amplitude")}.get(prog.type, ("values",))
+    return ", ".join(f"{where}.{k} = "
+                     + str(list(prog.values) if k == "values" else getattr(prog, k))
+                     for k in keys)
 
 
 def program_range(prog: Program) -> tuple[float, float]:

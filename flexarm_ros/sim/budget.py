@@ -7,12 +7,13 @@ that needs more than ``fidelity.max_steps`` (default 1e8; ``--max-steps``) with 
 step and what to change:
 
 * a fixed step given by the user (``fidelity.dt`` / ``--dt``) or a tiny output period;
-* else the eigenvalue of largest |λ| of the linearized first-order system, its
-  eigenvector's dominant coordinate (``link1_y10``, ``link1_current``…) and the scene
-  keys of that coordinate with their values (a beam's length, EI, mass per length and
-  damping; a joint's drive inertia, gear ratio…; a motor's L and R), so the culprit of a
-  collapsed step (``mass_per_length: 1e-12``, damping 1e12, ``inductance: 1e-12``) is
-  named;
+* else the eigenvalue of largest |λ| of the linearized first-order system, the coordinate
+  with the largest participation factor |wᵢvᵢ| in it (left and right eigenvectors:
+  ``link1_y10``, ``link1_current``…; the right eigenvector alone blames link 1 for a damper
+  on joint 2, whose mode it spreads over M⁻¹e₂) and the scene keys of that coordinate
+  with their values (a beam's length, EI, mass per length and damping; a joint's drive
+  inertia, gear ratio…; a motor's L, R, K_b, K_t), so the culprit of a collapsed step
+  (``mass_per_length: 1e-12``, damping 1e12, ``inductance: 1e-12``) is named;
 * with a wall: the arm held on the wall (impulse contact) when that sets the step.
 
 Integrators whose step is not known before (the adaptive solve_ivp methods, the compliant
@@ -48,11 +49,13 @@ def check_output(duration, output_dt, grid_dt, chain) -> None:
                           for k, s in enumerate(chain.scene.sensors))
         raise WorkTooLarge(
             f"sensors: the sample grid {grid_dt:.3g} s common to fidelity.output_dt = "
-            f"{output_dt:g} s and {rates} needs {n:.3g} samples over {duration:g} s, "
+            f"{output_dt:g} s and {rates} needs {n:.3g} samples over the duration "
+            f"{duration:g} s, "
             f"expected at most {MAX_OUTPUT_SAMPLES:.3g}: choose rates whose periods share a "
             f"coarser grid, or a shorter duration")
     raise WorkTooLarge(
-        f"fidelity.output_dt: got {output_dt:g} s, {n:.3g} samples over {duration:g} s, "
+        f"fidelity.output_dt: got {output_dt:g} s, {n:.3g} samples over the duration "
+        f"{duration:g} s, "
         f"expected at most {MAX_OUTPUT_SAMPLES:.3g} samples in a run: a larger output_dt or "
         f"a shorter duration")
 
@@ -134,11 +137,21 @@ def why_step(chain, x0, h, integrator, contact=None, adaptive=False) -> str:
         from flexarm_ros.model.contact import constrained_rate
         held = constrained_rate(contact, x0)
         if held > 1.01 * abs(lam):
-            return (f"The step is set by the arm held on the wall (walls[0]): its highest "
-                    f"rate {held:.3g} 1/s ({held / (2 * math.pi):.3g} Hz) with the tool at "
-                    f"tool.position = {list(chain.scene.tool.position)} m. To fix: check "
-                    f"tool.position and the tip body's inertia, or a coarser rung "
-                    f"(--rung)")
+            sc = chain.scene
+            angles = ", ".join(
+                f"links[{k}].joint.initial_angle"
+                + (f"_deg = {lk.joint.initial_angle_deg:g} deg"
+                   if lk.joint.initial_angle_deg is not None
+                   else f" = {lk.joint.initial_angle:g} rad") for k, lk in enumerate(sc.links))
+            if any(sc.gravity):
+                angles += f"; gravity = {list(sc.gravity)} m/s²"
+            return (f"The step is set by the arm held on the wall (walls[0]) in its start "
+                    f"configuration ({angles}): its highest rate {held:.3g} 1/s "
+                    f"({held / (2 * math.pi):.3g} Hz) with the tool at tool.position = "
+                    f"{list(sc.tool.position)} m. To fix: check the start configuration "
+                    f"(an arm pointing straight at the wall is stiff along its axis), "
+                    f"tool.position and the tip body's inertia, or fidelity.contact: "
+                    f"compliant")
     what = describe_coordinate(chain, label, kind)
     return (f"The step is set by the eigenvalue λ = {_fmt_complex(lam)} 1/s (|λ| = "
             f"{abs(lam):.3g} 1/s, {abs(lam) / (2 * math.pi):.3g} Hz) of the linearized "
@@ -215,7 +228,9 @@ def describe_coordinate(chain, label, kind) -> str:
             tau = d.inductance / d.resistance
             return (f"armature current of {chain.links[k].name}'s dc_motor: {where}.inductance "
                     f"= {d.inductance:g} H, {where}.resistance = {d.resistance:g} Ω, L/R = "
-                    f"{tau:.3g} s; {where}.gear_ratio = {d.gear_ratio:g}")
+                    f"{tau:.3g} s; {where}.gear_ratio = {d.gear_ratio:g}, "
+                    f"{where}.back_emf_constant = {d.back_emf_constant:g} V·s/rad, "
+                    f"{where}.torque_constant = {d.torque_constant:g} N·m/A")
         return (f"load pressure of {chain.links[k].name}'s hydraulic actuator: "
                 f"{where}.bulk_modulus = {d.bulk_modulus:g} Pa, {where}.total_volume = "
                 f"{d.total_volume:g} m³, {where}.displacement = {d.displacement:g} m³/rad, "
@@ -249,11 +264,15 @@ def describe_coordinate(chain, label, kind) -> str:
             elif d is not None:
                 parts += [f"links[{k}].joint.drive.displacement = {d.displacement:g} m³/rad",
                           f"links[{k}].joint.drive.bulk_modulus = {d.bulk_modulus:g} Pa"]
+            if any(chain.scene.gravity):
+                parts.append(f"gravity = {list(chain.scene.gravity)} m/s²")
             return f"joint of {lm.name}: " + ", ".join(parts)
         if lm.eta.start <= i < lm.eta.stop:
             b, tip = lk.beam, lk.tip
             fid = chain.fidelity
-            return (f"beam of {lm.name}, rung {fid.rung} {lm.beam.refine}: "
+            g = (f", gravity = {list(chain.scene.gravity)} m/s²" if any(chain.scene.gravity)
+                 else "")
+            return (f"beam of {lm.name}, rung {fid.rung} {lm.beam.refine}{g}: "
                     f"links[{k}].beam.length = {b.length:g} m, links[{k}].beam.EI = "
                     f"{b.EI:g} N·m², links[{k}].beam.mass_per_length = {b.mass_per_length:g} "
                     f"kg/m, links[{k}].beam.damping.viscous_per_length = "

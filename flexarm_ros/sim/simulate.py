@@ -99,7 +99,14 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
     tm = contact.terms(0.0, x0)
     g0 = contact.gap(tm)
     if g0 < 0:
-        raise SceneError(f"walls[0]: the tool starts {-g0:.6g} m inside the wall, expected "
+        sc = chain.scene
+        w = sc.walls[0]
+        lengths = ", ".join(f"links[{k}].beam.length = {lk.beam.length:g} m"
+                            for k, lk in enumerate(sc.links))
+        raise SceneError(f"walls[0]: the tool starts {-g0:.6g} m inside the wall (tool at "
+                         f"{[round(float(v), 6) for v in tm.r]} m; walls[0].point = "
+                         f"{list(w.point)} m, walls[0].normal = {list(w.normal)}; "
+                         f"{lengths}), expected "
                          f"a start on the free side (gap >= 0)")
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact)

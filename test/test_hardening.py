@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import subprocess
 import sys
 import time
@@ -27,6 +28,7 @@ import yaml
 
 from flexarm_ros.cli import main
 from flexarm_ros.errors import SceneError, SimulationDiverged, WorkTooLarge
+from flexarm_ros.nodes import environment
 from flexarm_ros.scene import load_scene, load_scene_dict
 from flexarm_ros.scene.loading import config_dir
 
@@ -156,6 +158,20 @@ def test_twin_run_is_refused_before_any_node_starts():
     with pytest.raises(WorkTooLarge) as info:
         run("link", duration=1.0, record=None, fidelity={"dt": 1e-12}, progress=False)
     assert "fidelity.max_steps" in str(info.value) and "fixed fidelity.dt" in str(info.value)
+
+
+
+def test_simulator_node_started_on_its_own_checks_the_budget():
+    """``ros2 run flexarm_ros simulator`` (no ``flexarm run`` before it): the node's own
+    process refuses the run in one line, exit 2, before it publishes anything."""
+    r = subprocess.run([sys.executable, "-m", "flexarm_ros.nodes.simulator", "--ros-args",
+                        "-p", "scene:=link", "-p", "duration:=1.0", "-p", "dt:=1e-12"],
+                       capture_output=True, text=True, timeout=120,
+                       env={**os.environ, **environment.child_environment()})
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert line.startswith("simulator: error: fidelity.max_steps") and "fidelity.dt" in line
 
 
 # ------------------------------------------------------------------------- model size

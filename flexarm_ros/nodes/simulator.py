@@ -68,7 +68,9 @@ class SimulatorNode(Node):
         super().__init__("simulator", **kwargs)
         self.p, scene, self.n_end = C.load(self, self.PARAMS)
         self.mode = self.p["mode"]
-        self.core = SimulatorCore(scene)
+        # the work budget of a finite run, checked here too (a node started on its own)
+        self.core = SimulatorCore(scene, None if self.n_end is None else
+                                  self.n_end / scene.control.rate_hz)
         self.period = self.core.period
         pubs = {}                                   # outputs() at k = 0 changes nothing
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):

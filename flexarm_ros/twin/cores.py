@@ -54,9 +54,11 @@ class SimulatorCore:
     diverged state can be built: every sample is checked, and the plant checks its state
     after every sensor-grid interval."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, duration: float | None = None):
         self.scene = scene
-        self.plant = Plant(scene)
+        # with a finite ``duration`` the work budget is checked before the first step
+        # (:func:`flexarm_ros.sim.budget.check_work`), as ``flexarm simulate`` does
+        self.plant = Plant(scene, duration=duration)
         self.validator = Validator(scene, "effort")
         self.period = control_period(scene)
         g = self.plant.grid_ns

@@ -296,7 +296,9 @@ def cmd_run(args):
     if args.rerun:
         check_output_file("--rerun", args.rerun, (".rrd",))
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
-              namespace=namespace, progress=not args.quiet, fidelity=_overrides(args))
+              namespace=namespace, progress=not args.quiet, fidelity=_overrides(args),
+              simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
+                         "ground_truth_rate_hz": args.ground_truth_rate})
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
         from flexarm_ros.run import run_with_view
         from flexarm_ros.viz.rerun_view import RerunUnavailable
@@ -427,6 +429,17 @@ def build_parser():
     r.add_argument("--quiet", action="store_true",
                    help="no progress and no node info log on stderr (the summary is still "
                         "printed; warnings and errors too)")
+    r.add_argument("--late-policy", choices=("skip", "slow"),
+                   help="realtime, when a tick is later than --late-bound: skip = keep the "
+                        "wall clock (the due ticks are stepped with the held effort, only "
+                        "the last is published); slow = publish every tick and fall behind "
+                        "the wall clock (default: slow)")
+    r.add_argument("--late-bound", type=number, metavar="S",
+                   help="realtime: seconds of lateness before --late-policy acts "
+                        "(default 0.1)")
+    r.add_argument("--ground-truth-rate", type=number, metavar="HZ",
+                   help="rate of ground_truth/tip and ground_truth/coordinates (default: "
+                        "every control tick)")
     r.add_argument("--rerun", type=Path, metavar="FILE.rrd",
                    help="after the run, convert its bag to this rerun recording (needs "
                         "rerun-sdk: pip install -e .[viz]; see docs/viewing.md)")

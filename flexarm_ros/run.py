@@ -102,15 +102,19 @@ def _node_rejections(nodes) -> dict:
     return out
 
 
-def _params(scene, mode, duration, record, node, progress, fidelity=None) -> dict:
+def _params(scene, mode, duration, record, node, progress, fidelity=None,
+            simulator=None) -> dict:
     """ROS parameters of ``node``: the common ones, the fidelity overrides, the recorder's
-    output, the simulator's progress, sim time for the others in fast mode."""
+    output, the simulator's progress and ``simulator`` parameters (``late_policy``,
+    ``late_bound``, ``ground_truth_rate_hz``; None values: the node's defaults), sim time
+    for the others in fast mode."""
     p = {"scene": _scene_arg(scene), "mode": mode, "duration": float(duration or 0.0),
          "recorders": 1 if record else 0, **fidelity_parameters(fidelity)}
     if node == "recorder":
         p["output"] = str(record)
     if node == "simulator":
         p["progress"] = bool(progress)
+        p.update({k: v for k, v in (simulator or {}).items() if v is not None})
     elif mode == "fast":
         p["use_sim_time"] = True
     return p
@@ -134,7 +138,7 @@ class InProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 executor="single", fidelity=None):
+                 executor="single", fidelity=None, simulator=None):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -154,7 +158,8 @@ class InProcessGraph:
             for name in NODES:
                 if name not in names:
                     continue
-                p = _params(scene, mode, duration, record, name, progress, fidelity)
+                p = _params(scene, mode, duration, record, name, progress, fidelity,
+                            simulator)
                 node = node_classes()[name](
                     context=self.context, namespace=namespace,
                     parameter_overrides=[Parameter(k, value=v) for k, v in p.items()])
@@ -255,7 +260,7 @@ class ProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 stderr=None, fidelity=None):
+                 stderr=None, fidelity=None, simulator=None):
         env = environment.child_environment()
         names = list(nodes) + (["recorder"] if record else [])
         self.procs = {}
@@ -264,7 +269,7 @@ class ProcessGraph:
                 if name not in names:
                     continue
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
-                            progress, fidelity)
+                            progress, fidelity, simulator)
                 cmd = [sys.executable, "-m", f"flexarm_ros.nodes.{name}", "--ros-args",
                        "-r", f"__ns:={namespace}"]
                 if not progress:
@@ -332,7 +337,7 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
 
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
-        fidelity=None) -> RunResult:
+        fidelity=None, simulator=None) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
@@ -352,7 +357,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     try:
         if processes:
             g = ProcessGraph(scene, mode, duration, record, namespace, progress,
-                             fidelity=fidelity)
+                             fidelity=fidelity, simulator=simulator)
             sim = g.procs["simulator"]
             while sim.poll() is None and not stop.set and not g.failed():
                 try:
@@ -369,7 +374,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                 res.rejected = _bag_rejections(record)
             return res
         g = InProcessGraph(scene, mode, duration, record, namespace, progress,
-                           fidelity=fidelity)
+                           fidelity=fidelity, simulator=simulator)
         try:
             sim = g["simulator"]
             g.spin_until(lambda: sim.finished, stop=stop)

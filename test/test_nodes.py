@@ -201,16 +201,20 @@ def test_killed_controller_process_trips_the_watchdog(tmp_path):
     from flexarm_ros.run import InProcessGraph, ProcessGraph
     scene = load_scene("two_link_position")
     out = tmp_path / "killed.mcap"
-    pg = ProcessGraph("two_link_position", "fast", 1.0, out, NS)
+    # the watcher (the test's node) subscribes before the graph starts, so it sees /clock
+    # from the first tick (the simulator does not wait for it: a late match made it miss
+    # the whole run on a loaded machine), and the run is long enough to kill at 0.3 s
     watcher = InProcessGraph(nodes=())                 # an empty graph: the test's node
+    from rclpy.node import Node
+    node = Node("watcher", context=watcher.context)
+    watcher.executor.add_node(node)
+    now = [0.0]
+    from flexarm_ros.nodes._common import QOS
+    node.create_subscription(Clock, T.CLOCK, lambda m: now.__setitem__(
+        0, m.clock.sec + 1e-9 * m.clock.nanosec), QOS)
+    pg = ProcessGraph("two_link_position", "fast", 2.0, out, NS)
     try:
-        from rclpy.node import Node
-        node = Node("watcher", context=watcher.context)
-        watcher.executor.add_node(node)
-        now = [0.0]
-        from flexarm_ros.nodes._common import QOS
-        node.create_subscription(Clock, T.CLOCK, lambda m: now.__setitem__(
-            0, m.clock.sec + 1e-9 * m.clock.nanosec), QOS)
+        assert watcher.spin_until(lambda: node.count_publishers(T.CLOCK) > 0, 120)
         assert watcher.spin_until(lambda: now[0] >= 0.3, 120)
         pg.signal("controller", signal.SIGKILL)
         assert watcher.spin_until(lambda: pg.procs["simulator"].poll() is not None, 300)
@@ -220,7 +224,7 @@ def test_killed_controller_process_trips_the_watchdog(tmp_path):
         watcher.close()
     assert codes["simulator"] == 0 and codes["recorder"] == 0
     assert codes["controller"] == -signal.SIGKILL
-    _check_watchdog(out, scene, 1.0)
+    _check_watchdog(out, scene, 2.0)
 
 
 def test_environment_stays_on_loopback():

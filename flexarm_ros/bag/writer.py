@@ -577,17 +577,42 @@ class BagWriter:
                 data = encode_cdr(msgtype, msg)
             except ValueError as err:
                 raise ValueError(f"cannot write to topic {topic!r} ({msgtype}): {err}") from None
-            channel_id = self._channel(topic, msgtype)
-            self._writer.add_message(channel_id=channel_id, log_time=log_time_ns,
-                                     data=data, publish_time=publish_time_ns,
-                                     sequence=self._counts[topic] % 2**32)
-            self._counts[topic] += 1
-            self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns,
-                                                                              log_time_ns)
-            self._end_ns = log_time_ns if self._end_ns is None else max(self._end_ns,
+            self._append(topic, msgtype, data, log_time_ns, publish_time_ns)
+
+    def write_raw(self, topic: str, msgtype: str, data: bytes, log_time_ns: int,
+                  publish_time_ns: int | None = None) -> None:
+        """Append an already serialized message (little-endian CDR with its 4-byte
+        encapsulation header, as a raw rclpy subscription receives it) unchanged: the
+        recorder's fast path. Only the header is checked; the bytes are the caller's
+        responsibility (the twin's nodes publish :func:`encode_cdr` output)."""
+        with self._lock:
+            self._check_open()
+            log_time_ns = _check_time("log_time_ns", log_time_ns)
+            publish_time_ns = (log_time_ns if publish_time_ns is None
+                               else _check_time("publish_time_ns", publish_time_ns))
+            if not isinstance(data, (bytes, bytearray, memoryview)) or \
+                    bytes(data[:2]) != _CDR_HEADER[:2] or len(data) < 4:
+                raise ValueError(f"cannot write to topic {topic!r} ({msgtype}): expected "
+                                 f"little-endian CDR bytes starting with "
+                                 f"{_CDR_HEADER.hex()}, got {bytes(data[:4]).hex()!r}")
+            if msgtype not in msgdefs.DEFINITIONS:
+                raise ValueError(f"unknown message type {msgtype!r} for topic {topic!r}; "
+                                 f"known types: {', '.join(msgdefs.KNOWN_TYPES)}")
+            self._append(topic, msgtype, bytes(data), log_time_ns, publish_time_ns)
+
+    def _append(self, topic, msgtype, data: bytes, log_time_ns, publish_time_ns) -> None:
+        """Add one serialized message (the lock is held)."""
+        channel_id = self._channel(topic, msgtype)
+        self._writer.add_message(channel_id=channel_id, log_time=log_time_ns,
+                                 data=data, publish_time=publish_time_ns,
+                                 sequence=self._counts[topic] % 2**32)
+        self._counts[topic] += 1
+        self._start_ns = log_time_ns if self._start_ns is None else min(self._start_ns,
                                                                           log_time_ns)
-            if self._sink.dirty:  # a chunk was completed: hand it to the OS now
-                self._sink.flush()
+        self._end_ns = log_time_ns if self._end_ns is None else max(self._end_ns,
+                                                                      log_time_ns)
+        if self._sink.dirty:  # a chunk was completed: hand it to the OS now
+            self._sink.flush()
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         """Write an MCAP Metadata record now (scene YAML, versions, built model, ...).

@@ -46,12 +46,13 @@ def publisher(node, msgtype: str, topic: str):
                                      use_default_callbacks=False))
 
 
-def subscription(node, msgtype: str, topic: str, callback):
-    """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`)."""
+def subscription(node, msgtype: str, topic: str, callback, raw: bool = False):
+    """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`);
+    with ``raw`` the callback gets the serialized CDR bytes (no message object built)."""
     from flexarm_ros.nodes._msgconv import msg_class
     return node.create_subscription(msg_class(msgtype), topic, callback, QOS,
                                     event_callbacks=SubscriptionEventCallbacks(
-                                        use_default_callbacks=False))
+                                        use_default_callbacks=False), raw=raw)
 
 
 def declare(node, params: dict) -> dict:

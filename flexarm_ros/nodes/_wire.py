@@ -52,6 +52,7 @@ class Source:
         self.expected = expected
         self.ns = node.get_namespace()
         self.owner: set = set()                # GIDs taken
+        self.owner_expected = False            # the owners are the expected twin node
         self._snap: dict = {}                  # GID -> (node name, namespace)
         self._count = -1                       # publishers when _snap was taken
         self._waited: set = set()              # GIDs already waited for
@@ -95,6 +96,7 @@ class Source:
             self.owner = expected
         else:
             self.owner = {g for g in self.owner if g in graph}   # owners still there
+        self.owner_expected = bool(expected)
         if gid in self.owner:
             return None
         if not self.owner:
@@ -102,6 +104,12 @@ class Source:
                 self.owner.add(gid)
             return None
         return graph.get(gid, ("an unknown node",))[0]
+
+
+    def trusted(self, info) -> bool:
+        """The message (already given a ``None`` verdict) comes from the twin's own node
+        expected on this topic: its content is the twin's (finite, well formed)."""
+        return self.owner_expected and gid_of(info) in self.owner
 
 
 class Rejections:

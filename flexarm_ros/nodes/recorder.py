@@ -29,8 +29,13 @@ non-finite number goes to ``diagnostics/rejected`` instead (std_msgs/String, one
 object: ``topic``, ``reason``, ``publisher``, ``data`` as text), and the counts by topic and
 reason go into the metadata record ``rejected_messages`` when the file is closed.
 
-Each message is decoded by rclpy and re-encoded with our CDR encoder (rmw leaves
-alignment padding uninitialized, so raw bytes would not be reproducible). Chunks are
+Subscriptions are raw: a message from the twin's own node expected on its topic (the
+source rule, :mod:`~flexarm_ros.nodes._wire`) is written into the MCAP as the bytes
+received — the twin's nodes publish :func:`~flexarm_ros.bag.writer.encode_cdr` output,
+padding zeroed, so a lockstep bag stays reproducible byte for byte — and only the command
+topics are decoded (to validate them) and the stamps read from the bytes. A message from
+any other publisher is decoded, checked, and re-encoded with our encoder (rmw leaves
+alignment padding uninitialized). Chunks are
 flushed every ``flush_period`` s of wall time, so a SIGKILL loses at most that much; on
 SIGINT/SIGTERM the node keeps reading until the graph has been quiet for 0.3 s, then
 finalizes the file.
@@ -41,6 +46,7 @@ from __future__ import annotations
 import bisect
 import json
 import math
+import struct
 import sys
 import time
 from pathlib import Path
@@ -51,11 +57,12 @@ from rclpy.node import Node
 
 from flexarm_ros import __version__
 from flexarm_ros.bag import BagWriter
+from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, Validator
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._msgconv import to_dict
+from flexarm_ros.nodes._msgconv import msg_class, to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
 from flexarm_ros.nodes._wire import Rejections, Source, gid_of, show
 
@@ -75,8 +82,32 @@ def finite(obj) -> bool:
     return True
 
 
-def _text(m) -> str:
+_STAMPED = {tp for tp in T.TYPES.values() if tp in (
+    "sensor_msgs/msg/JointState", "geometry_msgs/msg/WrenchStamped",
+    "geometry_msgs/msg/PointStamped")}
+"""Types whose first field is a std_msgs/Header (its stamp right after the CDR header)."""
+
+
+def _stamp_ns(raw: bytes) -> int:
+    """The time at the start of a message: rosgraph_msgs/Clock's ``clock`` or a stamped
+    message's ``header.stamp`` (int32 sec, uint32 nanosec at byte 4, little-endian)."""
+    sec, nsec = struct.unpack_from("<iI", raw, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+def _decode(tp: str, raw: bytes):
+    """The rclpy message of ``raw``, or None when the bytes are not one of ``tp``."""
+    from rclpy.serialization import deserialize_message
+    try:
+        return deserialize_message(raw, msg_class(tp))
+    except Exception:                        # rmw's deserialization error
+        return None
+
+
+def _text(m, raw: bytes = b"") -> str:
     """A message's content as a short text for ``diagnostics/rejected``."""
+    if m is None:
+        return f"{len(raw)} bytes that are not a message of the topic's type"
     data = getattr(m, "data", None)
     if data is not None and not isinstance(data, (str, bool)):
         return show(data)
@@ -117,12 +148,16 @@ class RecorderNode(Node):
         for topic in sorted(T.TYPES, key=lambda t: t == T.CLOCK):
             tp = T.TYPES[topic]
             sub = C.subscription(self, tp, topic, lambda m, info, topic=topic, tp=tp:
-                                 self._on(topic, tp, m, info))
+                                 self._on(topic, tp, m, info), raw=True)
             self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
         self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
 
     def _write(self, topic, tp, data, t_ns):
-        self.writer.write(self.abs[topic], tp, data, t_ns)
+        """``data``: CDR bytes (the fast path) or a message dict."""
+        if isinstance(data, bytes):
+            self.writer.write_raw(self.abs[topic], tp, data, t_ns)
+        else:
+            self.writer.write(self.abs[topic], tp, data, t_ns)
         now = time.monotonic()
         if now - self._flushed > self.p["flush_period"]:
             self.writer.flush()
@@ -177,28 +212,39 @@ class RecorderNode(Node):
         entry = {"topic": self.abs[topic], "reason": reason, "publisher": who, "data": text}
         self._emit(ts, T.REJECTED, "std_msgs/msg/String", {"data": json.dumps(entry)})
 
-    def _on(self, topic, tp, m, info=None):
+    def _on(self, topic, tp, raw: bytes, info=None):
         self.last_rx = time.monotonic()
         ts = int(info.get("source_timestamp") or 0) if info else 0
         v = self.validators.get(topic)
-        why = v.reason(m.data) if v is not None else None
-        who = self.sources[topic].verdict(info, valid=why is None)
+        m = None
+        if v is not None:
+            m = _decode(tp, raw)
+            why = v.reason(m.data) if m is not None else "not a CDR message of its type"
+        else:
+            why = None
+        src = self.sources[topic]
+        who = src.verdict(info, valid=why is None)
         if who is not None:
-            self._reject(topic, FOREIGN, _text(m), ts, who)
+            self._reject(topic, FOREIGN, _text(m if m is not None else _decode(tp, raw), raw),
+                         ts, who)
             return
         if why is not None:
-            self._reject(topic, why, _text(m), ts, self._name(info))
+            self._reject(topic, why, _text(m, raw), ts, self._name(info))
             return
-        data = to_dict(m)
-        if not finite(data):
-            self._reject(topic, NON_FINITE, _text(m), ts, self._name(info))
-            return
+        if not src.trusted(info):             # not the twin's own node: decode and check
+            m = m if m is not None else _decode(tp, raw)
+            data = to_dict(m) if m is not None else None
+            if data is None or not finite(data):
+                self._reject(topic, NON_FINITE if data is not None else
+                             "not a CDR message of its type", _text(m, raw), ts,
+                             self._name(info))
+                return
+            raw = encode_cdr(tp, data)        # padding zeroed: reproducible bytes
         self.received[topic] = self.received.get(topic, 0) + 1      # taken messages only
         if topic == T.CLOCK:
-            self._on_clock(ts, data, C.stamp_ns(m.clock))
+            self._on_clock(ts, raw, _stamp_ns(raw))
         else:
-            header = C.stamp_ns(m.header.stamp) if "header" in data else None
-            self._emit(ts, topic, tp, data, header)
+            self._emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
 
     def _name(self, info) -> str:
         gid = gid_of(info)

@@ -20,10 +20,14 @@ Time modes (parameter ``mode``):
   timer): deterministic, equal to ``cosimulate``. Every accepted message from the source
   steps one period (the source is the tick); rejected ones and a second publisher's never
   do, so a hostile publisher cannot change a lockstep run.
-* ``realtime``: a wall-clock timer at the control period steps with the latest accepted
-  effort (zero-order hold; the source's latest message wins); the real-time factor and
-  overruns (ticks that started more than one period late) are logged every few seconds
-  and at the end.
+* ``realtime``: a loop in its own thread steps at absolute deadlines of the monotonic
+  clock with the latest accepted effort (zero-order hold; the source's latest message
+  wins): :class:`~flexarm_ros.twin.pacing.Pacer`, not an rclpy timer (a timer loses ticks
+  under load and drifts). Late ticks are caught up back to back; past ``late_bound``
+  seconds ``late_policy`` decides: ``skip`` keeps the wall clock (the ticks due are
+  stepped, only the last is published), ``slow`` publishes every tick and lets the twin
+  fall behind the wall clock. The lateness statistics (late ticks, p50/p99/max) are
+  logged every few seconds and at the end, and kept in ``pacing`` for the run summary.
 * ``fast``: steps as fast as the executor allows with the latest accepted effort;
   ``/clock`` is the only time (run the other nodes with ``use_sim_time``).
 
@@ -32,6 +36,12 @@ is published, ``diverged`` holds the :class:`~flexarm_ros.errors.SimulationDiver
 (what, when, what to change), and the node's process exits with status 3 printing it once.
 The final log line gives the simulated time, ticks, real-time factor and the rejected
 efforts by reason.
+
+Every message is published as serialized CDR (:func:`flexarm_ros.bag.writer.encode_cdr`,
+the encoder the bags use): no rclpy message objects on the hot path. The analysis-only
+topics ``ground_truth/tip`` and ``ground_truth/coordinates`` go out every tick, or at
+``ground_truth_rate_hz`` when set (``ground_truth/joint_states`` is the driver's input and
+goes out every tick).
 
 Publishing starts once every topic is matched (``recorders`` + the controller/driver).
 With a finite ``duration`` the node stops after the state at that time (and its process
@@ -42,17 +52,19 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
 
 import numpy as np
 from rclpy.node import Node
 
+from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
+from flexarm_ros.twin.pacing import LATE_POLICIES, Pacer
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._msgconv import to_msg
 from flexarm_ros.nodes._wire import Rejections, Source
 
 
@@ -62,7 +74,19 @@ class SimulatorNode(Node):
     EXECUTABLE = "simulator"
     PARAMS = {"progress": (False, "print the simulated time on stderr"),
               "command_source": (T.SOURCE[T.EFFORTS], "node whose efforts are taken while "
-                                 "it is on the graph ('': the first publisher)")}
+                                 "it is on the graph ('': the first publisher)"),
+              "late_policy": ("slow", "realtime, past late_bound: 'slow' publishes every "
+                              "tick and falls behind the wall clock; 'skip' keeps the wall "
+                              "clock (due ticks stepped with the held effort, the last "
+                              "published)"),
+              "late_bound": (0.1, "realtime: s of lateness before late_policy acts"),
+              "effort_lag": (3, "realtime: the most ticks the plant runs ahead of the "
+                             "efforts (the source answers every joint state, as the twin's "
+                             "driver does) before it waits for the next one (at most "
+                             "control.watchdog_s); -1: never waits (an effort source on "
+                             "its own timer)"),
+              "ground_truth_rate_hz": (0.0, "rate of ground_truth/tip and "
+                                       "ground_truth/coordinates (0: every tick)")}
 
     def __init__(self, **kwargs):
         super().__init__("simulator", **kwargs)
@@ -86,19 +110,44 @@ class SimulatorNode(Node):
         self.published = {t: 0 for t in pubs}
         self.torque = np.zeros(len(scene.links))
         self.finished = self.started = False
-        self.overruns = 0
         self.t_wall0 = self.t_wall_end = None
         self._last_report = self._last_log = 0.0
-        # wall-clock timer: lockstep polls the start barrier (then efforts drive the
-        # steps), realtime paces the steps, fast steps whenever the executor is free
-        period = {"lockstep": 0.001, "realtime": self.period, "fast": 0.0}[self.mode]
-        self.timer = self.create_timer(period, self._on_timer)
+        if self.p["late_policy"] not in LATE_POLICIES:
+            raise ValueError(f"parameter late_policy: got {self.p['late_policy']!r}, "
+                             f"expected one of {LATE_POLICIES}")
+        self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
+        rate = self.p["ground_truth_rate_hz"]
+        if not (math.isfinite(rate) and rate >= 0):
+            raise ValueError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 "
+                             f"(every tick) or a positive rate in Hz")
+        self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1
+        self._thread = None
+        # realtime: the plant waits for the effort answering a recent state, so an
+        # overloaded graph slows the twin (late ticks) instead of leaving the plant to
+        # run on a stale effort (measured: 100 ticks of lag make two_link_case1 diverge)
+        self._answer = threading.Condition()
+        self.published_k = -1                   # the newest state published
+        self.answered = -1                      # accepted efforts − 1: the state answered
+        self.waited_ticks = 0                   # steps that waited for an effort
+        self.stale_ticks = 0                    # steps taken after the wait timed out
+        self._source_silent = False
+        # wall-clock timer: polls the start barrier; then lockstep steps on efforts,
+        # realtime in its pacing thread, fast whenever the executor is free
+        self.timer = self.create_timer(0.0 if self.mode == "fast" else 0.001,
+                                       self._on_timer)
 
     # ---------------------------------------------------------------------------- ticks
+    @property
+    def overruns(self) -> int:
+        """Ticks that started more than half a period after their deadline (realtime)."""
+        return self.pacer.stats.late_ticks
+
     def _publish_state(self):
-        for topic, tp, data in self.core.outputs():
-            self.pubs[topic].publish(to_msg(tp, data))
+        gt = self.core.k % self.gt_every == 0
+        for topic, tp, data in self.core.outputs(ground_truth=gt):
+            self.pubs[topic].publish(encode_cdr(tp, data))
             self.published[topic] += 1
+        self.published_k = self.core.k
         if self.n_end is not None and self.core.k >= self.n_end:
             self.halt()
 
@@ -108,18 +157,56 @@ class SimulatorNode(Node):
             self.finished = True
             self.t_wall_end = time.monotonic()
             self.timer.cancel()
+            if self._thread is not None and self._thread is not threading.current_thread():
+                self._thread.join()
             self.report(final=True)
 
-    def _step(self, tau):
+    def _step(self, tau, ticks=1):
+        """Hold ``tau`` over ``ticks`` control periods; publish the state reached."""
         self.torque = tau
         try:
-            self.core.step(tau)
+            for _ in range(ticks):
+                self.core.step(tau)
+                if self.n_end is not None and self.core.k >= self.n_end:
+                    break
         except SimulationDiverged as exc:        # nothing of the diverged state goes out
             self.diverged = exc
             self.halt()
             return
         self._publish_state()
         self.report()
+
+    def _await_effort(self, k_min: int, timeout: float) -> None:
+        """Wait until an effort answered state ``k_min`` or newer (at most ``timeout`` s;
+        not at all while the source has stayed silent since a wait timed out)."""
+        with self._answer:
+            if self.answered >= k_min or self._source_silent:
+                self._source_silent = self._source_silent and self.answered < k_min
+                return
+            self.waited_ticks += 1
+            ok = self._answer.wait_for(lambda: self.answered >= k_min or self.finished,
+                                       timeout)
+            if not ok:
+                self.stale_ticks += 1
+                self._source_silent = True
+
+    def _pace(self):
+        """The realtime loop (its own thread): sleep to each tick's deadline, step with the
+        latest accepted effort, publish."""
+        try:
+            lag = int(self.p["effort_lag"])
+            wait_s = self.core.scene.control.watchdog_s
+            while not self.finished:
+                ticks = self.pacer.wait()
+                if self.finished:
+                    break
+                if lag >= 0:
+                    self._await_effort(self.published_k - lag, wait_s)
+                self._step(self.torque, ticks)
+        except BaseException as exc:            # never die silently in a thread
+            self.get_logger().error(f"realtime loop stopped: {exc!r}")
+            self.halt()
+            raise
 
     @property
     def rejected(self) -> int:
@@ -143,7 +230,10 @@ class SimulatorNode(Node):
             return
         tau = np.array(data, float)
         if self.mode != "lockstep":
-            self.torque = tau
+            with self._answer:
+                self.torque = tau
+                self.answered += 1          # the source answers every state, in order
+                self._answer.notify()
         elif self.started and not self.finished:
             self._step(tau)
 
@@ -154,15 +244,19 @@ class SimulatorNode(Node):
             self.started, self.t_wall0 = True, time.monotonic()
             self._last_log = self.t_wall0
             self._publish_state()
-            if self.mode == "lockstep":
+            if self.mode != "fast":
                 self.timer.cancel()
+            if self.mode == "realtime" and not self.finished:
+                # the pacing thread must get the GIL soon after its deadline: Python's
+                # default switch interval (5 ms) would hand it over 5 ticks late
+                sys.setswitchinterval(min(sys.getswitchinterval(), self.period / 10))
+                self.pacer.start(self.t_wall0)
+                self._thread = threading.Thread(target=self._pace, name="realtime-pacer",
+                                                daemon=True)
+                self._thread.start()
             return
         if self.finished:
             return
-        if self.mode == "realtime":
-            due = (time.monotonic() - self.t_wall0) / self.period
-            if due - self.core.k > 2.0:             # started more than a period late
-                self.overruns += 1
         self._step(self.torque)
 
     def finish(self, executor):
@@ -183,16 +277,31 @@ class SimulatorNode(Node):
         if self.p["progress"] and (final or now - self._last_report > 0.2):
             end = "" if self.n_end is None else f" / {self.n_end * self.period:.3f}"
             print(f"\r  t = {self.core.t:.3f}{end} s  (real-time factor {self.rtf():.3g}"
-                  + (f", {self.overruns} overruns" if self.mode == "realtime" else "") + ")",
-                  end="\n" if final else "", file=sys.stderr, flush=True)
+                  + (f", {self.overruns} late ticks" if self.mode == "realtime" else "")
+                  + ")", end="\n" if final else "", file=sys.stderr, flush=True)
             self._last_report = now
         if final or (self.mode != "lockstep" and now - self._last_log > 5.0):
             self._last_log = now
-            self.get_logger().info(f"{self.mode}: {self.core.t:.3f} s simulated, "
-                                   f"{self.core.k} ticks, real-time factor {self.rtf():.3g}, "
-                                   f"{self.overruns} overruns; {T.EFFORTS}: "
-                                   f"{self.core.validator.summary()}"
-                                   + ("; diverged" if self.diverged else ""))
+            pace = ""
+            if self.mode == "realtime":
+                st = self.pacer.summary()
+                pace = (f", {st['late_ticks']} of {st['ticks']} ticks late (lateness p50 "
+                        f"{st['lateness_p50_s'] * 1e3:.2f} ms, p99 "
+                        f"{st['lateness_p99_s'] * 1e3:.2f} ms, max "
+                        f"{st['lateness_max_s'] * 1e3:.2f} ms)")
+                if st["skipped_ticks"] or st["slowed_s"]:
+                    pace += (f"; late beyond {st['late_bound_s']:g} s {self.pacer.crossings}"
+                             f" times: " + (f"{st['skipped_ticks']} ticks stepped without "
+                                            f"publishing (late_policy skip)"
+                                            if st["skipped_ticks"] else
+                                            f"{st['slowed_s']:.3f} s behind the wall clock "
+                                            f"(late_policy slow)"))
+            log = self.get_logger().warning if (self.mode == "realtime" and
+                                                self.pacer.crossings) else \
+                self.get_logger().info
+            log(f"{self.mode}: {self.core.t:.3f} s simulated, {self.core.k} ticks, real-time "
+                f"factor {self.rtf():.3g}{pace}; {T.EFFORTS}: "
+                f"{self.core.validator.summary()}" + ("; diverged" if self.diverged else ""))
 
 
 def main(args=None):

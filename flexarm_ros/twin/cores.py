@@ -81,6 +81,7 @@ class SimulatorCore:
         self.batch = {topic: [] for topic in self.groups}
         self.counts = {link: 0 for link in self.encoders}
         self._prev_angle = None
+        self._prev_k = 0
         self.k = 0
 
     @property
@@ -99,16 +100,21 @@ class SimulatorCore:
             ang[link] = q0[i0] + self.counts[link] / sm.gain
         return ang
 
-    def outputs(self) -> list[tuple]:
-        """(topic, type, message) of this instant, in publication order."""
+    def outputs(self, ground_truth: bool = True) -> list[tuple]:
+        """(topic, type, message) of this instant, in publication order. With
+        ``ground_truth=False`` the analysis-only topics ``ground_truth/tip`` and
+        ``ground_truth/coordinates`` are left out (``ground_truth/joint_states`` stays: it
+        is the driver's input). The joint rate is the backward difference of the encoder
+        angles since the previous call (one control period, or more when ticks were
+        stepped without publishing)."""
         t_ns = _ns(self.t)
         out = [(T.CLOCK, T.TYPES[T.CLOCK], msg.clock(t_ns))]
         ang = self._encoder_angles()
         if self._prev_angle is None or self.k == 0:
             vel = np.zeros_like(ang)
         else:
-            vel = (ang - self._prev_angle) / self.period
-        self._prev_angle = ang
+            vel = (ang - self._prev_angle) / (self.period * (self.k - self._prev_k))
+        self._prev_angle, self._prev_k = ang, self.k
         names = [f"{n}_joint" for n in self.names]
         out.append((T.JOINT_STATES, T.TYPES[T.JOINT_STATES],
                     msg.joint_state(t_ns, names, ang, vel, self.plant.torques)))
@@ -138,6 +144,8 @@ class SimulatorCore:
                                     np.concatenate([qd, qdm]),
                                     np.concatenate([self.plant.torques,
                                                     self.plant.torques]))))
+        if not ground_truth:
+            return out
         tip = self.plant.tip_position()
         out.append((T.GT_TIP, T.TYPES[T.GT_TIP],
                     msg.point_stamped(t_ns, "world", (tip[0], tip[1], 0.0))))

@@ -1,0 +1,123 @@
+"""The realtime pacer (:mod:`flexarm_ros.twin.pacing`) against a fake clock: deadlines are
+absolute (no drift whatever the work per tick), late ticks are caught up, and past the
+bound ``skip`` keeps the wall clock while ``slow`` keeps every tick; the lateness
+statistics against exact order statistics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from flexarm_ros.twin.pacing import Lateness, Pacer
+
+
+class FakeClock:
+    """A monotonic clock that advances only by sleeping or by the work done."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+    def sleep(self, dt):
+        assert dt >= 0
+        self.t += dt
+
+    def work(self, dt):
+        self.t += dt
+
+
+T = 1e-3
+
+
+def run(pacer, clock, works):
+    """Step ticks whose work takes ``works[i]`` s; returns the wall time of each step."""
+    pacer.start()
+    starts, published = [], 0
+    for w in works:
+        steps = pacer.wait()
+        starts.append(clock())
+        published += 1
+        clock.work(w * steps)
+    return np.array(starts), published
+
+
+def test_deadlines_are_absolute_so_the_work_never_drifts():
+    clock = FakeClock()
+    p = Pacer(T, clock=clock, sleep=clock.sleep)
+    starts, _ = run(p, clock, [0.3e-3] * 1000)
+    # tick n starts exactly at t0 + n·T (relative sleeping would drift by 0.3 ms per tick)
+    np.testing.assert_allclose(starts - 100.0, T * np.arange(1, 1001), rtol=0, atol=1e-9)
+    assert p.stats.late_ticks == 0 and p.stats.max < 1e-9
+
+
+def test_a_late_stretch_is_caught_up_back_to_back():
+    clock = FakeClock()
+    p = Pacer(T, late_bound=0.05, clock=clock, sleep=clock.sleep)
+    works = [0.2e-3] * 10 + [5e-3] + [0.2e-3] * 40      # one 5 ms hiccup
+    starts, _ = run(p, clock, works)
+    # the 4 ticks due during the hiccup start late, back to back; from then on on time
+    late = starts - (100.0 + T * np.arange(1, len(works) + 1))
+    assert np.all(late[:11] < 1e-9)
+    assert late[11] == pytest.approx(4e-3, abs=1e-9)
+    assert np.all(np.diff(late[11:16]) < 0)              # shrinking by 0.8 ms per tick
+    assert np.all(late[17:] < 1e-9)
+    assert p.stats.late_ticks == 5                        # 4.0, 3.2, 2.4, 1.6, 0.8 ms late
+    assert p.skipped_ticks == 0 and p.slowed_s == 0.0
+
+
+def test_skip_keeps_the_wall_clock_past_the_bound():
+    clock = FakeClock()
+    p = Pacer(T, late_bound=0.01, late_policy="skip", clock=clock, sleep=clock.sleep)
+    p.start()
+    p.wait()
+    clock.work(0.0255)        # a 25.5 ms stall after tick 1: deadlines 2..26 have passed
+    steps = p.wait()
+    assert steps == 25 and p.skipped_ticks == 24          # 26 is published, 2..25 skipped
+    # the next deadline lies in the future: the twin is back on the wall clock
+    assert p.deadline(p.n + 1) > clock()
+    sim_time = p.n * T
+    assert sim_time == pytest.approx(clock() - 100.0, abs=T)
+
+
+def test_slow_publishes_every_tick_and_falls_behind_by_the_lateness():
+    clock = FakeClock()
+    p = Pacer(T, late_bound=0.01, late_policy="slow", clock=clock, sleep=clock.sleep)
+    p.start()
+    p.wait()
+    clock.work(0.0255)
+    assert p.wait() == 1
+    assert p.slowed_s == pytest.approx(0.0245, abs=1e-12)
+    steps = [p.wait() for _ in range(100)]
+    assert steps == [1] * 100
+    # wall clock ran ahead of simulated time by exactly what was given up
+    assert (clock() - 100.0) - p.n * T == pytest.approx(p.slowed_s, abs=1e-9)
+
+
+def test_bad_settings_name_the_parameter():
+    with pytest.raises(ValueError, match="late_policy: got 'drop'"):
+        Pacer(T, late_policy="drop")
+    with pytest.raises(ValueError, match="late_bound: got 0.0001 s"):
+        Pacer(T, late_bound=1e-4)
+    with pytest.raises(ValueError, match="late_bound: got nan"):
+        Pacer(T, late_bound=math.nan)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_lateness_percentiles_bracket_the_exact_order_statistics(seed):
+    rng = np.random.default_rng(seed)
+    x = np.concatenate([np.zeros(200), rng.lognormal(np.log(2e-4), 1.5, 5000)])
+    st = Lateness(T)
+    for v in x:
+        st.add(v)
+    assert st.ticks == len(x) and st.max == x.max()
+    assert st.late_ticks == int(np.sum(x > T / 2))
+    width = 10 ** (1 / Lateness.BINS_PER_DECADE)
+    for p in (50, 90, 99, 99.9):
+        exact = np.sort(x)[math.ceil(p / 100 * len(x)) - 1]
+        got = st.percentile(p)
+        assert exact <= got <= exact * width * (1 + 1e-12), (p, exact, got)
+    assert st.percentile(1) == 0.0          # the zeros

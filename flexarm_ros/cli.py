@@ -312,7 +312,11 @@ def cmd_run(args):
         print(f"rerun: {view.text()}" + (" (viewer spawned)" if args.rerun_spawn else ""))
     else:
         res = run(args.scene or DEFAULT_SCENE, record=record, **kw)
-        print(res.summary())
+        if args.json:
+            import json
+            print(json.dumps(res.to_json(), indent=2))
+        else:
+            print(res.summary())
     if res.diverged:                          # like simulate: the message once, status 3
         if not res.processes:
             print(f"flexarm: {res.diverged}", file=sys.stderr)
@@ -429,6 +433,10 @@ def build_parser():
     r.add_argument("--quiet", action="store_true",
                    help="no progress and no node info log on stderr (the summary is still "
                         "printed; warnings and errors too)")
+    r.add_argument("--json", action="store_true",
+                   help="print the run summary as JSON (real_time_factor, ticks, "
+                        "late_ticks, lateness_p50_s/p99_s/max_s, messages recorded per "
+                        "topic, rejected commands, ...)")
     r.add_argument("--late-policy", choices=("skip", "slow"),
                    help="realtime, when a tick is later than --late-bound: skip = keep the "
                         "wall clock (the due ticks are stepped with the held effort, only "

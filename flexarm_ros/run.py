@@ -51,6 +51,34 @@ class RunResult:
     interrupted: bool = False
     returncodes: dict = field(default_factory=dict)
     recovered: str | None = None            # what recover_killed_bag() did, if anything
+    nodes: tuple = ()                         # the nodes that ran
+    pacing: dict | None = None                # realtime: the simulator's Pacer.summary()
+    published: dict | None = None             # simulator: messages per topic
+    recorded: dict | None = None              # the bag's message count per topic
+
+    def to_json(self) -> dict:
+        """The summary as JSON-ready numbers (``flexarm run --json``)."""
+        p = self.pacing or {}
+        return {"scene": self.scene, "mode": self.mode, "processes": self.processes,
+                "nodes": list(self.nodes), "record": str(self.record) if self.record else None,
+                "wall_time_s": self.wall_s, "sim_time_s": self.sim_s, "ticks": self.ticks,
+                "real_time_factor": self.real_time_factor,
+                "late_ticks": p.get("late_ticks"),
+                "lateness_p50_s": p.get("lateness_p50_s"),
+                "lateness_p99_s": p.get("lateness_p99_s"),
+                "lateness_max_s": p.get("lateness_max_s"),
+                "late_policy": p.get("late_policy"), "skipped_ticks": p.get("skipped_ticks"),
+                "slowed_s": p.get("slowed_s"),
+                "effort_waits": p.get("effort_waits"),
+                "effort_wait_timeouts": p.get("effort_wait_timeouts"),
+                "published": self.published, "recorded": self.recorded,
+                "rejected_commands": (self.rejected_commands if self.rejected_commands
+                                      is not None else
+                                      (sum(sum(by.values()) for by in self.rejected.values())
+                                       if self.rejected is not None else None)),
+                "rejected": self.rejected, "diverged": self.diverged,
+                "interrupted": self.interrupted, "returncodes": self.returncodes,
+                "recovered": self.recovered}
 
     def summary(self) -> str:
         how = "one process per node" if self.processes else "one process"
@@ -58,7 +86,9 @@ class RunResult:
         if self.sim_s is not None:
             s += (f", {self.sim_s:.3f} s simulated in {self.wall_s:.3g} s "
                   f"(real-time factor {self.real_time_factor:.3g}")
-            s += f", {self.overruns} overruns)" if self.mode == "realtime" else ")"
+            p = self.pacing
+            s += (f", {p['late_ticks']} of {p['ticks']} ticks late, lateness p99 "
+                  f"{p['lateness_p99_s'] * 1e3:.2f} ms)" if p else ")")
         else:
             s += f", {self.wall_s:.3g} s wall"
         if self.interrupted:
@@ -89,6 +119,28 @@ def _bag_rejections(path) -> dict | None:
     except Exception:                         # a truncated bag has no summary: no counts
         return None
     return None
+
+
+def _bag_counts(path) -> dict | None:
+    """Messages per topic in a finalized bag's summary (None: no summary)."""
+    from mcap.reader import make_reader
+    try:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception:                         # a truncated bag has no summary
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    by_id = summary.statistics.channel_message_counts
+    return {ch.topic: int(by_id.get(cid, 0)) for cid, ch in summary.channels.items()}
+
+
+def _read_summary(path) -> dict | None:
+    import json
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
 
 
 def _node_rejections(nodes) -> dict:
@@ -351,13 +403,26 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     name = loaded.name
     from flexarm_ros.sim.budget import check_plant_work
     check_plant_work(loaded, duration)          # the work budget, before any node starts
+    from flexarm_ros.twin.cores import control_period
+    from flexarm_ros.twin.pacing import check_settings
+    check_settings(control_period(loaded), **{k: v for k, v in (simulator or {}).items()
+                                              if v is not None and k in (
+                                                  "late_policy", "late_bound",
+                                                  "ground_truth_rate_hz")})
     record = Path(record) if record else None
     stop = StopFlag()
     t0 = time.monotonic()
     try:
         if processes:
+            import tempfile
+            tmp = tempfile.NamedTemporaryFile(prefix="flexarm_sim_", suffix=".json",
+                                              delete=False)
+            tmp.close()
+            summary_file = Path(tmp.name)
+            summary_file.unlink()
             g = ProcessGraph(scene, mode, duration, record, namespace, progress,
-                             fidelity=fidelity, simulator=simulator)
+                             fidelity=fidelity, simulator={**(simulator or {}),
+                                                           "summary_file": str(summary_file)})
             sim = g.procs["simulator"]
             while sim.poll() is None and not stop.set and not g.failed():
                 try:
@@ -367,11 +432,18 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             codes = g.stop()
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             res = RunResult(name, mode, True, record, time.monotonic() - t0,
-                            interrupted=stop.set, returncodes=codes, recovered=recovered)
+                            interrupted=stop.set, returncodes=codes, recovered=recovered,
+                            nodes=tuple(g.procs))
+            sim_summary = _read_summary(summary_file)
+            summary_file.unlink(missing_ok=True)
+            if sim_summary:
+                _take_summary(res, sim_summary)
             if codes.get("simulator") == 3:
-                res.diverged = "the simulator reported a divergence (its message above)"
+                res.diverged = res.diverged or ("the simulator reported a divergence (its "
+                                                "message above)")
             if record:
                 res.rejected = _bag_rejections(record)
+                res.recorded = _bag_counts(record)
             return res
         g = InProcessGraph(scene, mode, duration, record, namespace, progress,
                            fidelity=fidelity, simulator=simulator)
@@ -383,17 +455,32 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                 g.spin_until(g.recorded_all, timeout=10.0, stop=None if stop.set else stop)
             for node in (g["motor_driver"], g["controller"]):
                 node.finish(g.executor)                  # their final log lines
-            return RunResult(name, mode, False, record, time.monotonic() - t0,
-                             sim_s=sim.core.t, ticks=sim.core.k, real_time_factor=sim.rtf(),
-                             overruns=sim.overruns,
-                             rejected_commands=g["motor_driver"].rejected + sim.rejected,
-                             rejected=_node_rejections(g.nodes),
-                             diverged=str(sim.diverged) if sim.diverged else None,
-                             interrupted=stop.set)
+            res = RunResult(name, mode, False, record, time.monotonic() - t0,
+                            rejected_commands=g["motor_driver"].rejected + sim.rejected,
+                            rejected=_node_rejections(g.nodes),
+                            interrupted=stop.set, nodes=tuple(g.nodes))
+            _take_summary(res, sim.summary())
         finally:
             g.close()
+        if record:
+            res.recorded = _bag_counts(record)
+        return res
     finally:
         stop.restore()
+
+
+def _take_summary(res: RunResult, sim: dict) -> None:
+    """Fill ``res`` from the simulator's :meth:`SimulatorNode.summary`."""
+    res.sim_s, res.ticks = sim["sim_time_s"], sim["ticks"]
+    res.real_time_factor = sim["real_time_factor"]
+    res.published = sim["published"]
+    res.diverged = res.diverged or sim.get("diverged")
+    if sim.get("mode") == "realtime":
+        res.pacing = {k: sim[k] for k in ("ticks", "late_ticks", "lateness_p50_s",
+                                          "lateness_p99_s", "lateness_max_s", "late_policy",
+                                          "late_bound_s", "skipped_ticks", "slowed_s",
+                                          "effort_waits", "effort_wait_timeouts")}
+        res.overruns = sim["late_ticks"]
 
 
 def run_with_view(rerun=None, spawn=False, record=None, view_options=None, **kw):

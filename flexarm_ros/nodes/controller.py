@@ -24,10 +24,10 @@ from collections import deque
 from rclpy.node import Node
 
 from flexarm_ros.bag import messages as msg
+from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import ControllerCore
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._msgconv import to_msg
 from flexarm_ros.nodes._wire import Rejections, Source
 
 
@@ -92,7 +92,7 @@ class ControllerNode(Node):
                 continue
             cmd = self.core.update(self.sim_time(t_ns), self.period, list(js.position),
                                    contact, fn)
-            self.pub.publish(to_msg(T.TYPES[T.COMMANDS], msg.float64_multiarray(cmd,
+            self.pub.publish(encode_cdr(T.TYPES[T.COMMANDS], msg.float64_multiarray(cmd,
                                                                                   ("joint",))))
             self.published[T.COMMANDS] += 1
 

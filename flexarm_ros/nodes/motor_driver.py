@@ -32,10 +32,10 @@ from collections import deque
 from rclpy.node import Node
 
 from flexarm_ros.bag import messages as msg
+from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._msgconv import to_msg
 from flexarm_ros.nodes._wire import Rejections, Source
 from flexarm_ros.twin.validation import FOREIGN
 
@@ -131,9 +131,9 @@ class MotorDriverNode(Node):
             angles = list(gt.position[self.n:2 * self.n])
             rates = list(gt.velocity[self.n:2 * self.n])
             tau = self.core.update(t, self.period, rates)
-            self.pub_eff.publish(to_msg(T.TYPES[T.EFFORTS],
+            self.pub_eff.publish(encode_cdr(T.TYPES[T.EFFORTS],
                                         msg.float64_multiarray(tau, ("joint",))))
-            self.pub_ms.publish(to_msg(T.TYPES[T.MOTOR_STATES],
+            self.pub_ms.publish(encode_cdr(T.TYPES[T.MOTOR_STATES],
                                        self.core.motor_states(t_ns, angles, rates)))
             self.published[T.EFFORTS] += 1
             self.published[T.MOTOR_STATES] += 1

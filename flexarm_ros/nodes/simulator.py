@@ -62,7 +62,7 @@ from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
-from flexarm_ros.twin.pacing import LATE_POLICIES, Pacer
+from flexarm_ros.twin.pacing import Pacer, check_settings
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._wire import Rejections, Source
@@ -85,6 +85,8 @@ class SimulatorNode(Node):
                              "driver does) before it waits for the next one (at most "
                              "control.watchdog_s); -1: never waits (an effort source on "
                              "its own timer)"),
+              "summary_file": ("", "write the final run summary (JSON) here when the node "
+                               "stops ('': none)"),
               "ground_truth_rate_hz": (0.0, "rate of ground_truth/tip and "
                                        "ground_truth/coordinates (0: every tick)")}
 
@@ -112,14 +114,9 @@ class SimulatorNode(Node):
         self.finished = self.started = False
         self.t_wall0 = self.t_wall_end = None
         self._last_report = self._last_log = 0.0
-        if self.p["late_policy"] not in LATE_POLICIES:
-            raise ValueError(f"parameter late_policy: got {self.p['late_policy']!r}, "
-                             f"expected one of {LATE_POLICIES}")
-        self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         rate = self.p["ground_truth_rate_hz"]
-        if not (math.isfinite(rate) and rate >= 0):
-            raise ValueError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 "
-                             f"(every tick) or a positive rate in Hz")
+        check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate)
+        self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1
         self._thread = None
         # realtime: the plant waits for the effort answering a recent state, so an
@@ -160,6 +157,7 @@ class SimulatorNode(Node):
             if self._thread is not None and self._thread is not threading.current_thread():
                 self._thread.join()
             self.report(final=True)
+            self._write_summary()
 
     def _step(self, tau, ticks=1):
         """Hold ``tau`` over ``ticks`` control periods; publish the state reached."""
@@ -264,6 +262,30 @@ class SimulatorNode(Node):
         self.halt()
 
     # --------------------------------------------------------------------------- report
+    def summary(self) -> dict:
+        """The run as numbers: simulated time, ticks, real-time factor, pacing (realtime:
+        late ticks, lateness p50/p99/max, skipped ticks / time behind), the waits for
+        efforts, messages published per topic, rejected efforts by reason."""
+        out = {"mode": self.mode, "sim_time_s": self.core.t, "ticks": self.core.k,
+               "real_time_factor": self.rtf(), "published": dict(self.published),
+               "rejected_efforts": dict(self.core.validator.counts),
+               "diverged": str(self.diverged) if self.diverged else None}
+        if self.mode == "realtime":
+            out.update(self.pacer.summary())
+            out.update({"effort_waits": self.waited_ticks,
+                        "effort_wait_timeouts": self.stale_ticks})
+        return out
+
+    def _write_summary(self):
+        path = self.p["summary_file"]
+        if path:
+            import json
+            try:
+                with open(path, "w") as f:
+                    json.dump(self.summary(), f)
+            except OSError as exc:
+                self.get_logger().error(f"summary_file: cannot write {path!r}: {exc}")
+
     def rtf(self) -> float:
         if self.t_wall0 is None:
             return 0.0

@@ -36,6 +36,8 @@ from typing import Callable
 
 import numpy as np
 
+from flexarm_ros.errors import SceneError
+
 LATE_POLICIES = ("skip", "slow")
 
 
@@ -84,6 +86,22 @@ class Lateness:
                 "lateness_max_s": self.max}
 
 
+def check_settings(period: float, late_policy: str = "slow", late_bound: float = 0.1,
+                   ground_truth_rate_hz: float = 0.0) -> None:
+    """The simulator's pacing parameters, or a SceneError naming the one that is wrong."""
+    if late_policy not in LATE_POLICIES:
+        raise SceneError(f"parameter late_policy: got {late_policy!r}, expected one of "
+                         f"{LATE_POLICIES}")
+    if not (isinstance(late_bound, (int, float)) and math.isfinite(late_bound)
+            and late_bound >= period):
+        raise SceneError(f"parameter late_bound: got {late_bound!r} s, expected a finite "
+                         f"bound of at least one control period ({period:g} s)")
+    rate = ground_truth_rate_hz
+    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
+        raise SceneError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 (every "
+                         f"tick) or a positive rate in Hz")
+
+
 class Pacer:
     """Absolute deadlines on a monotonic clock for ticks of ``period`` s.
 
@@ -95,12 +113,7 @@ class Pacer:
     def __init__(self, period: float, late_bound: float = 0.1, late_policy: str = "slow",
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep):
-        if late_policy not in LATE_POLICIES:
-            raise ValueError(f"parameter late_policy: got {late_policy!r}, expected one of "
-                             f"{LATE_POLICIES}")
-        if not (math.isfinite(late_bound) and late_bound >= period):
-            raise ValueError(f"parameter late_bound: got {late_bound!r} s, expected a finite "
-                             f"bound of at least one control period ({period:g} s)")
+        check_settings(period, late_policy, late_bound)
         self.period = period
         self.bound = late_bound
         self.policy = late_policy

@@ -190,7 +190,7 @@ class InProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 executor="single", fidelity=None, simulator=None):
+                 executor="drain", fidelity=None, simulator=None):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -450,7 +450,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         try:
             sim = g["simulator"]
             g.spin_until(lambda: sim.finished, stop=stop)
-            sim.halt()
+            sim.finish(g.executor)
             if record:
                 g.spin_until(g.recorded_all, timeout=10.0, stop=None if stop.set else stop)
             for node in (g["motor_driver"], g["controller"]):

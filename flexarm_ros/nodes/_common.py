@@ -177,10 +177,14 @@ class StopFlag:
         self._old = {}
 
 
-def make_executor(context, kind="single"):
-    """rclpy's SingleThreadedExecutor, or with ``kind="events"`` the experimental
-    EventsExecutor (a C++ event queue, cheaper per lockstep tick than rebuilding the wait
-    set in Python, but it still calls back into nodes already removed/destroyed)."""
+def make_executor(context, kind="drain"):
+    """The executor of the twin's nodes: ``"drain"`` (default), the lean
+    :class:`~flexarm_ros.nodes.executor.DrainExecutor`; ``"single"``, rclpy's
+    SingleThreadedExecutor; ``"events"``, rclpy's experimental EventsExecutor (fails on
+    callbacks that take a MessageInfo, i.e. on the twin's nodes: kept for measurements)."""
+    if kind == "drain":
+        from flexarm_ros.nodes.executor import DrainExecutor
+        return DrainExecutor(context)
     if kind == "events":
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)

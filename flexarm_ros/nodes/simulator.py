@@ -258,8 +258,11 @@ class SimulatorNode(Node):
         self._step(self.torque)
 
     def finish(self, executor):
-        """Called by main() when the node is stopped."""
+        """Called by main() when the node is stopped: halts, and waits for the pacing
+        thread (which may be the one that halted, still writing the summary)."""
         self.halt()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join()
 
     # --------------------------------------------------------------------------- report
     def summary(self) -> dict:

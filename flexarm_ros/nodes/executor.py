@@ -1,0 +1,129 @@
+"""A lean executor for the twin's nodes: one rcl wait, then every queued message.
+
+rclpy's SingleThreadedExecutor hands out one callback per ``spin_once``: for each
+message it rebuilds the generator state, wraps the callback in a Task and checks every
+entity's callback group, and it waits again whenever its generator runs dry. Profiled on
+a lockstep run of ``two_link_case1`` with the recorder (18 receptions per control tick),
+that machinery took about half of the tick (docs/design_notes.md). rclpy's
+EventsExecutor would avoid it, but (rclpy 9.1) it fails with ``SystemError`` on
+subscriptions whose callback takes a ``MessageInfo`` — which the source rule
+(:mod:`~flexarm_ros.nodes._wire`) and the recorder's stamps need.
+
+:class:`DrainExecutor` does only what the twin's nodes use: subscriptions (message
+objects or raw bytes, with or without ``MessageInfo``) and timers, all in the one default
+callback group, called from the spinning thread. ``spin_once`` builds one wait set of
+every subscription and timer, waits, then calls each ready timer and *drains* each ready
+subscription — takes and handles every message queued on it, in arrival order per
+topic — before waiting again. Per topic the order is the DDS order, as with any
+executor; across topics the twin's nodes never relied on more (lockstep pairs messages
+by count per topic and the recorder by source timestamps).
+
+Not supported (and not used by the nodes): services, clients, waitables, guard
+conditions, coroutine callbacks, other callback groups.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import ExitStack
+
+from rclpy.exceptions import InvalidHandle
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.subscription import Subscription
+
+
+class DrainExecutor:
+    """``add_node``, ``remove_node``, ``spin_once(timeout_sec)``, ``shutdown`` — the part of
+    the rclpy executor interface the twin uses (:func:`flexarm_ros.nodes._common.node_main`,
+    :class:`flexarm_ros.run.InProcessGraph`)."""
+
+    def __init__(self, context):
+        self.context = context
+        self._nodes: list = []
+        self._shutdown = False
+
+    def add_node(self, node) -> bool:
+        if node not in self._nodes:
+            self._nodes.append(node)
+        return True
+
+    def remove_node(self, node) -> None:
+        if node in self._nodes:
+            self._nodes.remove(node)
+
+    def get_nodes(self) -> list:
+        return list(self._nodes)
+
+    def shutdown(self, timeout_sec=None) -> bool:
+        self._shutdown = True
+        self._nodes = []
+        return True
+
+    def spin_once(self, timeout_sec: float | None = None) -> None:
+        """Wait up to ``timeout_sec`` (None: forever) for work; do all of it."""
+        if self._shutdown or not self.context.ok():
+            if timeout_sec:
+                time.sleep(min(timeout_sec, 0.01))
+            return
+        subs = [s for n in self._nodes for s in n.subscriptions]
+        timers = [t for n in self._nodes for t in n.timers if not t.is_canceled()]
+        if not subs and not timers:
+            if timeout_sec:
+                time.sleep(timeout_sec)
+            return
+        timeout_ns = -1 if timeout_sec is None else int(max(timeout_sec, 0.0) * 1e9)
+        with ExitStack() as stack:
+            live_subs, live_timers = [], []
+            for s in subs:
+                try:
+                    stack.enter_context(s.handle)
+                    live_subs.append(s)
+                except InvalidHandle:
+                    pass
+            for t in timers:
+                try:
+                    stack.enter_context(t.handle)
+                    live_timers.append(t)
+                except InvalidHandle:
+                    pass
+            stack.enter_context(self.context.handle)
+            ws = _rclpy.WaitSet(len(live_subs), 0, len(live_timers), 0, 0, 0,
+                                self.context.handle)
+            ws.clear_entities()
+            for s in live_subs:
+                ws.add_subscription(s.handle)
+            for t in live_timers:
+                ws.add_timer(t.handle)
+            ws.wait(timeout_ns)
+            ready_subs = set(ws.get_ready_entities("subscription"))
+            ready_timers = set(ws.get_ready_entities("timer"))
+        for t in live_timers:
+            if t.handle.pointer in ready_timers:
+                try:
+                    with t.handle:
+                        if not t.handle.is_timer_ready():
+                            continue
+                        t.handle.call_timer()
+                except InvalidHandle:
+                    continue
+                t.callback()
+        for s in live_subs:
+            if s.handle.pointer in ready_subs:
+                self._drain(s)
+
+    @staticmethod
+    def _drain(sub) -> None:
+        """Take and handle every message queued on ``sub``."""
+        with_info = sub._callback_type is not Subscription.CallbackType.MessageOnly
+        while True:
+            try:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:                 # destroyed by an earlier callback
+                return
+            if taken is None:
+                return
+            if with_info:
+                sub.callback(*taken)
+            else:
+                sub.callback(taken[0])

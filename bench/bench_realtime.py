@@ -1,17 +1,19 @@
 """Throughput of the ROS 2 twin (not a unit test).
 
 Seed 000 rates (scene ``two_link_case1``: 1 kHz control and encoders, four accelerometers
-at 4 kHz batched four samples per message):
+at 4 kHz batched four samples per message, wall, recorder on):
 
 1. the plant alone: :class:`~flexarm_ros.twin.cosim.Lockstep` ticks per second (no ROS),
    and the simulator node's tick split into physics (``SimulatorCore.step``), building the
-   messages (``outputs``), converting them to rclpy objects and publishing them (no
-   subscriber) — the floor of a realtime tick before any other node runs;
+   message dicts (``outputs``), encoding them to CDR (``encode_cdr``) and publishing the
+   bytes (no subscriber) — the floor of a realtime tick before any other node runs;
 2. ``lockstep`` through ROS, all nodes on one executor: ticks per second, with and
-   without the recorder;
-3. ``realtime`` with the recorder for ``--seconds`` of wall clock: real-time factor and
-   overruns (ticks that started more than one control period behind the wall-clock
-   schedule).
+   without the recorder, with the twin's executor (``DrainExecutor``) and rclpy's
+   SingleThreadedExecutor, measured in one run;
+3. ``realtime`` with the recorder for ``--seconds`` of simulated time, one process and
+   ``--processes``: real-time factor, ticks late by more than half a period, lateness
+   p50/p99/max, and the messages the recorder lost (published minus recorded, per topic);
+   ``--rate 2000`` repeats it at 2 kHz control.
 
     python bench/bench_realtime.py                  # 60 s of realtime (the issue's run)
     python bench/bench_realtime.py --seconds 5      # shorter
@@ -42,13 +44,13 @@ def plant_only(scene_name: str, ticks: int) -> float:
 
 
 def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
-    """Mean µs per simulator tick: physics, message dicts, rclpy objects, publish."""
+    """Mean µs per simulator tick: physics, message dicts, CDR bytes, publish."""
     import numpy as np
     import rclpy
     from rclpy.context import Context
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes import _common as C
-    from flexarm_ros.nodes._msgconv import to_msg
+    from flexarm_ros.bag.writer import encode_cdr
     from flexarm_ros.twin import topics as T
     from flexarm_ros.twin.cores import SimulatorCore
     ctx = Context()
@@ -61,14 +63,14 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
         core.step(tau)                                # compile / warm up
         pubs = {t: C.publisher(node, T.TYPES[t], t)
                 for t in [o[0] for o in core.outputs()] + list(core.groups)}
-        acc = dict.fromkeys(("physics", "messages", "to_msg", "publish"), 0.0)
+        acc = dict.fromkeys(("physics", "messages", "encode", "publish"), 0.0)
         for _ in range(ticks):
             t0 = time.perf_counter()
             core.step(tau)
             t1 = time.perf_counter()
             outs = core.outputs()
             t2 = time.perf_counter()
-            msgs = [(topic, to_msg(tp, d)) for topic, tp, d in outs]
+            msgs = [(topic, encode_cdr(tp, d)) for topic, tp, d in outs]
             t3 = time.perf_counter()
             for topic, m in msgs:
                 pubs[topic].publish(m)
@@ -84,72 +86,107 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
         rclpy.shutdown(context=ctx)
 
 
-def ros_run(scene_name: str, mode: str, duration: float, record: Path | None,
-            wall_limit: float | None = None, executor: str = "single") -> dict:
-    """One in-process run: ``duration`` simulated s (inf: until ``wall_limit`` s)."""
+def lockstep_run(scene_name: str, duration: float, record: Path | None,
+                 executor: str = "drain") -> dict:
+    """One in-process lockstep run of ``duration`` simulated s: ticks per wall second."""
     from flexarm_ros.run import InProcessGraph
-    g = InProcessGraph(scene_name, mode, duration, record, executor=executor)
+    g = InProcessGraph(scene_name, "lockstep", duration, record, executor=executor)
     try:
         sim = g["simulator"]
         if not g.spin_until(lambda: sim.started, 60):
             raise RuntimeError("the graph did not start (subscriptions not matched)")
-        g.spin_until(lambda: sim.finished, timeout=wall_limit)
-        sim.halt()
+        g.spin_until(lambda: sim.finished)
+        sim.finish(g.executor)
         if record:
             g.spin_until(g.recorded_all, 30)
         wall = sim.t_wall_end - sim.t_wall0
-        return {"mode": mode, "executor": executor, "record": bool(record), "sim_s": sim.core.t,
-                "ticks": sim.core.k, "wall_s": wall, "ticks_per_s": sim.core.k / wall,
-                "real_time_factor": sim.core.t / wall, "overruns": sim.overruns,
-                "rejected_commands": g["motor_driver"].rejected}
+        return {"mode": "lockstep", "executor": executor, "record": bool(record),
+                "sim_s": sim.core.t, "ticks": sim.core.k, "wall_s": wall,
+                "ticks_per_s": sim.core.k / wall, "real_time_factor": sim.core.t / wall}
     finally:
         g.close()
+
+
+def realtime_run(scene, seconds: float, record: Path, processes: bool) -> dict:
+    """``flexarm run SCENE --mode realtime`` for ``seconds`` of simulated time: the run
+    summary plus the recorder's losses per topic (published − recorded)."""
+    from flexarm_ros.run import run
+    res = run(scene, seconds, "realtime", record=record, processes=processes,
+              progress=False).to_json()
+    lost = {}
+    for topic, n in (res["published"] or {}).items():
+        from flexarm_ros.twin.topics import resolve
+        got = (res["recorded"] or {}).get(resolve("/flexarm", topic), 0)
+        if got != n:
+            lost[topic] = n - got
+    res["lost"] = lost
+    res["ticks_per_s"] = res["ticks"] / res["sim_time_s"] * res["real_time_factor"]
+    return res
+
+
+def scene_at_rate(scene_name: str, rate_hz: float, tmp: Path) -> str:
+    """A copy of the scene file with ``control.rate_hz`` set."""
+    import yaml
+    from flexarm_ros.scene import resolve_scene_path
+    data = yaml.safe_load(resolve_scene_path(scene_name).read_text())
+    data.setdefault("control", {})["rate_hz"] = rate_hz
+    path = tmp / f"{scene_name}_{int(rate_hz)}hz.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return str(path)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0,
-                    help="wall-clock seconds of the realtime run (default 60)")
-    ap.add_argument("--lockstep-seconds", type=float, default=1.0,
-                    help="simulated seconds of each lockstep run (default 1)")
+                    help="simulated seconds of each realtime run (default 60)")
+    ap.add_argument("--lockstep-seconds", type=float, default=2.0,
+                    help="simulated seconds of each lockstep run (default 2)")
     ap.add_argument("--scene", default="two_link_case1")
-    ap.add_argument("--executor", choices=("single", "events"), default="single",
-                    help="rclpy executor of the ROS runs (events: the experimental "
-                         "EventsExecutor)")
+    ap.add_argument("--rate", type=float, action="append", default=None,
+                    help="control rates (Hz) of the realtime runs (default: the scene's, "
+                         "then 2000)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     from flexarm_ros.nodes import environment
     env = environment.private_graph()
-    rows = []
+    lockstep, realtime = [], []
     with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
-        rows.append({"mode": "plant only (cosim)", "ticks_per_s": plant,
-                     "real_time_factor": plant / 1000.0})
         budget = simulator_tick_budget(args.scene, int(args.lockstep_seconds * 1000))
-        for rec in (None, Path(tmp) / "lockstep.mcap"):
-            rows.append(ros_run(args.scene, "lockstep", args.lockstep_seconds, rec,
-                                executor=args.executor))
-        rows.append(ros_run(args.scene, "realtime", float("inf"), Path(tmp) / "realtime.mcap",
-                            wall_limit=args.seconds, executor=args.executor))
-    out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"], "runs": rows,
-           "simulator_tick_us": budget}
+        for executor in ("drain", "single"):
+            for rec in (None, tmp / "lockstep.mcap"):
+                lockstep.append(lockstep_run(args.scene, args.lockstep_seconds, rec, executor))
+        for rate in args.rate or [None, 2000.0]:
+            scene = args.scene if rate is None else scene_at_rate(args.scene, rate, tmp)
+            for processes in (False, True):
+                r = realtime_run(scene, args.seconds, tmp / "realtime.mcap", processes)
+                r["rate_hz"] = rate or "scene"
+                realtime.append(r)
+    out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"],
+           "plant_only_ticks_per_s": plant, "simulator_tick_us": budget,
+           "lockstep": lockstep, "realtime": realtime}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
-    print(f"scene {args.scene} (control 1 kHz), {args.executor} executor")
     b = budget
+    print(f"scene {args.scene}")
+    print(f"  plant + controller + driver cores, no ROS: {plant:.0f} ticks/s")
     print(f"  simulator tick (no subscriber): {b['total']:.0f} µs = physics {b['physics']:.0f}"
-          f" + messages {b['messages']:.0f} + to_msg {b['to_msg']:.0f} + publish "
+          f" + messages {b['messages']:.0f} + encode {b['encode']:.0f} + publish "
           f"{b['publish']:.0f} ({b['messages_per_tick']} messages)")
-    for r in rows:
-        extra = ""
-        if "wall_s" in r:
-            extra = (f", {r['sim_s']:.3f} s simulated in {r['wall_s']:.2f} s wall"
-                     + (", recorder on" if r["record"] else ", no recorder"))
-        if r["mode"] == "realtime":
-            extra += f", {r['overruns']} overruns of {r['ticks']} ticks"
-        print(f"  {r['mode']:<20} {r['ticks_per_s']:8.0f} ticks/s  real-time factor "
-              f"{r['real_time_factor']:.3f}{extra}")
+    for r in lockstep:
+        print(f"  lockstep, {r['executor']:<6} executor, "
+              f"{'recorder on ' if r['record'] else 'no recorder'}: {r['ticks_per_s']:6.0f} "
+              f"ticks/s")
+    for r in realtime:
+        how = "--processes" if r["processes"] else "one process"
+        lost = sum(r["lost"].values())
+        print(f"  realtime {r['rate_hz']} Hz, {how:<12}: RTF {r['real_time_factor']:.3f}, "
+              f"{r['late_ticks']} of {r['ticks']} ticks late "
+              f"({100 * (1 - r['late_ticks'] / r['ticks']):.1f} % on time), lateness p50 "
+              f"{r['lateness_p50_s'] * 1e3:.2f} / p99 {r['lateness_p99_s'] * 1e3:.2f} / max "
+              f"{r['lateness_max_s'] * 1e3:.2f} ms, {lost} messages lost by the recorder")
     return 0
 
 

@@ -283,6 +283,13 @@ def cmd_study(args):
     return 0
 
 
+def _names(values) -> list | None:
+    """Repeatable and comma-separated option values as one list (None: not given)."""
+    if values is None:
+        return None
+    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+
+
 def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
     from flexarm_ros.io.paths import check_output_file
@@ -295,7 +302,16 @@ def cmd_run(args):
         check_output_file("--record", record)
     if args.rerun:
         check_output_file("--rerun", args.rerun, (".rrd",))
+    from flexarm_ros.run import select_nodes
+    try:
+        nodes = select_nodes(_names(args.nodes), _names(args.without))
+    except ValueError as exc:
+        from flexarm_ros.errors import SceneError
+        raise SceneError(f"{'--nodes' if args.nodes else '--without'}: {exc}") from None
+    if "recorder" not in nodes:
+        record = None
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
+              nodes=tuple(n for n in nodes if n != "recorder"),
               namespace=namespace, progress=not args.quiet, fidelity=_overrides(args),
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
                          "ground_truth_rate_hz": args.ground_truth_rate})
@@ -433,6 +449,13 @@ def build_parser():
     r.add_argument("--quiet", action="store_true",
                    help="no progress and no node info log on stderr (the summary is still "
                         "printed; warnings and errors too)")
+    r.add_argument("--without", action="append", metavar="NODE",
+                   help="leave out a node of the twin (controller, motor_driver or recorder;"
+                        " repeatable or comma-separated) to put your own in its place: the "
+                        "topic contract is docs/topic_contract.md")
+    r.add_argument("--nodes", action="append", metavar="NODE,...",
+                   help="the twin's nodes to start (default simulator,motor_driver,"
+                        "controller,recorder)")
     r.add_argument("--json", action="store_true",
                    help="print the run summary as JSON (real_time_factor, ticks, "
                         "late_ticks, lateness_p50_s/p99_s/max_s, messages recorded per "

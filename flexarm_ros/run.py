@@ -32,6 +32,23 @@ from flexarm_ros.scene import DEFAULT_SCENE
 
 DEFAULT_NAMESPACE = "/flexarm"
 NODES = ("recorder", "motor_driver", "controller", "simulator")   # start order
+GRAPH_NODES = ("simulator", "motor_driver", "controller")        # the recorder: record=
+
+
+def select_nodes(nodes=None, without=()) -> tuple:
+    """The twin's nodes to start: ``nodes`` (default every node) minus ``without``; names
+    from :data:`NODES`; the simulator cannot be left out. A ValueError names the value
+    and the allowed names."""
+    chosen = list(NODES if nodes is None else nodes)
+    without = list(without or ())
+    for name in chosen + without:
+        if name not in NODES:
+            raise ValueError(f"node {name!r}: expected one of {', '.join(NODES)}")
+    chosen = [n for n in NODES if n in chosen and n not in without]
+    if "simulator" not in chosen:
+        raise ValueError("nodes: the simulator cannot be left out (it is the twin); "
+                         f"got {', '.join(chosen) or 'none'}")
+    return tuple(chosen)
 
 
 @dataclass
@@ -82,7 +99,9 @@ class RunResult:
 
     def summary(self) -> str:
         how = "one process per node" if self.processes else "one process"
-        s = f"{self.scene}: {self.mode} run ({how})"
+        s = f"{self.scene}: {self.mode} run ({how}"
+        left = [n for n in NODES if self.nodes and n not in self.nodes]
+        s += f"; without {', '.join(left)})" if left else ")"
         if self.sim_s is not None:
             s += (f", {self.sim_s:.3f} s simulated in {self.wall_s:.3g} s "
                   f"(real-time factor {self.real_time_factor:.3g}")
@@ -389,11 +408,13 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
 
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
-        fidelity=None, simulator=None) -> RunResult:
+        fidelity=None, simulator=None, nodes=GRAPH_NODES) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
-    scene's); ``progress``: progress line and the nodes' info log on stderr."""
+    scene's); ``progress``: progress line and the nodes' info log on stderr; ``nodes``:
+    which of simulator, motor_driver, controller to start (a user's own node replaces
+    the others: see docs/topic_contract.md)."""
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes._common import StopFlag
     if mode not in MODES:
@@ -421,8 +442,9 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             summary_file = Path(tmp.name)
             summary_file.unlink()
             g = ProcessGraph(scene, mode, duration, record, namespace, progress,
-                             fidelity=fidelity, simulator={**(simulator or {}),
-                                                           "summary_file": str(summary_file)})
+                             nodes=nodes, fidelity=fidelity,
+                             simulator={**(simulator or {}),
+                                        "summary_file": str(summary_file)})
             sim = g.procs["simulator"]
             while sim.poll() is None and not stop.set and not g.failed():
                 try:
@@ -445,7 +467,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                 res.rejected = _bag_rejections(record)
                 res.recorded = _bag_counts(record)
             return res
-        g = InProcessGraph(scene, mode, duration, record, namespace, progress,
+        g = InProcessGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                            fidelity=fidelity, simulator=simulator)
         try:
             sim = g["simulator"]
@@ -453,10 +475,13 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             sim.finish(g.executor)
             if record:
                 g.spin_until(g.recorded_all, timeout=10.0, stop=None if stop.set else stop)
-            for node in (g["motor_driver"], g["controller"]):
-                node.finish(g.executor)                  # their final log lines
+            for other in ("motor_driver", "controller"):
+                if other in g.nodes:
+                    g[other].finish(g.executor)           # their final log lines
+            driver = g.nodes.get("motor_driver")
             res = RunResult(name, mode, False, record, time.monotonic() - t0,
-                            rejected_commands=g["motor_driver"].rejected + sim.rejected,
+                            rejected_commands=(driver.rejected if driver else 0) +
+                            sim.rejected,
                             rejected=_node_rejections(g.nodes),
                             interrupted=stop.set, nodes=tuple(g.nodes))
             _take_summary(res, sim.summary())

@@ -121,36 +121,44 @@ GRAPH = ("simulator", "controller", "motor_driver", "recorder")
 
 
 class Barrier:
-    """True once every publisher has its expected number of matched subscriptions and,
-    with ``recorders``, the graph shows the recorder of this namespace subscribed to it
-    (a foreign subscriber must not stand in for it); then stays true. Logs what it waits
-    for every few seconds."""
+    """The start condition of a node: true once every publisher in ``needs`` — (publisher,
+    subscribers it needs, who they are) — has that many matched subscriptions and, with
+    ``recorders``, the graph shows the recorder of this namespace subscribed to it (a
+    foreign subscriber must not stand in for it); then stays true. A wait longer than
+    :data:`WARN_AFTER_S` is logged at WARN level (a need may be a callable of the graph), naming each topic, the subscribers it
+    has and needs, and whom it waits for; again every few seconds."""
+
+    WARN_AFTER_S = 3.0
 
     def __init__(self, node, needs, recorders=0):
-        self.node, self.needs, self.ok = node, [(p, n) for p, n in needs if n > 0], False
+        self.node, self.ok = node, False
+        self.needs = [(p, n, who) for p, n, *rest in needs if callable(n) or n > 0
+                      for who in [rest[0] if rest else "subscribers"]]
         self.recorders = recorders
         self._since = time.monotonic()
         self._said = 0.0
 
-    def _missing(self, pub, n) -> str | None:
+    def _missing(self, pub, n, who) -> str | None:
+        n = n() if callable(n) else n            # a need that depends on the graph
         have = pub.get_subscription_count()
         if have < n:
-            return f"{pub.topic_name} ({have}/{n} subscribers)"
+            return f"{pub.topic_name} ({have}/{n} subscribers: {who})"
         if self.recorders:
             ns = self.node.get_namespace()
             if not any(i.node_name == "recorder" and i.node_namespace == ns
                        for i in self.node.get_subscriptions_info_by_topic(pub.topic_name)):
-                return f"{pub.topic_name} (recorder)"
+                return f"{pub.topic_name} (the recorder in {ns})"
         return None
 
     def __call__(self) -> bool:
         if not self.ok:
-            missing = [m for p, n in self.needs if (m := self._missing(p, n))]
+            missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
             self.ok = not missing
             waited = time.monotonic() - self._since
-            if missing and waited - self._said > 5.0:
+            if missing and waited > self.WARN_AFTER_S and waited - self._said > 5.0:
                 self._said = waited
-                self.node.get_logger().info("waiting for " + ", ".join(missing))
+                self.node.get_logger().warning(
+                    f"not started after {waited:.0f} s: waiting for " + ", ".join(missing))
         return self.ok
 
 

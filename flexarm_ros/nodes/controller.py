@@ -45,7 +45,8 @@ class ControllerNode(Node):
         self.period = 1.0 / scene.control.rate_hz
         self.sim_time = C.SimTime(scene)
         self.pub = C.publisher(self, T.TYPES[T.COMMANDS], T.COMMANDS)
-        self.ready = C.Barrier(self, [(self.pub, 1 + self.p["recorders"])], self.p["recorders"])
+        self.ready = C.Barrier(self, [(self.pub, 1 + self.p["recorders"], "the motor driver")],
+                               self.p["recorders"])
         self.queues = {T.JOINT_STATES: deque()}
         if scene.walls:
             self.queues[T.TOOL_CONTACT] = deque()

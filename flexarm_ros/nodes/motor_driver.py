@@ -60,7 +60,8 @@ class MotorDriverNode(Node):
         r = self.p["recorders"]
         self.pub_eff = C.publisher(self, T.TYPES[T.EFFORTS], T.EFFORTS)
         self.pub_ms = C.publisher(self, T.TYPES[T.MOTOR_STATES], T.MOTOR_STATES)
-        self.ready = C.Barrier(self, [(self.pub_eff, 1 + r), (self.pub_ms, r)], r)
+        self.ready = C.Barrier(self, [(self.pub_eff, 1 + r, "the simulator"),
+                                      (self.pub_ms, r, "the recorder")], r)
         self.commands, self.states = deque(), deque()
         sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS, self._on_command)
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)

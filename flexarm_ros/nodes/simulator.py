@@ -43,7 +43,12 @@ topics ``ground_truth/tip`` and ``ground_truth/coordinates`` go out every tick, 
 ``ground_truth_rate_hz`` when set (``ground_truth/joint_states`` is the driver's input and
 goes out every tick).
 
-Publishing starts once every topic is matched (``recorders`` + the controller/driver).
+Publishing starts once what the twin needs is matched: the driver on
+``ground_truth/joint_states``, in ``lockstep`` a controller on ``joint_states`` (the twin
+steps on its answers, so the first state must reach it), and with ``recorders`` the
+recorder on every topic — nothing else (a user's controller need not read
+``tool/contact``). A wait longer than a few seconds is logged at WARN level with what is
+missing.
 With a finite ``duration`` the node stops after the state at that time (and its process
 exits); ``progress`` prints the simulated time on stderr.
 """
@@ -65,7 +70,7 @@ from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import Pacer, check_settings
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._wire import Rejections, Source
+from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source
 
 
 class SimulatorNode(Node):
@@ -107,8 +112,31 @@ class SimulatorNode(Node):
         self.rejections = Rejections(self)
         self.diverged: SimulationDiverged | None = None
         r = self.p["recorders"]
-        to_nodes = (T.JOINT_STATES, T.TOOL_CONTACT, T.TOOL_WRENCH, T.GT_JOINT_STATES)
-        self.ready = C.Barrier(self, [(p, r + (t in to_nodes)) for t, p in pubs.items()], r)
+        # the start condition is what the twin needs: the driver (it answers every
+        # ground-truth state), in lockstep a controller on joint_states (ours or a user's:
+        # the first state must not be lost, the twin steps on the answers), and with
+        # recording the recorder on every topic; nobody else (a user's controller need not
+        # read tool/contact or tool/wrench)
+        lockstep = self.mode == "lockstep"
+
+        def own_controller():
+            """1 while the twin's own controller (which pairs contact and wrench with each
+            state in lockstep) or a not yet resolved node reads joint_states, else 0."""
+            if not lockstep or T.JOINT_STATES not in pubs:
+                return 0
+            ns = self.get_namespace()
+            infos = self.get_subscriptions_info_by_topic(pubs[T.JOINT_STATES].topic_name)
+            return int(any(i.node_name == UNKNOWN or (i.node_name == "controller" and
+                                                       i.node_namespace == ns)
+                           for i in infos))
+        needs = {T.GT_JOINT_STATES: (1, "the motor driver"),
+                 T.JOINT_STATES: (int(lockstep), "a controller"),
+                 T.TOOL_CONTACT: (own_controller, "the twin's controller"),
+                 T.TOOL_WRENCH: (own_controller, "the twin's controller")}
+        self.ready = C.Barrier(self, [
+            (p, (lambda f=needs[t][0]: r + f()) if callable(needs.get(t, (0,))[0]) else
+             r + needs.get(t, (0,))[0], needs.get(t, (0, "the recorder"))[1])
+            for t, p in pubs.items()], r)
         self.published = {t: 0 for t in pubs}
         self.torque = np.zeros(len(scene.links))
         self.finished = self.started = False

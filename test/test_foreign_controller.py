@@ -1,0 +1,116 @@
+"""A user's own controller on the wire (issue 13): ``examples/foreign_controller.py``,
+written only against the topic contract (plain rclpy, standard messages, nothing of
+flexarm_ros), runs as its own process against ``flexarm run --without controller`` in
+lockstep and in realtime and moves the arm to its target; the twin's start condition
+waits for it in lockstep (the twin steps on its answers) and not in realtime."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flexarm_ros.bag import read_bag
+from flexarm_ros.run import run, select_nodes
+from flexarm_ros.twin import topics as T
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "foreign_controller.py"
+NS = "/flexarm"
+START = np.array([0.40101850830814406, 0.8077594139434641])     # two_link_position
+TARGET = np.array([0.5, 0.9])
+
+
+def test_the_example_imports_nothing_of_the_twin():
+    tree = ast.parse(EXAMPLE.read_text())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add((node.module or "").split(".")[0])
+        elif isinstance(node, ast.Call) and getattr(node.func, "id", "") == "__import__":
+            raise AssertionError("dynamic import")
+    assert "flexarm_ros" not in imported
+    assert imported <= {"math", "sys", "time", "rclpy", "sensor_msgs", "std_msgs"}, imported
+
+
+def _start_example(tmp_path):
+    log = open(tmp_path / "controller.log", "w")
+    proc = subprocess.Popen([sys.executable, str(EXAMPLE), "--ros-args", "-r",
+                             f"__ns:={NS}", "-p", f"target:=[{TARGET[0]}, {TARGET[1]}]",
+                             "-p", "idle_exit_s:=0.0"], stdout=log, stderr=subprocess.STDOUT)
+    return proc, log
+
+
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode):
+    """8 s of two_link_position with the example in place of the twin's controller: both
+    joints end within 3 % of the 0.1 rad move (the closed loop's slowest decay rate is
+    0.67 1/s with these gains, config/two_link_position.yaml: e^(−0.67·8) = 0.5 %, plus
+    the lightly damped 0.23 Hz beam mode's overshoot; measured 0.8 % and 0.2 %)."""
+    proc, log = _start_example(tmp_path)
+    try:
+        res = run("two_link_position", 8.0, mode, record=tmp_path / "run.mcap",
+                  namespace=NS, progress=False, nodes=("simulator", "motor_driver"))
+    finally:
+        proc.terminate()
+        proc.wait(30)
+        log.close()
+    assert res.nodes == ("recorder", "motor_driver", "simulator")
+    assert not res.diverged and res.rejected_commands == 0
+    bag = read_bag(tmp_path / "run.mcap")
+    gt = bag[f"{NS}/{T.GT_JOINT_STATES}"]
+    q_end = np.array(gt[-1][1].position[:2])
+    assert gt[-1][0] == 8_000_000_000
+    assert np.all(np.abs(q_end - TARGET) < 0.03 * np.abs(TARGET - START)), q_end
+    cmds = bag[f"{NS}/{T.COMMANDS}"]
+    # the commands on the bag are the example's: one per joint state in lockstep
+    if mode == "lockstep":
+        assert len(cmds) == len(bag[f"{NS}/{T.JOINT_STATES}"]) - 1
+    assert "target [0.5, 0.9] rad" in (tmp_path / "controller.log").read_text()
+
+
+def test_lockstep_waits_for_a_controller_and_says_so(tmp_path, capfd):
+    """Without any controller the lockstep twin does not start; after a few seconds it
+    says (WARN) that it waits for a controller on joint_states. Realtime does not wait."""
+    from flexarm_ros.nodes.environment import child_environment
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "flexarm_ros.nodes.simulator", "--ros-args", "-r",
+         f"__ns:={NS}", "-p", "scene:=two_link_position", "-p", "duration:=0.1"],
+        stderr=subprocess.PIPE, text=True, env=child_environment())
+    driver = subprocess.Popen(
+        [sys.executable, "-m", "flexarm_ros.nodes.motor_driver", "--ros-args", "-r",
+         f"__ns:={NS}", "-p", "scene:=two_link_position", "-p", "duration:=0.1"],
+        stderr=subprocess.DEVNULL, env=child_environment())
+    try:
+        time.sleep(8.0)
+        assert proc.poll() is None                      # still waiting
+    finally:
+        proc.terminate()
+        driver.terminate()
+        err = proc.communicate(timeout=30)[1]
+        driver.wait(30)
+    assert "WARN" in err and "waiting for /flexarm/joint_states (0/1 subscribers: a " \
+        "controller)" in err, err
+    res = run("two_link_position", 0.2, "realtime", record=None, namespace=NS,
+              progress=False, nodes=("simulator", "motor_driver"))
+    assert res.ticks == 200
+
+
+@pytest.mark.parametrize("nodes,without,message", [
+    (None, ["simulator"], "the simulator cannot be left out"),
+    (["simulator", "planner"], [], "node 'planner': expected one of"),
+])
+def test_node_selection_names_the_bad_value(nodes, without, message):
+    with pytest.raises(ValueError, match=message):
+        select_nodes(nodes, without)
+
+
+def test_node_selection():
+    assert select_nodes(None, ["controller"]) == ("recorder", "motor_driver", "simulator")
+    assert select_nodes(["simulator", "recorder"]) == ("recorder", "simulator")

@@ -19,6 +19,9 @@ against the twin unchanged). Standard message types only.
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
 | ``diagnostics/rejected`` | std_msgs/String | recorder → bag only | one JSON object per message a node refused or rejected (``topic``, ``reason``, ``publisher``, ``data`` as text); written into the bag by the recorder, never published |
 
+How a foreign node plugs in (QoS, time, how lockstep pairs messages, the start condition):
+docs/topic_contract.md.
+
 Each input topic has one source (:data:`SOURCE`: the node expected to publish it); a
 message from a second publisher is refused (``flexarm_ros.nodes._wire``).
 """

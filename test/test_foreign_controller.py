@@ -69,9 +69,11 @@ def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode):
     assert gt[-1][0] == 8_000_000_000
     assert np.all(np.abs(q_end - TARGET) < 0.03 * np.abs(TARGET - START)), q_end
     cmds = bag[f"{NS}/{T.COMMANDS}"]
-    # the commands on the bag are the example's: one per joint state in lockstep
+    # the commands on the bag are the example's: one per joint state in lockstep (the
+    # answer to the final state may or may not reach the bag before the run ends)
     if mode == "lockstep":
-        assert len(cmds) == len(bag[f"{NS}/{T.JOINT_STATES}"]) - 1
+        states = len(bag[f"{NS}/{T.JOINT_STATES}"])
+        assert len(cmds) in (states - 1, states)
     assert "target [0.5, 0.9] rad" in (tmp_path / "controller.log").read_text()
 
 

@@ -93,8 +93,9 @@ class ControllerNode(Node):
                 continue
             cmd = self.core.update(self.sim_time(t_ns), self.period, list(js.position),
                                    contact, fn)
-            self.pub.publish(encode_cdr(T.TYPES[T.COMMANDS], msg.float64_multiarray(cmd,
-                                                                                  ("joint",))))
+            self.pub.publish(encode_cdr(T.TYPES[T.COMMANDS],
+                                        msg.float64_multiarray(cmd, ("joint",)),
+                                        validate=False))
             self.published[T.COMMANDS] += 1
 
     def finish(self, executor=None):

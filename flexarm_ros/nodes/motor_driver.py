@@ -133,9 +133,11 @@ class MotorDriverNode(Node):
             rates = list(gt.velocity[self.n:2 * self.n])
             tau = self.core.update(t, self.period, rates)
             self.pub_eff.publish(encode_cdr(T.TYPES[T.EFFORTS],
-                                        msg.float64_multiarray(tau, ("joint",))))
+                                            msg.float64_multiarray(tau, ("joint",)),
+                                            validate=False))
             self.pub_ms.publish(encode_cdr(T.TYPES[T.MOTOR_STATES],
-                                       self.core.motor_states(t_ns, angles, rates)))
+                                           self.core.motor_states(t_ns, angles, rates),
+                                           validate=False))
             self.published[T.EFFORTS] += 1
             self.published[T.MOTOR_STATES] += 1
 

@@ -7,6 +7,7 @@ waits for it in lockstep (the twin steps on its answers) and not in realtime."""
 from __future__ import annotations
 
 import ast
+import select
 import subprocess
 import sys
 import time
@@ -89,16 +90,25 @@ def test_lockstep_waits_for_a_controller_and_says_so(tmp_path, capfd):
         [sys.executable, "-m", "flexarm_ros.nodes.motor_driver", "--ros-args", "-r",
          f"__ns:={NS}", "-p", "scene:=two_link_position", "-p", "duration:=0.1"],
         stderr=subprocess.DEVNULL, env=child_environment())
+    want = "waiting for /flexarm/joint_states (0/1 subscribers: a controller)"
+    lines = []
     try:
-        time.sleep(8.0)
-        assert proc.poll() is None                      # still waiting
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 120:            # the simulator's own log, line by line
+            ready, _, _ = select.select([proc.stderr], [], [], 1.0)
+            if ready:
+                line = proc.stderr.readline()
+                lines.append(line)
+                if want in line or not line:
+                    break
+        assert proc.poll() is None                      # still waiting, not started
     finally:
         proc.terminate()
         driver.terminate()
-        err = proc.communicate(timeout=30)[1]
+        proc.communicate(timeout=30)
         driver.wait(30)
-    assert "WARN" in err and "waiting for /flexarm/joint_states (0/1 subscribers: a " \
-        "controller)" in err, err
+    warn = [ln for ln in lines if want in ln]
+    assert warn and "WARN" in warn[0], lines
     res = run("two_link_position", 0.2, "realtime", record=None, namespace=NS,
               progress=False, nodes=("simulator", "motor_driver"))
     assert res.ticks == 200

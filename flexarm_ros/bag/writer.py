@@ -379,16 +379,17 @@ def _compile(msgtype: str):
             else:
                 sub = _compiled(ftype)
                 steps.append(lambda buf, m, k=name, sub=sub: sub(buf, m[k]))
-        elif ftype == "string":
-            def strings(buf, m, k=name, n=n):
+        elif ftype == "string" or not field.is_primitive:
+            def sequence(buf, m, k=name, n=n,
+                         put=_put_string if ftype == "string" else _compiled(ftype)):
                 values = m[k]
                 if n < 0:
                     _align(buf, 4)
                     buf += _UINT32.pack(len(values))
                 for v in values:
-                    _put_string(buf, v)
-            steps.append(strings)
-        elif field.is_primitive:
+                    put(buf, v)
+            steps.append(sequence)
+        else:
             dtype = np.dtype(_DTYPES[ftype])
 
             def numbers_(buf, m, k=name, n=n, dtype=dtype):
@@ -404,17 +405,6 @@ def _compile(msgtype: str):
                         buf += b"\x00" * pad
                     buf += arr.tobytes()
             steps.append(numbers_)
-        else:
-            sub = _compiled(ftype)
-
-            def messages_(buf, m, k=name, n=n, sub=sub):
-                values = m[k]
-                if n < 0:
-                    _align(buf, 4)
-                    buf += _UINT32.pack(len(values))
-                for v in values:
-                    sub(buf, v)
-            steps.append(messages_)
     steps = tuple(steps)
 
     def put(buf, m):
@@ -468,6 +458,14 @@ def _check_time(name: str, value: Any) -> int:
     if not 0 <= value < 2**64:
         raise ValueError(f"{name} must be in [0, 2**64) ns, got {value}")
     return value
+
+
+def _times(log_time_ns: Any, publish_time_ns: Any) -> tuple[int, int]:
+    """Checked (log time, publish time) of a message; the publish time defaults to the
+    log time."""
+    log_time_ns = _check_time("log_time_ns", log_time_ns)
+    return log_time_ns, (log_time_ns if publish_time_ns is None
+                         else _check_time("publish_time_ns", publish_time_ns))
 
 
 def _check_str_dict(what: str, data: Any) -> dict[str, str]:
@@ -654,9 +652,7 @@ class BagWriter:
         """
         with self._lock:
             self._check_open()
-            log_time_ns = _check_time("log_time_ns", log_time_ns)
-            publish_time_ns = (log_time_ns if publish_time_ns is None
-                               else _check_time("publish_time_ns", publish_time_ns))
+            log_time_ns, publish_time_ns = _times(log_time_ns, publish_time_ns)
             if msgtype not in msgdefs.DEFINITIONS:
                 raise ValueError(f"unknown message type {msgtype!r} for topic {topic!r}; "
                                  f"known types: {', '.join(msgdefs.KNOWN_TYPES)}")
@@ -674,9 +670,7 @@ class BagWriter:
         responsibility (the twin's nodes publish :func:`encode_cdr` output)."""
         with self._lock:
             self._check_open()
-            log_time_ns = _check_time("log_time_ns", log_time_ns)
-            publish_time_ns = (log_time_ns if publish_time_ns is None
-                               else _check_time("publish_time_ns", publish_time_ns))
+            log_time_ns, publish_time_ns = _times(log_time_ns, publish_time_ns)
             if not isinstance(data, (bytes, bytearray, memoryview)) or \
                     bytes(data[:2]) != _CDR_HEADER[:2] or len(data) < 4:
                 raise ValueError(f"cannot write to topic {topic!r} ({msgtype}): expected "

@@ -32,6 +32,18 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 
 
+def _enter(stack: ExitStack, entities) -> list:
+    """The entities whose handles are still valid, each held open by ``stack``."""
+    live = []
+    for e in entities:
+        try:
+            stack.enter_context(e.handle)
+            live.append(e)
+        except InvalidHandle:                      # destroyed since it was listed
+            pass
+    return live
+
+
 class DrainExecutor:
     """``add_node``, ``remove_node``, ``spin_once(timeout_sec)``, ``shutdown`` — the part of
     the rclpy executor interface the twin uses (:func:`flexarm_ros.nodes._common.node_main`,
@@ -73,19 +85,7 @@ class DrainExecutor:
             return
         timeout_ns = -1 if timeout_sec is None else int(max(timeout_sec, 0.0) * 1e9)
         with ExitStack() as stack:
-            live_subs, live_timers = [], []
-            for s in subs:
-                try:
-                    stack.enter_context(s.handle)
-                    live_subs.append(s)
-                except InvalidHandle:
-                    pass
-            for t in timers:
-                try:
-                    stack.enter_context(t.handle)
-                    live_timers.append(t)
-                except InvalidHandle:
-                    pass
+            live_subs, live_timers = _enter(stack, subs), _enter(stack, timers)
             stack.enter_context(self.context.handle)
             ws = _rclpy.WaitSet(len(live_subs), 0, len(live_timers), 0, 0, 0,
                                 self.context.handle)

@@ -35,6 +35,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -104,12 +105,13 @@ def main():
     rclpy.init(args=sys.argv)
     node = ForeignController()
     idle = node.get_parameter("idle_exit_s").value
+    node.get_logger().info("ready: answering joint_states on motor_driver/commands")
     try:
         while rclpy.ok():
             rclpy.spin_once(node, timeout_sec=0.1)
             if idle and node.last_rx is not None and time.monotonic() - node.last_rx > idle:
                 break
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):    # Ctrl-C, SIGTERM
         pass
     node.get_logger().info(f"answered {node.answered} joint states")
     node.destroy_node()

@@ -310,7 +310,7 @@ def cmd_run(args):
         raise SceneError(f"{'--nodes' if args.nodes else '--without'}: {exc}") from None
     if "recorder" not in nodes:
         record = None
-    kw = dict(duration=args.duration, mode=args.mode, processes=args.processes,
+    kw = dict(duration=args.duration, mode=args.mode, processes=args.processes, pin=args.pin,
               nodes=tuple(n for n in nodes if n != "recorder"),
               namespace=namespace, progress=not args.quiet, fidelity=_overrides(args),
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
@@ -445,6 +445,9 @@ def build_parser():
     r.add_argument("--no-record", action="store_true", help="run without the recorder")
     r.add_argument("--processes", action="store_true",
                    help="one process per node (default: all nodes on one executor)")
+    r.add_argument("--pin", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --processes: the simulator alone on the last CPU, the other "
+                        "nodes on the rest (default: on in realtime, off otherwise)")
     r.add_argument("--namespace", default="/flexarm", help="node namespace (default /flexarm)")
     r.add_argument("--quiet", action="store_true",
                    help="no progress and no node info log on stderr (the summary is still "
@@ -470,7 +473,7 @@ def build_parser():
                         "(default 0.1)")
     r.add_argument("--ground-truth-rate", type=number, metavar="HZ",
                    help="rate of ground_truth/tip and ground_truth/coordinates (default: "
-                        "every control tick)")
+                        "every control tick; 100 Hz in realtime; 0: every tick)")
     r.add_argument("--rerun", type=Path, metavar="FILE.rrd",
                    help="after the run, convert its bag to this rerun recording (needs "
                         "rerun-sdk: pip install -e .[viz]; see docs/viewing.md)")

@@ -72,6 +72,7 @@ class RunResult:
     pacing: dict | None = None                # realtime: the simulator's Pacer.summary()
     published: dict | None = None             # simulator: messages per topic
     recorded: dict | None = None              # the bag's message count per topic
+    cpus: dict | None = None                  # --processes with pinning: node -> CPUs
 
     def to_json(self) -> dict:
         """The summary as JSON-ready numbers (``flexarm run --json``)."""
@@ -95,7 +96,9 @@ class RunResult:
                                        if self.rejected is not None else None)),
                 "rejected": self.rejected, "diverged": self.diverged,
                 "interrupted": self.interrupted, "returncodes": self.returncodes,
-                "recovered": self.recovered}
+                "recovered": self.recovered,
+                "cpus": ({n: sorted(c) for n, c in self.cpus.items()} if self.cpus
+                         else None)}
 
     def summary(self) -> str:
         how = "one process per node" if self.processes else "one process"
@@ -318,6 +321,40 @@ def die_with_parent(sig: int = signal.SIGTERM):
     return bind
 
 
+def cpu_placement(names, cpus=None) -> dict:
+    """``{node: CPUs}`` for a realtime graph of one process per node: the simulator alone
+    on the last CPU the caller may use, every other node on the rest; ``{}`` with fewer
+    than two CPUs or where the platform has no CPU affinity.
+
+    Why (measured, bench/bench_realtime.py, two_link_case1 at 1 kHz on 2 cores): the
+    simulator's process is the twin's critical path (its tick holds the GIL for physics,
+    encoding and publishing); left to the scheduler, every message it publishes wakes a
+    receiving process that preempts it on its own core. Pinned, the real-time factor rose
+    from 0.83 to 0.91 with the same work per tick. ros2_control's controller manager
+    offers the same knob (``cpu_affinity``)."""
+    if not hasattr(os, "sched_getaffinity"):
+        return {}
+    allowed = sorted(os.sched_getaffinity(0) if cpus is None else cpus)
+    if len(allowed) < 2 or "simulator" not in names:
+        return {}
+    sim, rest = {allowed[-1]}, set(allowed[:-1])
+    return {n: (sim if n == "simulator" else rest) for n in names}
+
+
+def _preexec(die, cpus):
+    """The child's ``preexec_fn``: the parent-death signal, then the CPU set (threads made
+    later, DDS's included, inherit it)."""
+    if die is None and not cpus:
+        return None
+
+    def setup():
+        if die is not None:
+            die()
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+    return setup
+
+
 class ProcessGraph:
     """One child process per node: ``python -m flexarm_ros.nodes.<node> --ros-args ...``
     (``progress``: as :class:`InProcessGraph`).
@@ -331,24 +368,29 @@ class ProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 stderr=None, fidelity=None, simulator=None):
+                 stderr=None, fidelity=None, simulator=None, pin=False):
         env = environment.child_environment()
         names = list(nodes) + (["recorder"] if record else [])
+        self.placement = cpu_placement(names) if pin else {}
         self.procs = {}
         try:
             for name in NODES:
                 if name not in names:
                     continue
+                # the simulator's first state waits for the controller this graph starts
+                # (in realtime it would not wait for a controller of its own accord)
+                sim = {**(simulator or {}), "controllers": 1 if "controller" in names else -1}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
-                            progress, fidelity, simulator)
+                            progress, fidelity, sim)
                 cmd = [sys.executable, "-m", f"flexarm_ros.nodes.{name}", "--ros-args",
                        "-r", f"__ns:={namespace}"]
                 if not progress:
                     cmd += ["--log-level", "warn"]
                 for k, v in p.items():
                     cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
-                self.procs[name] = subprocess.Popen(cmd, env=env, stderr=stderr,
-                                                    preexec_fn=die_with_parent())
+                self.procs[name] = subprocess.Popen(
+                    cmd, env=env, stderr=stderr,
+                    preexec_fn=_preexec(die_with_parent(), self.placement.get(name)))
         except BaseException:
             self.stop(timeout=5.0)
             raise
@@ -408,13 +450,15 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
 
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
-        fidelity=None, simulator=None, nodes=GRAPH_NODES) -> RunResult:
+        fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
     scene's); ``progress``: progress line and the nodes' info log on stderr; ``nodes``:
     which of simulator, motor_driver, controller to start (a user's own node replaces
-    the others: see docs/topic_contract.md)."""
+    the others: see docs/topic_contract.md); ``pin``: with ``processes``, the simulator
+    alone on one CPU and the other nodes on the rest (:func:`cpu_placement`; None: in
+    ``realtime`` only)."""
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes._common import StopFlag
     if mode not in MODES:
@@ -444,7 +488,8 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             g = ProcessGraph(scene, mode, duration, record, namespace, progress,
                              nodes=nodes, fidelity=fidelity,
                              simulator={**(simulator or {}),
-                                        "summary_file": str(summary_file)})
+                                        "summary_file": str(summary_file)},
+                             pin=(mode == "realtime") if pin is None else pin)
             sim = g.procs["simulator"]
             while sim.poll() is None and not stop.set and not g.failed():
                 try:
@@ -455,7 +500,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             res = RunResult(name, mode, True, record, time.monotonic() - t0,
                             interrupted=stop.set, returncodes=codes, recovered=recovered,
-                            nodes=tuple(g.procs))
+                            nodes=tuple(g.procs), cpus=g.placement or None)
             sim_summary = _read_summary(summary_file)
             summary_file.unlink(missing_ok=True)
             if sim_summary:

@@ -56,26 +56,37 @@ def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode):
     the lightly damped 0.23 Hz beam mode's overshoot; measured 0.8 % and 0.2 %)."""
     proc, log = _start_example(tmp_path)
     try:
+        if mode == "realtime":      # the realtime twin does not wait for a controller
+            t0 = time.monotonic()
+            while ("ready:" not in (tmp_path / "controller.log").read_text()
+                   and time.monotonic() - t0 < 60 and proc.poll() is None):
+                time.sleep(0.05)
+        # realtime: one process per node (the simulator pinned to its own CPU), as a
+        # user runs the realtime twin: in one process the twin's own late ticks (a
+        # loaded machine: 0.4 s once) hand the controller a delayed loop
         res = run("two_link_position", 8.0, mode, record=tmp_path / "run.mcap",
-                  namespace=NS, progress=False, nodes=("simulator", "motor_driver"))
+                  namespace=NS, progress=False, nodes=("simulator", "motor_driver"),
+                  processes=mode == "realtime")
     finally:
         proc.terminate()
         proc.wait(30)
         log.close()
-    assert res.nodes == ("recorder", "motor_driver", "simulator")
-    assert not res.diverged and res.rejected_commands == 0
+    assert set(res.nodes) == {"recorder", "motor_driver", "simulator"}
+    assert not res.diverged and res.to_json()["rejected_commands"] == 0
     bag = read_bag(tmp_path / "run.mcap")
     gt = bag[f"{NS}/{T.GT_JOINT_STATES}"]
     q_end = np.array(gt[-1][1].position[:2])
     assert gt[-1][0] == 8_000_000_000
-    assert np.all(np.abs(q_end - TARGET) < 0.03 * np.abs(TARGET - START)), q_end
+    assert np.all(np.abs(q_end - TARGET) < 0.03 * np.abs(TARGET - START)), (
+        q_end, res.to_json(), (tmp_path / "controller.log").read_text())
     cmds = bag[f"{NS}/{T.COMMANDS}"]
     # the commands on the bag are the example's: one per joint state in lockstep (the
     # answer to the final state may or may not reach the bag before the run ends)
     if mode == "lockstep":
         states = len(bag[f"{NS}/{T.JOINT_STATES}"])
         assert len(cmds) in (states - 1, states)
-    assert "target [0.5, 0.9] rad" in (tmp_path / "controller.log").read_text()
+    text = (tmp_path / "controller.log").read_text()
+    assert "target [0.5, 0.9] rad" in text and "Traceback" not in text, text
 
 
 def test_lockstep_waits_for_a_controller_and_says_so(tmp_path, capfd):

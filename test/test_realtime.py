@@ -29,7 +29,9 @@ def _run_json(capsys, *argv) -> dict:
     return json.loads(out)
 
 
-def _check_summary(s: dict, ticks: int):
+def _check_summary(s: dict, ticks: int, gt_every: int = 10):
+    """``gt_every``: ticks per ground_truth/tip and /coordinates message (realtime's
+    default is 100 Hz at the 1 kHz control rate)."""
     assert s["ticks"] == ticks and s["sim_time_s"] == pytest.approx(ticks * 1e-3, abs=1e-9)
     assert 0 <= s["late_ticks"] <= s["ticks"]
     assert 0 <= s["lateness_p50_s"] <= s["lateness_p99_s"] <= s["lateness_max_s"]
@@ -39,16 +41,19 @@ def _check_summary(s: dict, ticks: int):
     rec, pub = s["recorded"], s["published"]
     for topic in SIM_TOPICS:
         want = ticks if topic == T.ACCEL_BATCH else ticks + 1   # no samples at t = 0
+        if topic in (T.GT_TIP, T.GT_COORDINATES):
+            want = ticks // gt_every + 1
         assert pub[topic] == want and rec[T.resolve(NS, topic)] == want, topic
     for topic in (T.COMMANDS, T.EFFORTS, T.MOTOR_STATES):
         assert rec[T.resolve(NS, topic)] in (ticks, ticks + 1), topic
     assert s["rejected_commands"] == 0
 
 
-def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys):
+@pytest.mark.parametrize("argv,gt_every", [([], 10), (["--ground-truth-rate", "0"], 1)])
+def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_every):
     s = _run_json(capsys, "two_link_case1", "--mode", "realtime", "--duration", "0.5",
-                  "--record", str(tmp_path / "rt.mcap"))
-    _check_summary(s, 500)
+                  "--record", str(tmp_path / "rt.mcap"), *argv)
+    _check_summary(s, 500, gt_every)
 
 
 def test_realtime_run_in_processes_reports_the_same_summary(tmp_path, capsys):
@@ -57,6 +62,14 @@ def test_realtime_run_in_processes_reports_the_same_summary(tmp_path, capsys):
     _check_summary(s, 500)
     assert set(s["nodes"]) == {"simulator", "motor_driver", "controller", "recorder"}
     assert s["returncodes"] == dict.fromkeys(s["nodes"], 0)
+    # realtime in processes pins the simulator alone on a CPU, the other nodes elsewhere
+    import os
+    if len(os.sched_getaffinity(0)) >= 2:
+        cpus = s["cpus"]
+        assert set(cpus) == set(s["nodes"])
+        sim = set(cpus["simulator"])
+        assert len(sim) == 1 and all(not sim & set(c) for n, c in cpus.items()
+                                     if n != "simulator")
 
 
 def test_ground_truth_at_a_set_rate_keeps_the_values_of_every_tick(tmp_path, capsys):
@@ -87,3 +100,14 @@ def test_bad_pacing_settings_are_one_line(tmp_path, capsys, argv, key):
                  "--quiet", *argv])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and key in err[0], err
+
+
+def test_cpu_placement_puts_the_simulator_alone():
+    from flexarm_ros.run import cpu_placement
+    names = ["simulator", "motor_driver", "controller", "recorder"]
+    p = cpu_placement(names, cpus={0, 1})
+    assert p["simulator"] == {1} and all(p[n] == {0} for n in names[1:])
+    p = cpu_placement(names, cpus={2, 5, 7})
+    assert p["simulator"] == {7} and p["recorder"] == {2, 5}
+    assert cpu_placement(names, cpus={3}) == {}              # one CPU: nothing to separate
+    assert cpu_placement(["recorder"], cpus={0, 1}) == {}

@@ -120,12 +120,19 @@ class RecorderNode(Node):
     EXECUTABLE = "recorder"
     PARAMS = {"output": ("run.mcap", "MCAP file to write"),
               "flush_period": (1.0, "s of wall time between chunk flushes (bounds the loss "
-                                    "of a SIGKILL)")}
+                                    "of a SIGKILL)"),
+              "batch_s": (0.005, "s of wall time the recorder's own process pauses between "
+                                 "draining its queues (one wake-up per batch; below "
+                                 f"{C.DEPTH} messages per topic nothing is lost; 0: none)")}
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
         self.p, scene, _ = C.load(self, self.PARAMS)
         self.lockstep = self.p["mode"] == "lockstep"
+        b = self.p["batch_s"]
+        if not (isinstance(b, (int, float)) and 0.0 <= b <= 0.5):
+            raise ValueError(f"parameter batch_s: got {b!r}, expected 0 to 0.5 s")
+        self.spin_pause_s = float(b)             # read by node_main (own process only)
         from flexarm_ros.model.explain import explain
         ns = self.get_namespace()
         over = fidelity_overrides(self.p)

@@ -40,13 +40,16 @@ efforts by reason.
 Every message is published as serialized CDR (:func:`flexarm_ros.bag.writer.encode_cdr`,
 the encoder the bags use, on its compiled path without validation for the dicts the core
 builds): no rclpy message objects on the hot path. The analysis-only
-topics ``ground_truth/tip`` and ``ground_truth/coordinates`` go out every tick, or at
-``ground_truth_rate_hz`` when set (``ground_truth/joint_states`` is the driver's input and
-goes out every tick).
+topics ``ground_truth/tip`` and ``ground_truth/coordinates`` go out every tick in
+``lockstep`` and ``fast``, at 100 Hz in ``realtime`` (at 1 kHz on two cores the budget
+does not allow every tick: docs/design_notes.md), or at ``ground_truth_rate_hz`` when set
+(``ground_truth/joint_states`` is the driver's input and goes out every tick).
 
 Publishing starts once what the twin needs is matched: the driver on
 ``ground_truth/joint_states``, in ``lockstep`` a controller on ``joint_states`` (the twin
-steps on its answers, so the first state must reach it), and with ``recorders`` the
+steps on its answers, so the first state must reach it; in every mode with
+``controllers`` = 1, as ``flexarm run`` sets it when it starts the twin's controller),
+and with ``recorders`` the
 recorder on every topic — nothing else (a user's controller need not read
 ``tool/contact``). A wait longer than a few seconds is logged at WARN level with what is
 missing.
@@ -68,7 +71,7 @@ from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
-from flexarm_ros.twin.pacing import Pacer, check_settings
+from flexarm_ros.twin.pacing import REALTIME_GT_HZ, Pacer, check_settings, ground_truth_rate
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source
@@ -93,8 +96,12 @@ class SimulatorNode(Node):
                              "its own timer)"),
               "summary_file": ("", "write the final run summary (JSON) here when the node "
                                "stops ('': none)"),
-              "ground_truth_rate_hz": (0.0, "rate of ground_truth/tip and "
-                                       "ground_truth/coordinates (0: every tick)")}
+              "controllers": (-1, "controllers on joint_states the first state waits for "
+                                  "(-1: 1 in lockstep, where the twin steps on their answers, "
+                                  "else 0; flexarm run sets 1 when it starts its controller)"),
+              "ground_truth_rate_hz": (-1.0, "rate of ground_truth/tip and "
+                                       "ground_truth/coordinates (0: every tick; -1: "
+                                       f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)")}
 
     def __init__(self, **kwargs):
         super().__init__("simulator", **kwargs)
@@ -131,7 +138,8 @@ class SimulatorNode(Node):
                                                        i.node_namespace == ns)
                            for i in infos))
         needs = {T.GT_JOINT_STATES: (1, "the motor driver"),
-                 T.JOINT_STATES: (int(lockstep), "a controller"),
+                 T.JOINT_STATES: (int(lockstep) if self.p["controllers"] < 0 else
+                                  int(self.p["controllers"]), "a controller"),
                  T.TOOL_CONTACT: (own_controller, "the twin's controller"),
                  T.TOOL_WRENCH: (own_controller, "the twin's controller")}
         self.ready = C.Barrier(self, [
@@ -143,7 +151,7 @@ class SimulatorNode(Node):
         self.finished = self.started = False
         self.t_wall0 = self.t_wall_end = None
         self._last_report = self._last_log = 0.0
-        rate = self.p["ground_truth_rate_hz"]
+        rate = ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode)
         check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate)
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1

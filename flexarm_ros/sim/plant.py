@@ -79,6 +79,9 @@ class Plant:
         periods = [1.0 / s.spec.rate_hz for s in self.sensors]
         self.grid_ns = sample_grid_ns(periods) if periods else 0
         self._every = [int(round(1e9 / s.spec.rate_hz)) for s in self.sensors]
+        # which sensors are due at a grid instant depends only on t mod the periods' lcm
+        self._cycle = math.lcm(*self._every) if self._every else 1
+        self._due_at: dict = {}
         self._rng = {s.name: np.random.default_rng(s.spec.seed) for s in self.sensors}
         self._act = {a.link: j for j, a in enumerate(ch.actuators)}
         # accelerometers read by the compiled kernel (numba backend; else the numpy path)
@@ -159,47 +162,78 @@ class Plant:
             self.contact_sample = self.stepper.sample()
         self.t = t_end
 
+    def _due(self, t_ns: int) -> tuple:
+        """(sensor indices due at grid time ``t_ns``, any accelerometer among them),
+        computed once per instant of the sensors' common cycle."""
+        key = t_ns % self._cycle
+        due = self._due_at.get(key)
+        if due is None:
+            idx = tuple(j for j, every in enumerate(self._every) if t_ns % every == 0)
+            due = self._due_at[key] = (idx, any(self.sensors[j].spec.kind ==
+                                                "accelerometer" for j in idx))
+        return due
+
     def _sample_due(self) -> list[Sample]:
         t_ns = self.k * self.grid_ns
-        due = [j for j, every in enumerate(self._every) if t_ns % every == 0]
+        due, any_acc = self._due(t_ns)
         if not due:
             return []
         ch = self.chain
         q, qd = ch.full_state(self.t, self.x)
         qdd = None
         kin = None
-        if any(self.sensors[j].spec.kind == "accelerometer" for j in due):
+        if any_acc:
             qdd = self.accelerations()
             if self._acc is not None:       # compiled: frames from one kernel evaluation
-                self._frames_now()
-                ksensors.readings(q, qd, qdd, ch.kernel_args, self.ws,
-                                        *self._acc[1:], self._acc_out)
+                if self.stepper is not None and self.stepper.frames_current:
+                    ws = self.contact.ws        # the contact sample's evaluation of this state
+                else:
+                    self._frames_now()
+                    ws = self.ws
+                ksensors.readings(q, qd, qdd, ch.kernel_args, ws, *self._acc[1:],
+                                  self._acc_out)
         out = []
         for j in due:
             sm = self.sensors[j]
-            if sm.spec.kind == "accelerometer" and self._acc is not None:
+            kind = sm.spec.kind
+            if kind == "accelerometer" and self._acc is not None:
                 val = float(self._acc_out[self._acc_row[j]])
             else:
-                if kin is None and sm.spec.kind in ("accelerometer", "tip_position"):
+                if kin is None and kind in ("accelerometer", "tip_position"):
                     kin = ch.kinematics(q, qd, frames_only=True)
                 val = true_value(sm, ch, q, qd, qdd, self.q_initial, kin)
-            if sm.spec.kind == "tip_position":
+            if kind == "tip_position":
                 out.append(Sample(f"{sm.name}_x", self.t, val[0], val[0]))
                 out.append(Sample(f"{sm.name}_y", self.t, val[1], val[1]))
                 continue
-            if sm.spec.kind == "encoder" and abs(val) > INT32_MAX:
+            if kind == "encoder" and abs(val) > INT32_MAX:
                 raise SimulationDiverged(
                     f"encoder {sm.name} counts", self.t, val,
                     "check the drive's input and the joint's damping; the scene's encoders "
                     f"are sized for ±{ENCODER_REVOLUTIONS} output revolutions",
                     detail=f"{val:.0f} counts leave the int32 range (±{INT32_MAX}) of the "
                            f"encoder_counts message (std_msgs/Int32MultiArray)")
-            out.append(Sample(sm.name, self.t, float(self._measure(sm, val)), val))
+            out.append(Sample(sm.name, self.t, self._measure(sm, val), val))
         return out
 
-    def _measure(self, sm, val):
-        """Instrument output of one reading (noise from the sensor's own stream)."""
-        return measure(sm, np.array([val]), self._rng[sm.name])[0]
+    def _measure(self, sm, val: float) -> float:
+        """Instrument output of one reading: :func:`sensors.measure` on a scalar (the same
+        arithmetic and the same draw from the sensor's own noise stream)."""
+        sn = sm.spec
+        if sn.kind in ("encoder", "tip_position"):
+            return float(val)
+        v = float(val)
+        if sn.sensitivity is not None:
+            v = v * sn.sensitivity
+        if sn.noise_std > 0:
+            v = v + float(self._rng[sm.name].normal(0.0, sn.noise_std, 1)[0])
+        if sn.adc_range is not None:
+            lo, hi = sn.adc_range
+            v = min(max(v, lo), hi)
+            if sn.adc_bits is not None:
+                lsb = (hi - lo) / (2 ** sn.adc_bits - 1)
+                v = lo + float(np.round((v - lo) / lsb)) * lsb
+        return v
 
     # --------------------------------------------------------------------- readings
     def accelerations(self) -> np.ndarray:

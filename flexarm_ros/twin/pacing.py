@@ -86,6 +86,21 @@ class Lateness:
                 "lateness_max_s": self.max}
 
 
+REALTIME_GT_HZ = 100.0
+"""The default rate of ``ground_truth/tip`` and ``ground_truth/coordinates`` in realtime:
+analysis topics that no bench has, thinned so that the hardware topics keep the wall
+clock (measured: docs/design_notes.md)."""
+
+
+def ground_truth_rate(rate: float, mode: str) -> float:
+    """The ground-truth rate a simulator uses: ``rate`` when it is 0 (every tick) or
+    positive; for the default -1, every tick (0) in lockstep and fast and
+    :data:`REALTIME_GT_HZ` in realtime."""
+    if isinstance(rate, (int, float)) and rate == -1:
+        return REALTIME_GT_HZ if mode == "realtime" else 0.0
+    return rate
+
+
 def check_settings(period: float, late_policy: str = "slow", late_bound: float = 0.1,
                    ground_truth_rate_hz: float = 0.0) -> None:
     """The simulator's pacing parameters, or a SceneError naming the one that is wrong."""
@@ -96,10 +111,10 @@ def check_settings(period: float, late_policy: str = "slow", late_bound: float =
             and late_bound >= period):
         raise SceneError(f"parameter late_bound: got {late_bound!r} s, expected a finite "
                          f"bound of at least one control period ({period:g} s)")
-    rate = ground_truth_rate_hz
+    rate = ground_truth_rate(ground_truth_rate_hz, "lockstep")
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
         raise SceneError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 (every "
-                         f"tick) or a positive rate in Hz")
+                         f"tick), -1 (the mode's default) or a positive rate in Hz")
 
 
 class Pacer:

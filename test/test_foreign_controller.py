@@ -51,7 +51,7 @@ def _start_example(tmp_path):
 @pytest.mark.parametrize("mode", ["lockstep", "realtime"])
 def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode):
     """8 s of two_link_position with the example in place of the twin's controller: both
-    joints end within 3 % of the 0.1 rad move (the closed loop's slowest decay rate is
+    joints end within 3 % of the 0.1 rad move (10 % in realtime, below) (the closed loop's slowest decay rate is
     0.67 1/s with these gains, config/two_link_position.yaml: e^(−0.67·8) = 0.5 %, plus
     the lightly damped 0.23 Hz beam mode's overshoot; measured 0.8 % and 0.2 %)."""
     proc, log = _start_example(tmp_path)
@@ -77,7 +77,11 @@ def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode):
     gt = bag[f"{NS}/{T.GT_JOINT_STATES}"]
     q_end = np.array(gt[-1][1].position[:2])
     assert gt[-1][0] == 8_000_000_000
-    assert np.all(np.abs(q_end - TARGET) < 0.03 * np.abs(TARGET - START)), (
+    # realtime: the example answers each state a few ms late in its own process while
+    # the plant holds the previous voltage (up to effort_lag ticks), a slightly less
+    # damped loop: measured 0.4-4.1 % of the move after 8 s over 8 runs
+    bound = 0.03 if mode == "lockstep" else 0.10
+    assert np.all(np.abs(q_end - TARGET) < bound * np.abs(TARGET - START)), (
         q_end, res.to_json(), (tmp_path / "controller.log").read_text())
     cmds = bag[f"{NS}/{T.COMMANDS}"]
     # the commands on the bag are the example's: one per joint state in lockstep (the

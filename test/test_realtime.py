@@ -111,3 +111,34 @@ def test_cpu_placement_puts_the_simulator_alone():
     assert p["simulator"] == {7} and p["recorder"] == {2, 5}
     assert cpu_placement(names, cpus={3}) == {}              # one CPU: nothing to separate
     assert cpu_placement(["recorder"], cpus={0, 1}) == {}
+
+
+def test_a_stalled_effort_source_is_waited_for_again_once_it_speaks():
+    """The realtime plant's bound on running ahead of the efforts: after one timed-out
+    wait the source counts as silent (no wait per tick while it is dead), but the first
+    new effort restores the bound; before, the plant ran unbounded ahead after a single
+    start-up stall and two_link_case1 diverged (t = 0.94 s)."""
+    import threading
+    import flexarm_ros.nodes._common  # noqa: F401  (rclpy import order)
+    from flexarm_ros.nodes.simulator import SimulatorNode
+    sim = SimulatorNode.__new__(SimulatorNode)          # the wait's state, no ROS
+    sim._answer, sim.finished = threading.Condition(), False
+    sim.answered, sim._silent_at, sim.waited_ticks, sim.stale_ticks = -1, None, 0, 0
+    sim._await_effort(0, 0.02)                           # nothing answers: times out
+    assert (sim.waited_ticks, sim.stale_ticks, sim._silent_at) == (1, 1, -1)
+    sim._await_effort(5, 0.02)                           # silent: no further wait
+    assert sim.waited_ticks == 1
+    sim.answered = 0                                     # it speaks again
+    sim._await_effort(5, 0.02)                           # the bound holds again: waits
+    assert (sim.waited_ticks, sim.stale_ticks) == (2, 2)
+
+    def answer():
+        with sim._answer:
+            sim.answered = 5
+            sim._answer.notify()
+    sim._silent_at = None
+    timer = threading.Timer(0.01, answer)
+    timer.start()
+    sim._await_effort(5, 5.0)                            # an answer ends the wait
+    timer.join()
+    assert (sim.waited_ticks, sim.stale_ticks) == (3, 2)

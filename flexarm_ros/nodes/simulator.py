@@ -164,7 +164,7 @@ class SimulatorNode(Node):
         self.answered = -1                      # accepted efforts − 1: the state answered
         self.waited_ticks = 0                   # steps that waited for an effort
         self.stale_ticks = 0                    # steps taken after the wait timed out
-        self._source_silent = False
+        self._silent_at = None                  # answered when a wait timed out
         # wall-clock timer: polls the start barrier; then lockstep steps on efforts,
         # realtime in its pacing thread, fast whenever the executor is free
         self.timer = self.create_timer(0.0 if self.mode == "fast" else 0.001,
@@ -212,18 +212,23 @@ class SimulatorNode(Node):
         self.report()
 
     def _await_effort(self, k_min: int, timeout: float) -> None:
-        """Wait until an effort answered state ``k_min`` or newer (at most ``timeout`` s;
-        not at all while the source has stayed silent since a wait timed out)."""
+        """Wait until an effort answered state ``k_min`` or newer (at most ``timeout`` s).
+        After a wait timed out the source counts as silent and is not waited for until
+        it speaks again (any new effort): a dead driver must not cost every tick a
+        timeout, and a driver that stalled once must not leave the plant running ahead of
+        its answers for good (measured: one 50 ms stall at start-up, then the plant ran
+        unbounded ahead and two_link_case1 diverged at t = 0.94 s)."""
         with self._answer:
-            if self.answered >= k_min or self._source_silent:
-                self._source_silent = self._source_silent and self.answered < k_min
+            if self._silent_at is not None and self.answered > self._silent_at:
+                self._silent_at = None                  # it spoke: bound the lag again
+            if self.answered >= k_min or self._silent_at is not None:
                 return
             self.waited_ticks += 1
             ok = self._answer.wait_for(lambda: self.answered >= k_min or self.finished,
                                        timeout)
             if not ok:
                 self.stale_ticks += 1
-                self._source_silent = True
+                self._silent_at = self.answered
 
     def _pace(self):
         """The realtime loop (its own thread): sleep to each tick's deadline, step with the

@@ -280,10 +280,10 @@ class InProcessGraph:
         rec = self.nodes.get("recorder")
         if rec is not None:
             rec.close()
+        self.executor.shutdown()            # releases the handles its wait set holds
         for node in self.nodes.values():
             node.destroy_node()
         self.nodes = {}
-        self.executor.shutdown()
         if self.context.ok():
             rclpy.shutdown(context=self.context)
 

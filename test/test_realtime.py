@@ -118,12 +118,21 @@ def test_a_stalled_effort_source_is_waited_for_again_once_it_speaks():
     wait the source counts as silent (no wait per tick while it is dead), but the first
     new effort restores the bound; before, the plant ran unbounded ahead after a single
     start-up stall and two_link_case1 diverged (t = 0.94 s)."""
-    import threading
+    import time
     import flexarm_ros.nodes._common  # noqa: F401  (rclpy import order)
     from flexarm_ros.nodes.simulator import SimulatorNode
     sim = SimulatorNode.__new__(SimulatorNode)          # the wait's state, no ROS
-    sim._answer, sim.finished = threading.Condition(), False
+    sim.finished = False
     sim.answered, sim._silent_at, sim.waited_ticks, sim.stale_ticks = -1, None, 0, 0
+    arrivals = []                      # (after this many s of waiting, answered becomes)
+    waited = [0.0]
+
+    def poll(wait_s):                  # the subscription: efforts arrive as scheduled
+        time.sleep(wait_s)
+        waited[0] += wait_s
+        while arrivals and waited[0] >= arrivals[0][0]:
+            sim.answered = arrivals.pop(0)[1]
+    sim._poll_efforts = poll
     sim._await_effort(0, 0.02)                           # nothing answers: times out
     assert (sim.waited_ticks, sim.stale_ticks, sim._silent_at) == (1, 1, -1)
     sim._await_effort(5, 0.02)                           # silent: no further wait
@@ -131,14 +140,8 @@ def test_a_stalled_effort_source_is_waited_for_again_once_it_speaks():
     sim.answered = 0                                     # it speaks again
     sim._await_effort(5, 0.02)                           # the bound holds again: waits
     assert (sim.waited_ticks, sim.stale_ticks) == (2, 2)
-
-    def answer():
-        with sim._answer:
-            sim.answered = 5
-            sim._answer.notify()
-    sim._silent_at = None
-    timer = threading.Timer(0.01, answer)
-    timer.start()
-    sim._await_effort(5, 5.0)                            # an answer ends the wait
-    timer.join()
-    assert (sim.waited_ticks, sim.stale_ticks) == (3, 2)
+    sim._silent_at, waited[0] = None, 0.0
+    arrivals.append((0.01, 5))
+    sim._await_effort(5, 5.0)                            # an answer ends the wait early
+    assert (sim.waited_ticks, sim.stale_ticks, sim.answered) == (3, 2, 5)
+    assert waited[0] < 1.0

@@ -18,6 +18,9 @@ topic — before waiting again. Per topic the order is the DDS order, as with an
 executor; across topics the twin's nodes never relied on more (lockstep pairs messages
 by count per topic and the recorder by source timestamps).
 
+A subscription marked ``taken_elsewhere`` is left to the thread that takes from it
+(the realtime simulator's pacing thread takes its efforts itself).
+
 Not supported (and not used by the nodes): services, clients, waitables, guard
 conditions, coroutine callbacks, other callback groups.
 """
@@ -53,6 +56,8 @@ class DrainExecutor:
         self.context = context
         self._nodes: list = []
         self._shutdown = False
+        self._key = None          # the entities of the cached wait set (ids, held alive)
+        self._cache = None        # (ExitStack holding their handles, subs, timers, WaitSet)
 
     def add_node(self, node) -> bool:
         if node not in self._nodes:
@@ -62,6 +67,7 @@ class DrainExecutor:
     def remove_node(self, node) -> None:
         if node in self._nodes:
             self._nodes.remove(node)
+        self._release()
 
     def get_nodes(self) -> list:
         return list(self._nodes)
@@ -69,34 +75,54 @@ class DrainExecutor:
     def shutdown(self, timeout_sec=None) -> bool:
         self._shutdown = True
         self._nodes = []
+        self._release()
         return True
 
+    def _release(self) -> None:
+        """Let go of the cached wait set and the handles it holds (a destroyed entity's
+        handle is freed when released)."""
+        if self._cache is not None:
+            self._cache[0].close()
+        self._key = self._cache = None
+
     def spin_once(self, timeout_sec: float | None = None) -> None:
-        """Wait up to ``timeout_sec`` (None: forever) for work; do all of it."""
+        """Wait up to ``timeout_sec`` (None: forever) for work; do all of it.
+
+        The wait set and the entered handles are kept from one call to the next while the
+        nodes' subscriptions and timers stay the same (entering ~20 handles per call cost
+        about 0.15 ms per lockstep tick, measured with cProfile on two_link_case1)."""
         if self._shutdown or not self.context.ok():
+            self._release()
             if timeout_sec:
                 time.sleep(min(timeout_sec, 0.01))
             return
-        subs = [s for n in self._nodes for s in n.subscriptions]
+        subs = [s for n in self._nodes for s in n.subscriptions
+                if not getattr(s, "taken_elsewhere", False)]
         timers = [t for n in self._nodes for t in n.timers if not t.is_canceled()]
         if not subs and not timers:
+            self._release()
             if timeout_sec:
                 time.sleep(timeout_sec)
             return
-        timeout_ns = -1 if timeout_sec is None else int(max(timeout_sec, 0.0) * 1e9)
-        with ExitStack() as stack:
+        key = (tuple(map(id, subs)), tuple(map(id, timers)))
+        if key != self._key:
+            self._release()
+            stack = ExitStack()
             live_subs, live_timers = _enter(stack, subs), _enter(stack, timers)
             stack.enter_context(self.context.handle)
             ws = _rclpy.WaitSet(len(live_subs), 0, len(live_timers), 0, 0, 0,
                                 self.context.handle)
-            ws.clear_entities()
-            for s in live_subs:
-                ws.add_subscription(s.handle)
-            for t in live_timers:
-                ws.add_timer(t.handle)
-            ws.wait(timeout_ns)
-            ready_subs = set(ws.get_ready_entities("subscription"))
-            ready_timers = set(ws.get_ready_entities("timer"))
+            self._key, self._cache = key, (stack, live_subs, live_timers, ws)
+        _, live_subs, live_timers, ws = self._cache
+        timeout_ns = -1 if timeout_sec is None else int(max(timeout_sec, 0.0) * 1e9)
+        ws.clear_entities()
+        for s in live_subs:
+            ws.add_subscription(s.handle)
+        for t in live_timers:
+            ws.add_timer(t.handle)
+        ws.wait(timeout_ns)
+        ready_subs = set(ws.get_ready_entities("subscription"))
+        ready_timers = set(ws.get_ready_entities("timer"))
         for t in live_timers:
             if t.handle.pointer in ready_timers:
                 try:

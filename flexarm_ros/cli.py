@@ -91,6 +91,9 @@ def _fidelity_args(p):
     g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
     g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
     g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
+    g.add_argument("--tolerance", type=number, metavar="M",
+                   help="tip-position error bound, m (rk4 without a wall): the step is "
+                        "chosen for it (simulate)")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",
@@ -101,7 +104,8 @@ def _fidelity_args(p):
 def _overrides(args) -> dict:
     """The fidelity options given → ``Scene.with_fidelity`` keywords (None: not given)."""
     over = {k: getattr(args, k, None) for k in
-            ("rung", "refine", "integrator", "rtol", "atol", "dt", "max_steps")}
+            ("rung", "refine", "integrator", "rtol", "atol", "dt", "max_steps",
+             "tolerance")}
     if getattr(args, "no_foreshortening", False):
         over["foreshortening"] = False
     return over
@@ -295,6 +299,10 @@ def cmd_run(args):
     from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.run import run
     check_duration(args.duration, allow_inf=True)
+    if args.tolerance is not None:
+        from flexarm_ros.errors import SceneError
+        raise SceneError(f"--tolerance: got {args.tolerance:g} m, expected it with flexarm "
+                         f"simulate (the twin's plant steps on its sensor grid; set --dt)")
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record

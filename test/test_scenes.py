@@ -58,6 +58,14 @@ def test_no_energy_gain_without_input(name):
     links = tuple(dataclasses.replace(lk, joint=dataclasses.replace(lk.joint, initial_rate=0.5))
                   for lk in scene.links)
     scene = dataclasses.replace(scene, links=links)
+    if scene.fidelity.integrator == "rk4" and not scene.walls:
+        # samples on step ends: the step's energy, not the dense output's interpolation
+        # (which may exceed it by O(h⁴) between steps); the step as the automatic one
+        # capped to divide the output period
+        from flexarm_ros.model.statics import initial_x
+        from flexarm_ros.sim.step import choose_step
+        chain = Chain(scene)
+        scene = scene.with_fidelity(dt=choose_step(chain, initial_x(chain), "rk4", 0.0, 0.005))
     res = simulate(scene, duration=0.2)
     e = res.columns["energy"]
     scale = max(abs(e[0]), 1e-9)

@@ -515,6 +515,10 @@ class Fidelity:
     rtol: float = param(1e-8, gt=0.0, lt=1.0, doc="relative tolerance (adaptive)")
     atol: float = param(1e-10, gt=0.0, doc="absolute tolerance (adaptive)")
     output_dt: float = param(1e-3, unit="s", gt=0.0, doc="sample period of the output")
+    tolerance: float = param(0.0, unit="m", ge=0.0,
+                             doc="tip-position error bound of a batch run (rk4 without a "
+                                 "wall): the step is chosen from a step-halving estimate "
+                                 "(0: off; the step from dt)")
     motor_current: str = param("dynamic", choices=("dynamic", "quasi_static"),
                                doc="dc_motor with inductance: integrate the current as a "
                                    "state, or take it quasi-static (L/R far below the step)")

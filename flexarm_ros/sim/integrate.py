@@ -22,6 +22,8 @@ from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled.layout import Workspace
+from flexarm_ros.model import drives
+from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.programs import torque_breakpoints
 from flexarm_ros.sim.guard import DivergenceGuard
@@ -56,8 +58,13 @@ class Integration:
         and the actuator states."""
         q = np.empty((len(t), chain.n))
         qd = np.empty((len(t), chain.n))
-        for k, tk in enumerate(t):
-            q[k], qd[k] = chain.full_state(tk, xs[k])
+        nf = len(chain.free)
+        q[:, chain.free] = xs[:, :nf]
+        qd[:, chain.free] = xs[:, nf:2 * nf]
+        for k, tk in enumerate(t if len(chain.presc_idx) else ()):
+            p = chain.prescribed_state(tk)
+            q[k, chain.presc_idx] = p[0]
+            qd[k, chain.presc_idx] = p[1]
         return cls(t, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
                    "integration reached the end time", rhs_evaluations, steps, wall_time_s, dt)
 
@@ -87,7 +94,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     n_out = int(np.floor(t_end / output_dt + 1e-9))
     t_out = np.arange(n_out + 1) * output_dt
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
-    h = choose_step(chain, x0, integrator, dt, output_dt)
+    h = choose_step(chain, x0, integrator, dt, output_dt,
+                    dense=integrator == "rk4" and smooth(chain))
     if integrator in ("rk4", "trapezoid"):
         check_work(chain, x0, h, t_end, integrator)         # before the work: no silent hang
     guard = DivergenceGuard(chain, max_deflection_ratio, integrator, h)
@@ -99,7 +107,29 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         kloops.warm_up(integrator, chain.kernel_args, x0, xs)   # compile outside the timing
     wall0 = time.perf_counter()
     last_report = wall0
-    if integrator == "rk4" and chain.backend == "numba":
+    dense = integrator == "rk4" and not _divides(h, output_dt)
+    if dense and chain.backend == "numba":
+        ws = kchain.workspace(chain.kernel_args)
+        x, t, k_next, steps = np.array(x0, float), 0.0, 1, 0
+        chunk = h * max(1, int(np.ceil(t_end / 100 / h)))    # whole steps per progress report
+        bps = input_breakpoints(chain, t_end)
+        while t < t_end - 1e-12 * max(1.0, t_end):
+            t_stop = min(t + chunk, next(b for b in bps if b > t + 1e-12 * max(1.0, t_end)))
+            code, t_new, st, calls, k_next, x_last, x_bad = kloops.rk4_dense(
+                x, t, h, t_stop, output_dt, k_next, max_deflection_ratio, xs,
+                chain.kernel_args, ws)
+            steps += st
+            f.calls += calls
+            if code != kchain.OK:
+                guard.last = x_last
+                guard.check(t_new, x_bad)
+            x, t = x_last, t_new
+            last_report = _report(progress, last_report, t / t_end)
+        xs[k_next:] = x                  # t_end exactly on the grid but below rounding
+    elif dense:
+        steps = _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard,
+                               input_breakpoints(chain, t_end))
+    elif integrator == "rk4" and chain.backend == "numba":
         per = int(round(output_dt / h))
         ws = kchain.workspace(chain.kernel_args)
         x, steps = np.array(x0, float), 0
@@ -132,8 +162,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             last_report = _report(progress, last_report, t_out[k + 1] / t_end)
     else:
         steps = 0
-        bps = sorted({b for a in chain.actuators
-                      for b in torque_breakpoints(a.program, t_end)} | {t_end})
+        bps = input_breakpoints(chain, t_end)
         t_lo, x = 0.0, np.array(x0, float)
         k_out = 1
         pace = Pace(chain, t_end, integrator)
@@ -168,6 +197,66 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     wall = time.perf_counter() - wall0
     step_used = h if integrator in ("rk4", "trapezoid") else 0.0
     return Integration.completed(chain, t_out, xs, f.calls, steps, wall, step_used)
+
+
+def smooth(chain) -> bool:
+    """True when the model's right-hand side is smooth between input jumps, so its stable
+    step, taken from the linearization at the start, holds over the run and RK4 may step
+    past the output period (dense output). Not so with backlash (the dead zone's kinks)
+    or a hydraulic actuator (the orifice flow ∝ √(P_S − p) stiffens without bound as the
+    pressure nears the supply): their automatic step stays capped by the output period."""
+    return not chain.backlash and all(a.kind != drives.HYDRAULIC for a in chain.actuators)
+
+
+def input_breakpoints(chain, t_end: float) -> list[float]:
+    """The instants in (0, t_end] where an input program jumps, and t_end: the integrators
+    end a step on each (RK4's dense path, the solve_ivp methods restart there), so no step
+    straddles a jump — its error would be O(h), not O(h⁵)."""
+    return sorted({b for a in chain.actuators
+                   for b in torque_breakpoints(a.program, t_end)} | {t_end})
+
+
+def _divides(h: float, output_dt: float) -> bool:
+    """True when the step h is a whole fraction of the output period (outputs on step
+    ends); else the outputs come from the dense output inside steps."""
+    n = output_dt / h
+    return n >= 1 - 1e-9 and abs(n - round(n)) <= 1e-9 * max(1.0, n)
+
+
+def hermite(theta, h, x0, f0, x1, f1):
+    """The cubic Hermite interpolant of a step [t, t + h] at t + θh (numpy twin of the
+    compiled :func:`~flexarm_ros.model.compiled.loops.hermite`)."""
+    t2, t3 = theta * theta, theta ** 3
+    return ((2 * t3 - 3 * t2 + 1) * x0 + (t3 - 2 * t2 + theta) * h * f0
+            + (3 * t2 - 2 * t3) * x1 + (t3 - t2) * h * f1)
+
+
+def _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard, bps) -> int:
+    """RK4 with steps of h independent of the output grid (numpy backend): outputs inside
+    a step from :func:`hermite`, ẋ from the right-hand side at both ends; a step ends on
+    every input breakpoint in ``bps``."""
+    x, t, k, steps = np.array(x0, float), 0.0, 1, 0
+    eps = 1e-12 * max(1.0, t_end)
+    n_out = len(t_out) - 1
+    while t < t_end - eps:
+        hh = min(h, next(b for b in bps if b > t + eps) - t)
+        x1 = chain.clamp_states(rk4_step(f, t, x, hh))
+        steps += 1
+        guard.check(t + hh, x1)
+        t1 = t + hh
+        if k <= n_out and t_out[k] < t1 - eps:
+            # ẋ just inside the step (as RK4's first and last stages): the limits on this
+            # side of an input jump on either end
+            f0, f1 = f(t + STAGE_EPS * hh, x), f(t + (1.0 - STAGE_EPS) * hh, x1)
+            while k <= n_out and t_out[k] < t1 - eps:
+                xs[k] = hermite((t_out[k] - t) / hh, hh, x, f0, x1, f1)
+                k += 1
+        if k <= n_out and abs(t_out[k] - t1) <= eps:
+            xs[k] = x1
+            k += 1
+        x, t = x1, t1
+    xs[k:] = x
+    return steps
 
 
 TRAPEZOID_TOL = 1e-10       # Newton: |Δa| <= tol·(|a| + |S⁻¹|·|f|)

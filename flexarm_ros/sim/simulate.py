@@ -32,6 +32,7 @@ class SimResult:
     columns: dict           # name -> (N,) array, 't' first
     sensor_tables: dict = None   # rate (Hz) -> {'t': …, sensor columns} (declared sensors)
     contact: object = None       # contact.ContactRun of a scene with a wall
+    accuracy: object = None      # accuracy.StepChoice when fidelity.tolerance chose the step
 
     def summary(self) -> dict:
         r = self.run
@@ -41,7 +42,11 @@ class SimResult:
                 "real_time_factor": sim / r.wall_time_s if r.wall_time_s > 0 else float("inf"),
                 "rhs_evaluations": r.rhs_evaluations, "steps": r.steps, "dt": r.dt,
                 "rung": self.chain.fidelity.rung, "coordinates": list(self.chain.names),
-                "integrator": self.chain.fidelity.integrator}
+                "integrator": self.chain.fidelity.integrator,
+                "refine": self.chain.fidelity.refine, "step_s": r.dt,
+                "tolerance_m": self.accuracy.tolerance_m if self.accuracy else None,
+                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
+                                          if self.accuracy else None)}
 
 
 def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
@@ -69,9 +74,10 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
         out_dt = grid_ns * 1e-9
     check_output(T, fid.output_dt, out_dt, chain)
     contact = build_contact(chain)
+    choice = _step_for_tolerance(chain, contact, x0, T, out_dt) if fid.tolerance else None
     if contact is None:
-        run = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, out_dt,
-                        fid.max_deflection_ratio, progress)
+        run = integrate(chain, x0, T, fid.integrator, choice.step_s if choice else fid.dt,
+                        fid.rtol, fid.atol, out_dt, fid.max_deflection_ratio, progress)
         crun, qdd_fn = None, None
     else:
         run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress)
@@ -89,7 +95,27 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     cols = output_columns(chain, run)
     if crun is not None:
         cols.update(contact_columns(crun, every))
-    return SimResult(scene.name, chain, run, cols, tables, crun)
+    return SimResult(scene.name, chain, run, cols, tables, crun, choice)
+
+
+def _step_for_tolerance(chain, contact, x0, T, out_dt):
+    """fidelity.tolerance → the RK4 step (:mod:`flexarm_ros.sim.accuracy`), or a SceneError
+    where the estimate does not apply."""
+    from flexarm_ros.sim.accuracy import step_for_tolerance
+    fid = chain.fidelity
+    tol = fid.tolerance
+    if fid.integrator != "rk4":
+        raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
+                         f"{fid.integrator!r}, expected integrator rk4 (the adaptive "
+                         f"integrators take --rtol/--atol)")
+    if fid.dt > 0:
+        raise SceneError(f"fidelity.tolerance: got {tol:g} m together with fidelity.dt = "
+                         f"{fid.dt:g} s, expected one of them (the tolerance chooses the step)")
+    if contact is not None:
+        raise SceneError(f"fidelity.tolerance: got {tol:g} m for a scene with a wall, "
+                         f"expected 0 (the step-halving estimate does not cover the contact "
+                         f"stepper's events yet; set --dt)")
+    return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio)
 
 
 def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
@@ -152,20 +178,32 @@ def output_columns(chain: Chain, run: Integration) -> dict:
         cols[name] = run.q[:, j]
     for j, name in enumerate(chain.names):
         cols[f"{name}_rate"] = run.qd[:, j]
-    N = len(run.t)
-    tip = np.empty((N, 2))
-    energy = np.empty(N)
-    for k in range(N):
-        e = chain.energy(run.q[k], run.qd[k])
-        energy[k] = e["total"]
-        tip[k] = e["tip"]
+    energy, tip = energy_and_tip(chain, run.q, run.qd)
     cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
-    defl = np.array([chain.tip_deflections(q) for q in run.q])
-    for j, lm in enumerate(chain.links):
-        cols[f"{lm.name}_tip_deflection"] = defl[:, j]
+    for lm in chain.links:           # w(L) = φ(L)ᵀη (Chain.tip_deflections, all samples)
+        cols[f"{lm.name}_tip_deflection"] = run.q[:, lm.eta] @ lm.beam.phi_tip
     cols["energy"] = energy
     cols.update(actuator_columns(chain, run))
     return cols
+
+
+def energy_and_tip(chain: Chain, Q, QD) -> tuple[np.ndarray, np.ndarray]:
+    """Total energy (J) and last tip position (m) per sample (rows of Q, Q̇): one compiled
+    pass (:func:`~flexarm_ros.model.compiled.chain.energies`) where the chain is compiled and
+    has no gravity, else :meth:`Chain.energy` per sample (the same equations in numpy)."""
+    N = len(Q)
+    tip = np.empty((N, 2))
+    energy = np.empty(N)
+    if chain.backend == "numba" and not chain.has_gravity:
+        from flexarm_ros.model.compiled import chain as kchain
+        kchain.energies(np.ascontiguousarray(Q, float), np.ascontiguousarray(QD, float),
+                        chain.kernel_args, kchain.workspace(chain.kernel_args), energy, tip)
+        return energy, tip
+    for k in range(N):
+        e = chain.energy(Q[k], QD[k])
+        energy[k] = e["total"]
+        tip[k] = e["tip"]
+    return energy, tip
 
 
 def actuator_columns(chain: Chain, run: Integration) -> dict:

@@ -49,13 +49,17 @@ def rk4_step(f, t, x, h, quadrature: bool = False):
     return (x1, (h / 6.0) * (g1 + 2 * g2 + 2 * g3 + g4)) if quadrature else x1
 
 
-def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None):
+def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dense=False):
     """The fixed step (RK4, trapezoid) or the max step (adaptive, 0 = unbounded) of a run
     from state x0, given the requested step ``dt`` (0 = automatic) and the output period.
 
     RK4: a requested step above the stability limit RK4_STABILITY/|λ|max is refused
     (:class:`StepTooLarge` naming the limit and the alternatives); the automatic step is
-    RK4_AUTO/|λ|max; either is shortened to divide the output period. With a wall
+    RK4_AUTO/|λ|max; either is shortened to divide the output period, except with
+    ``dense`` (batch integration without a wall), where a step above the output period is
+    kept: the outputs then come from the dense output inside steps
+    (:func:`~flexarm_ros.sim.integrate.integrate`), so the step is set by stability and
+    accuracy, never by the output grid. With a wall
     ``contact`` of the impulse rung, |λ|max is also taken with the tool held on the wall
     (:func:`~flexarm_ros.model.contact.constrained_rate`: holding it raises the highest
     frequency, and the step must be stable in every contact mode); the compliant rung's
@@ -77,6 +81,8 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None):
         h = dt
     else:
         h = RK4_AUTO / rate if rate > 0 else output_dt
+    if dense and contact is None and h > output_dt:
+        return h            # above the output period: dense output
     h = min(h, output_dt)
     h = output_dt / np.ceil(output_dt / h - 1e-9)
     if contact is None or contact.method == "compliant":

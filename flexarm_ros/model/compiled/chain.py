@@ -430,3 +430,35 @@ def _deflection_ratio(x, model):
         if r > worst:
             worst = r
     return worst
+
+
+@_jit
+def energies(Q, QD, model_args, ws_args, energy, tip):
+    """Per sample k: energy[k] = ½q̇ᵀM(q)q̇ + ½qᵀKq + Σ ½k_b·max(|Δ| − b, 0)² (kinetic,
+    beam/joint elastic, engaged backlash; chain.Chain.energy without gravity) and
+    tip[k] = the last tip frame's origin, from one :func:`chain_terms` pass per sample."""
+    model, ws = named(model_args, ws_args)
+    n = model.n
+    K = model.K
+    bidx = model.backlash_idx
+    bpar = model.backlash_par
+    M = ws.M
+    for k in range(Q.shape[0]):
+        q = Q[k]
+        qd = QD[k]
+        chain_terms(q, qd, model, ws)
+        e = 0.0
+        for i in range(n):
+            a = 0.0
+            b = 0.0
+            for j in range(n):
+                a += M[i, j] * qd[j]
+                b += K[i, j] * q[j]
+            e += 0.5 * (qd[i] * a + q[i] * b)
+        for j in range(bidx.shape[0]):
+            d = abs(q[bidx[j, 0]] - q[bidx[j, 1]]) - bpar[j, 0]
+            if d > 0.0:
+                e += 0.5 * bpar[j, 1] * d * d
+        energy[k] = e
+        tip[k, 0] = ws.tip[0]
+        tip[k, 1] = ws.tip[1]

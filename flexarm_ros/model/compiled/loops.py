@@ -102,6 +102,78 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
     return OK, n_out * out_dt, steps, x, x
 
 
+@_jit_inline
+def hermite(theta, h, x0, f0, x1, f1, out):
+    """Cubic Hermite interpolant on a step [t, t + h] at t + θh from the end states and
+    their derivatives (ẋ from the right-hand side at both ends): third order like the
+    interpolated RK4 step itself, so the sampled state keeps the integrator's O(h⁴)."""
+    t2 = theta * theta
+    t3 = t2 * theta
+    a0 = 2.0 * t3 - 3.0 * t2 + 1.0
+    b0 = (t3 - 2.0 * t2 + theta) * h
+    a1 = 3.0 * t2 - 2.0 * t3
+    b1 = (t3 - t2) * h
+    for i in range(out.shape[0]):
+        out[i] = a0 * x0[i] + b0 * f0[i] + a1 * x1[i] + b1 * f1[i]
+
+
+@_jit
+def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args):
+    """Fixed-step RK4 from (t0, x0) to ``t_stop`` with steps of ``h`` independent of the
+    output period (the last step shortened to end on ``t_stop``); the outputs xs[k] at
+    k·out_dt, from k = ``k_next`` on, inside a step come from :func:`hermite` on that
+    step, one on a step's end is the step's own state. The step may exceed the output
+    period.
+
+    Returns (status, time, steps, rhs evaluations, next output index, last good state,
+    offending state)."""
+    model, ws = named(model_args, ws_args)
+    m = x0.shape[0]
+    x = x0.copy()
+    xn = np.empty(m)
+    tmp = np.empty(m)
+    k1 = np.empty(m)
+    k2 = np.empty(m)
+    k3 = np.empty(m)
+    k4 = np.empty(m)
+    f0 = np.empty(m)
+    f1 = np.empty(m)
+    row = np.empty(m)
+    n_out = xs.shape[0] - 1
+    k = k_next
+    t = t0
+    steps = 0
+    calls = 0
+    eps = 1e-12 * max(1.0, t_stop)
+    while t < t_stop - eps:
+        hh = min(h, t_stop - t)
+        if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws):
+            return NON_FINITE, t + hh, steps, calls, k, x, xn
+        steps += 1
+        calls += 4
+        if _deflection_ratio(xn, model) > max_ratio:
+            return DEFLECTION, t + hh, steps, calls, k, x, xn
+        t1 = t + hh
+        if k <= n_out and k * out_dt < t1 - eps:
+            for i in range(m):                  # an output inside the step: ẋ at both ends
+                f0[i] = k1[i]
+            rhs_into(t + (1.0 - STAGE_EPS) * hh, xn, f1, model, ws)   # left limit at a jump
+            calls += 1
+            while k <= n_out and k * out_dt < t1 - eps:
+                hermite((k * out_dt - t) / hh, hh, x, f0, xn, f1, row)
+                for i in range(m):
+                    xs[k, i] = row[i]
+                k += 1
+        if k <= n_out and abs(k * out_dt - t1) <= eps:
+            for i in range(m):
+                xs[k, i] = xn[i]
+            k += 1
+        for i in range(m):
+            x[i] = xn[i]
+        t = t1
+    return OK, t, steps, calls, k, x, x
+
+
 @_jit
 def _torque_jumps(t, model):
     """True when a torque program differs just before and just after time t."""
@@ -232,6 +304,7 @@ def warm_up(integrator, model, x0, xs):
     x = np.array(x0, float)
     if integrator == "rk4":
         rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
+        rk4_dense(x, 0.0, 1e-3, 0.0, 1e-3, xs.shape[0], 1.0, xs, model, ws)
     elif integrator == "trapezoid":
         nf = Model._make(model).free.shape[0]
         trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,

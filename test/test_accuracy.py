@@ -1,0 +1,91 @@
+"""Accuracy on demand (issue 14): dense output decouples the RK4 step from the output
+period, and ``--tolerance`` chooses the step for a tip-position error bound. Checked
+against a second method: the same model integrated by DOP853 at rtol 1e-12."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from flexarm_ros.cli import main
+from flexarm_ros.scene import load_scene
+from flexarm_ros.sim.simulate import simulate
+
+
+def _tip(res) -> np.ndarray:
+    return np.c_[res.columns["tip_x"], res.columns["tip_y"]]
+
+
+def _reference(scene, duration):
+    return simulate(scene.with_fidelity(integrator="dop853", rtol=1e-12, atol=1e-14), duration)
+
+
+def test_dense_output_is_the_step_at_step_ends_and_fourth_order_between():
+    """A step of 2 ms sampled every 1 ms: the samples on step ends are the steps' own
+    states (the run sampled at its steps, to round-off), and between them the Hermite
+    interpolant keeps RK4's order: halving the step divides the error at the samples by
+    about 2⁴ = 16."""
+    sc = load_scene("two_link_free")
+    dense = simulate(sc.with_fidelity(dt=2e-3), 1.0)
+    steps = simulate(sc.with_fidelity(dt=2e-3, output_dt=2e-3), 1.0)
+    assert dense.run.dt == steps.run.dt == 2e-3
+    assert len(dense.run.t) == 2 * len(steps.run.t) - 1
+    np.testing.assert_allclose(dense.run.q[::2], steps.run.q, rtol=1e-11, atol=1e-13)
+    ref = _tip(_reference(sc, 1.0))
+    errs = {}
+    for h in (8e-3, 4e-3):
+        res = simulate(sc.with_fidelity(dt=h), 1.0)
+        assert res.run.dt == h and res.run.steps == round(1.0 / h)
+        off = np.arange(len(ref)) % round(h / 1e-3) != 0         # samples inside steps
+        errs[h] = np.max(np.linalg.norm(_tip(res)[off] - ref[off], axis=1))
+    ratio = errs[8e-3] / errs[4e-3]
+    assert 10 < ratio < 25, (errs, ratio)
+
+
+@pytest.mark.parametrize("name,duration,tols", [
+    ("two_link_free", 2.0, (1e-3, 1e-5, 1e-7, 1e-9)),
+    ("link_tipmass", 0.5, (1e-3, 1e-7, 1e-9)),
+])
+def test_the_tolerance_is_met_and_the_step_grows_as_it_loosens(name, duration, tols):
+    """For each TOL the measured tip error against the converged reference is below TOL
+    and below twice the run's own estimate; the step never shrinks as TOL loosens."""
+    sc = load_scene(name)
+    ref = _tip(_reference(sc, duration))
+    steps = []
+    for tol in tols:
+        res = simulate(sc.with_fidelity(tolerance=tol), duration)
+        err = np.max(np.linalg.norm(_tip(res) - ref, axis=1))
+        est = res.summary()["estimated_tip_error_m"]
+        assert err <= tol and err <= 2 * est, (tol, err, est, res.run.dt)
+        assert res.summary()["step_s"] == res.run.dt
+        steps.append(res.run.dt)
+    assert all(a >= b for a, b in zip(steps, steps[1:])), steps
+    if name == "two_link_free":           # the tightest bound makes the step shorter
+        assert steps[-1] < steps[0]
+
+
+def test_simulate_json_reports_the_estimate(tmp_path, capsys):
+    code = main(["simulate", "two_link_free", "--duration", "0.5", "--tolerance", "1e-6",
+                 "--out", str(tmp_path / "x.npz"), "--json", "--quiet"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert out["tolerance_m"] == 1e-6 and 0 < out["estimated_tip_error_m"] <= 0.5e-6
+    assert out["step_s"] > 1e-3 and out["integrator"] == "rk4" and out["rung"] == "cubic"
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["simulate", "two_link_case1", "--tolerance", "1e-6"], ("fidelity.tolerance", "wall")),
+    (["simulate", "two_link_free", "--tolerance", "1e-6", "--integrator", "dop853"],
+     ("fidelity.tolerance", "rk4")),
+    (["simulate", "two_link_free", "--tolerance", "1e-6", "--dt", "1e-3"],
+     ("fidelity.tolerance", "fidelity.dt")),
+    (["simulate", "two_link_free", "--tolerance", "-1"], ("tolerance", "-1")),
+    (["run", "two_link_free", "--tolerance", "1e-6", "--no-record"], ("--tolerance",)),
+])
+def test_a_tolerance_where_it_does_not_apply_is_one_line(tmp_path, capsys, argv, words):
+    code = main([*argv, "--duration", "0.1", "--quiet"] +
+                (["--out", str(tmp_path / "x.npz")] if argv[0] == "simulate" else []))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and all(w in err[0] for w in words), err

@@ -341,9 +341,9 @@ def cmd_run(args):
             print(json.dumps(res.to_json(), indent=2))
         else:
             print(res.summary())
-    if res.diverged:                          # like simulate: the message once, status 3
+    if res.diverged or res.stalled:           # like simulate: the message once, status 3
         if not res.processes:
-            print(f"flexarm: {res.diverged}", file=sys.stderr)
+            print(f"flexarm: {res.diverged or res.stalled}", file=sys.stderr)
         return 3
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
     if bad:

@@ -65,6 +65,7 @@ class RunResult:
     rejected_commands: int | None = None     # on both command topics
     rejected: dict | None = None              # topic -> {reason: count}, every node input
     diverged: str | None = None               # the divergence message (exit status 3)
+    stalled: str | None = None                # lockstep ended without answers (status 3)
     interrupted: bool = False
     returncodes: dict = field(default_factory=dict)
     recovered: str | None = None            # what recover_killed_bag() did, if anything
@@ -95,6 +96,7 @@ class RunResult:
                                       (sum(sum(by.values()) for by in self.rejected.values())
                                        if self.rejected is not None else None)),
                 "rejected": self.rejected, "diverged": self.diverged,
+                "stalled": self.stalled,
                 "interrupted": self.interrupted, "returncodes": self.returncodes,
                 "recovered": self.recovered,
                 "cpus": ({n: sorted(c) for n, c in self.cpus.items()} if self.cpus
@@ -117,6 +119,8 @@ class RunResult:
             s += ", interrupted"
         if self.diverged:
             s += ", diverged"
+        if self.stalled:
+            s += ", stalled"
         if self.rejected:
             s += "; rejected: " + "; ".join(
                 f"{t} {sum(by.values())} (" + ", ".join(f"{n} {r}" for r, n in
@@ -505,7 +509,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             summary_file.unlink(missing_ok=True)
             if sim_summary:
                 _take_summary(res, sim_summary)
-            if codes.get("simulator") == 3:
+            if codes.get("simulator") == 3 and not res.stalled:
                 res.diverged = res.diverged or ("the simulator reported a divergence (its "
                                                 "message above)")
             if record:
@@ -545,6 +549,7 @@ def _take_summary(res: RunResult, sim: dict) -> None:
     res.real_time_factor = sim["real_time_factor"]
     res.published = sim["published"]
     res.diverged = res.diverged or sim.get("diverged")
+    res.stalled = res.stalled or sim.get("stalled")
     if sim.get("mode") == "realtime":
         res.pacing = {k: sim[k] for k in ("ticks", "late_ticks", "lateness_p50_s",
                                           "lateness_p99_s", "lateness_max_s", "late_policy",

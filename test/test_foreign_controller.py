@@ -141,3 +141,45 @@ def test_node_selection_names_the_bad_value(nodes, without, message):
 def test_node_selection():
     assert select_nodes(None, ["controller"]) == ("recorder", "motor_driver", "simulator")
     assert select_nodes(["simulator", "recorder"]) == ("recorder", "simulator")
+
+
+MUTE = """
+import rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+rclpy.init()
+node = rclpy.create_node("mute_controller", namespace="%s")
+node.create_subscription(JointState, "joint_states", lambda m: None,
+                         QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+print("ready", flush=True)
+try:
+    rclpy.spin(node)
+except Exception:
+    pass
+"""
+
+
+def test_lockstep_without_answers_ends_as_stalled_and_keeps_the_bag(tmp_path):
+    """A controller that reads joint_states but never commands: lockstep cannot step.
+    The twin warns what it waits for, then ends the run as stalled after
+    stall_timeout_s (no hang), the summary says so, and the bag holds the first state."""
+    from flexarm_ros.nodes.environment import child_environment
+    proc = subprocess.Popen([sys.executable, "-c", MUTE % NS], stdout=subprocess.PIPE,
+                            text=True, env=child_environment())
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        t0 = time.monotonic()
+        res = run("two_link_position", 1.0, "lockstep", record=tmp_path / "run.mcap",
+                  namespace=NS, progress=False, nodes=("simulator", "motor_driver"),
+                  simulator={"stall_timeout_s": 4.0})
+        wall = time.monotonic() - t0
+    finally:
+        proc.terminate()
+        proc.wait(30)
+        proc.stdout.close()
+    assert res.stalled and "lockstep stalled" in res.stalled and "tick 0" in res.stalled
+    assert "motor_driver/commands" in res.stalled
+    assert res.to_json()["stalled"] == res.stalled and res.ticks == 0
+    assert wall < 60                          # ended by the watchdog, not by the test
+    bag = read_bag(tmp_path / "run.mcap")
+    assert len(bag[f"{NS}/{T.JOINT_STATES}"]) == 1

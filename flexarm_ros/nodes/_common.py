@@ -266,6 +266,9 @@ def _node_main(cls, args=None) -> int:
         if diverged is not None:                 # like flexarm simulate: the message, 3
             print(f"{cls.EXECUTABLE}: {diverged}", file=sys.stderr)
             return 3
+        if getattr(node, "stalled", None):       # lockstep without answers: the message, 3
+            print(f"{cls.EXECUTABLE}: {node.stalled}", file=sys.stderr)
+            return 3
         return 0
     except KeyboardInterrupt:
         return 130

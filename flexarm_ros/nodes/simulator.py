@@ -99,6 +99,9 @@ class SimulatorNode(Node):
               "controllers": (-1, "controllers on joint_states the first state waits for "
                                   "(-1: 1 in lockstep, where the twin steps on their answers, "
                                   "else 0; flexarm run sets 1 when it starts its controller)"),
+              "stall_timeout_s": (30.0, "lockstep: s without an effort after a published "
+                                  "state before the run ends as stalled (0: waits for "
+                                  "ever); after 3 s a WARN says what the twin waits for"),
               "ground_truth_rate_hz": (-1.0, "rate of ground_truth/tip and "
                                        "ground_truth/coordinates (0: every tick; -1: "
                                        f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)")}
@@ -120,6 +123,9 @@ class SimulatorNode(Node):
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         self.rejections = Rejections(self)
         self.diverged: SimulationDiverged | None = None
+        self.stalled: str | None = None         # lockstep: why the run ended without effort
+        self._watch = None                      # lockstep: the stall watchdog's timer
+        self._progress_wall = time.monotonic()  # when the last state went out
         r = self.p["recorders"]
         # the start condition is what the twin needs: the driver (it answers every
         # ground-truth state), in lockstep a controller on joint_states (ours or a user's:
@@ -183,6 +189,7 @@ class SimulatorNode(Node):
             self.pubs[topic].publish(encode_cdr(tp, data, validate=False))
             self.published[topic] += 1
         self.published_k = self.core.k
+        self._progress_wall = time.monotonic()
         if self.n_end is not None and self.core.k >= self.n_end:
             self.halt()
 
@@ -192,6 +199,8 @@ class SimulatorNode(Node):
             self.finished = True
             self.t_wall_end = time.monotonic()
             self.timer.cancel()
+            if self._watch is not None:
+                self._watch.cancel()
             if self._thread is not None and self._thread is not threading.current_thread():
                 self._thread.join()
             self.report(final=True)
@@ -211,6 +220,35 @@ class SimulatorNode(Node):
             return
         self._publish_state()
         self.report()
+
+    STALL_WARN_S = 3.0
+
+    def _watchdog(self):
+        """Lockstep: the twin steps only on an effort answering its last state, so a lost
+        or never-sent answer would stop it for good. After STALL_WARN_S without one, a
+        WARN names the tick and the chain of answers the twin waits for (every 5 s);
+        after ``stall_timeout_s`` the run ends as stalled (the bag keeps what it holds,
+        the summary and `flexarm run` say why, exit status 3)."""
+        if self.finished:
+            return
+        waited = time.monotonic() - self._progress_wall
+        if waited < self.STALL_WARN_S:
+            self._stall_said = 0.0
+            return
+        what = (f"no effort on {self.source.topic} for {waited:.0f} s after the state of "
+                f"tick {self.core.k} (t = {self.core.t:.6g} s): lockstep steps on the motor "
+                f"driver's answer to each joint_states, which answers the controller's "
+                f"command on motor_driver/commands (check that a controller runs in this "
+                f"namespace and publishes there, and the driver runs)")
+        limit = float(self.p["stall_timeout_s"])
+        if limit > 0 and waited >= limit:
+            self.stalled = f"lockstep stalled: {what}; ended after stall_timeout_s = {limit:g} s"
+            self.get_logger().error(self.stalled)
+            self.halt()
+        elif waited - getattr(self, "_stall_said", 0.0) >= 5.0 or not getattr(
+                self, "_stall_said", 0.0):
+            self._stall_said = waited
+            self.get_logger().warning(f"waiting: {what}")
 
     def _await_effort(self, k_min: int, timeout: float) -> None:
         """Take the efforts queued, then wait until one answered state ``k_min`` or newer
@@ -320,6 +358,8 @@ class SimulatorNode(Node):
             self._publish_state()
             if self.mode != "fast":
                 self.timer.cancel()
+            if self.mode == "lockstep" and not self.finished:
+                self._watch = self.create_timer(0.5, self._watchdog)
             if self.mode == "realtime" and not self.finished:
                 # the pacing thread must get the GIL soon after its deadline: Python's
                 # default switch interval (5 ms) would hand it over 5 ticks late
@@ -349,7 +389,8 @@ class SimulatorNode(Node):
         out = {"mode": self.mode, "sim_time_s": self.core.t, "ticks": self.core.k,
                "real_time_factor": self.rtf(), "published": dict(self.published),
                "rejected_efforts": dict(self.core.validator.counts),
-               "diverged": str(self.diverged) if self.diverged else None}
+               "diverged": str(self.diverged) if self.diverged else None,
+               "stalled": self.stalled}
         if self.mode == "realtime":
             out.update(self.pacer.summary())
             out.update({"effort_waits": self.waited_ticks,

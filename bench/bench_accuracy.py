@@ -1,0 +1,164 @@
+"""Accuracy on demand, measured (issue 14; not a unit test — timings are the machine's).
+
+Part 1, defaults: each scene as shipped (1 kHz output), integration real-time factor
+(``SimResult.summary()``: integration only, best of ``REPEATS``) and whole-call real-time
+factor (model build, integration, output columns), tip error against a converged
+reference: the finest model the case names, DOP853 at rtol 1e-11 (the contact scene:
+its own rung with RK4 at a quarter of its step, as ``flexarm study``'s contact trade).
+
+Part 2, ``--tolerance``: each scene without a wall at TOL ∈ {1e-3, 1e-5, 1e-7} m: the
+step the estimate chose, the estimated and the measured tip error (max over the 1 kHz
+output against the same model by DOP853 at rtol 1e-12), the cost (RHS evaluations and
+wall time, pilot runs included) — the error must stay ≤ TOL and the cost fall as TOL
+loosens.
+
+    python bench/bench_accuracy.py [--quick] [--json] [--markdown docs/accuracy_table.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+
+import numpy as np
+
+from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.scene import load_scene
+from flexarm_ros.sim.simulate import simulate
+
+REPEATS = 3
+TOLERANCES = (1e-3, 1e-5, 1e-7)
+
+#: (scene, duration s, reference overrides, issue target RTF, issue target error m)
+DEFAULTS = [
+    ("two_link_free", 1.0, {"rung": "fem", "refine": 8, "integrator": "dop853",
+                            "rtol": 1e-11, "atol": 1e-13}, 800, 1e-6),
+    ("link_tipmass", 3.0, {"rung": "fem", "refine": 8, "integrator": "dop853",
+                           "rtol": 1e-11, "atol": 1e-13}, 100, 1e-5),
+    ("spin_up", 5.0, None, 1000, None),
+    ("two_link_case1", 3.0, "quarter", 50, None),
+]
+#: scenes of part 2 (no wall); durations shortened where the reference is costly
+TOLERANCE_SCENES = [("two_link_free", 1.0), ("link_tipmass", 1.0), ("spin_up", 2.0),
+                    ("link", 1.0), ("link_motor", 1.0), ("link_flexjoint", 1.0),
+                    ("two_link_position", 1.0), ("hydraulic_2kg", 1.0)]
+
+
+def _tip(res) -> np.ndarray:
+    return np.c_[res.columns["tip_x"], res.columns["tip_y"]]
+
+
+def _timed(scene, T):
+    """(result, integration RTF best of REPEATS, whole-call RTF best of REPEATS)."""
+    simulate(scene, min(T, 0.02))                      # compile outside the timing
+    best_int, best_all, res = math.inf, math.inf, None
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        res = simulate(scene, T)
+        best_all = min(best_all, time.perf_counter() - t0)
+        best_int = min(best_int, res.summary()["wall_time_s"])
+    return res, T / best_int, T / best_all
+
+
+def _impact(res) -> float:
+    c = res.contact
+    return float(c.impacts[0].time) if c is not None and c.impacts else math.nan
+
+
+def defaults(quick=False) -> list[dict]:
+    rows = []
+    for name, T, ref, rtf_target, err_target in DEFAULTS:
+        T = min(T, 0.5) if quick else T
+        scene = load_scene(name)
+        res, rtf, rtf_all = _timed(scene, T)
+        row = {"scene": name, "duration_s": T, "rung": res.chain.fidelity.rung,
+               "refine": res.chain.fidelity.refine, "step_s": res.run.dt,
+               "real_time_factor": rtf, "whole_call_rtf": rtf_all,
+               "target_rtf": rtf_target, "target_error_m": err_target}
+        if ref == "quarter":
+            r = simulate(scene.with_fidelity(dt=res.run.dt / 4), T)
+            row["reference"] = "same rung, RK4 at a quarter step"
+            row["impact_time_error_s"] = abs(_impact(res) - _impact(r))
+            row["tip_max_error_m"] = float(np.linalg.norm(_tip(res) - _tip(r), axis=1).max())
+        elif ref is not None:
+            r = simulate(scene.with_fidelity(**ref), T)
+            row["reference"] = ", ".join(f"{k} {v}" for k, v in ref.items())
+            row["tip_max_error_m"] = float(np.linalg.norm(_tip(res) - _tip(r), axis=1).max())
+        else:
+            r = simulate(scene.with_fidelity(integrator="dop853", rtol=1e-12, atol=1e-14), T)
+            row["reference"] = "same rung, DOP853 rtol 1e-12 (the rung's own error)"
+            row["tip_max_error_m"] = float(np.linalg.norm(_tip(res) - _tip(r), axis=1).max())
+        rows.append(row)
+    return rows
+
+
+def tolerance_table(quick=False) -> list[dict]:
+    rows = []
+    for name, T in TOLERANCE_SCENES[:3] if quick else TOLERANCE_SCENES:
+        T = min(T, 0.3) if quick else T
+        scene = load_scene(name)
+        ref = simulate(scene.with_fidelity(integrator="dop853", rtol=1e-12, atol=1e-14), T)
+        for tol in TOLERANCES:
+            row = {"scene": name, "duration_s": T, "tolerance_m": tol}
+            try:
+                t0 = time.perf_counter()
+                res = simulate(scene.with_fidelity(tolerance=tol), T)
+                wall = time.perf_counter() - t0
+            except (SceneError, SimulationDiverged) as exc:
+                row["status"] = str(exc).splitlines()[0]
+                rows.append(row)
+                continue
+            err = float(np.linalg.norm(_tip(res) - _tip(ref), axis=1).max())
+            row.update(status="ok", step_s=res.run.dt,
+                       estimated_tip_error_m=res.accuracy.estimated_tip_error_m,
+                       tip_max_error_m=err, within=err <= tol,
+                       rhs_evaluations=res.run.rhs_evaluations, wall_s=wall)
+            rows.append(row)
+    return rows
+
+
+def markdown(dflt, tol) -> str:
+    out = ["| scene | s | rung | step (s) | RTF (integration) | RTF (whole call) | target | "
+           "tip error (m) | impact error (s) | reference |", "|" + "---|" * 10]
+    for r in dflt:
+        out.append(f"| {r['scene']} | {r['duration_s']:g} | {r['rung']} {r['refine']} | "
+                   f"{r['step_s']:.3g} | {r['real_time_factor']:.0f} | "
+                   f"{r['whole_call_rtf']:.0f} | ≥ {r['target_rtf']} | "
+                   f"{r.get('tip_max_error_m', math.nan):.2g} | "
+                   f"{r.get('impact_time_error_s', math.nan):.2g} | {r['reference']} |")
+    out += ["", "| scene | s | TOL (m) | step (s) | estimated (m) | measured (m) | ≤ TOL | "
+            "RHS evaluations | wall (s) |", "|" + "---|" * 9]
+    for r in tol:
+        if r.get("status") != "ok":
+            out.append(f"| {r['scene']} | {r['duration_s']:g} | {r['tolerance_m']:g} | "
+                       f"refused: {r['status']} |||||")
+            continue
+        out.append(f"| {r['scene']} | {r['duration_s']:g} | {r['tolerance_m']:g} | "
+                   f"{r['step_s']:.3g} | {r['estimated_tip_error_m']:.2g} | "
+                   f"{r['tip_max_error_m']:.2g} | {'yes' if r['within'] else 'NO'} | "
+                   f"{r['rhs_evaluations']} | {r['wall_s']:.3f} |")
+    return "\n".join(out) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="short runs, three scenes")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--markdown", metavar="FILE", help="write both tables as Markdown")
+    ap.add_argument("--part", choices=("defaults", "tolerance", "both"), default="both")
+    a = ap.parse_args()
+    dflt = defaults(a.quick) if a.part in ("defaults", "both") else []
+    tol = tolerance_table(a.quick) if a.part in ("tolerance", "both") else []
+    if a.json:
+        print(json.dumps({"defaults": dflt, "tolerance": tol}, indent=1, default=float))
+    else:
+        print(markdown(dflt, tol))
+    if a.markdown:
+        with open(a.markdown, "w") as fh:
+            fh.write(markdown(dflt, tol))
+
+
+if __name__ == "__main__":
+    main()

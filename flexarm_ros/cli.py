@@ -320,7 +320,8 @@ def cmd_run(args):
         record = None
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes, pin=args.pin,
               nodes=tuple(n for n in nodes if n != "recorder"),
-              namespace=namespace, progress=not args.quiet, fidelity=_overrides(args),
+              namespace=namespace, progress=not args.quiet,
+              fidelity={k: v for k, v in _overrides(args).items() if k != "tolerance"},
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
                          "ground_truth_rate_hz": args.ground_truth_rate})
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards

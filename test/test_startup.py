@@ -165,3 +165,26 @@ def test_write_table_refusals(tmp_path):
     with pytest.raises(ValueError, match="different lengths"):
         write_table(tmp_path / "a.csv", {"t": [0.0, 1.0], "y": [1.0]})
     assert not (tmp_path / "a.csv").exists()
+
+
+# ---------------------------------------------------------------------- output columns
+@pytest.mark.parametrize("name", ["two_link_free", "two_link_case3_backlash", "spin_up",
+                                  "link_motor", "hydraulic_2kg"])
+def test_energies_equal_the_numpy_energy(name):
+    """Chain.energies (the energy and tip columns; compiled kinematics with numba and no
+    gravity) equals Chain.energy per sample to round-off; exactly on the numpy path."""
+    from flexarm_ros.scene import load_scene
+    from flexarm_ros.sim.simulate import simulate
+    res = simulate(load_scene(name), 0.2)
+    ch, run = res.chain, res.run
+    E, tip = ch.energies(run.t, run.q, run.qd, run.z)
+    ref = [ch.energy(q, qd) for q, qd in zip(run.q, run.qd)]
+    E_ref = np.array([e["total"] for e in ref])
+    tip_ref = np.array([e["tip"] for e in ref])
+    assert np.array_equal(res.columns["energy"], E)
+    scale = max(np.abs(E_ref).max(), 1e-300)
+    if ch.backend == "numba" and not ch.has_gravity:
+        assert np.abs(E - E_ref).max() <= 1e-13 * scale
+        assert np.abs(tip - tip_ref).max() <= 1e-14
+    else:
+        assert np.array_equal(E, E_ref) and np.array_equal(tip, tip_ref)

@@ -152,13 +152,7 @@ def output_columns(chain: Chain, run: Integration) -> dict:
         cols[name] = run.q[:, j]
     for j, name in enumerate(chain.names):
         cols[f"{name}_rate"] = run.qd[:, j]
-    N = len(run.t)
-    tip = np.empty((N, 2))
-    energy = np.empty(N)
-    for k in range(N):
-        e = chain.energy(run.q[k], run.qd[k])
-        energy[k] = e["total"]
-        tip[k] = e["tip"]
+    energy, tip = chain.energies(run.t, run.q, run.qd, run.z)
     cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
     defl = np.array([chain.tip_deflections(q) for q in run.q])
     for j, lm in enumerate(chain.links):

@@ -561,8 +561,9 @@ def _startup_gc():
     a long one bounded (a first-run numba compile leaves ~10⁶ objects of cyclic garbage).
     Everything alive at the end is frozen (:func:`gc.freeze`, in :func:`main`) just before
     the process exits, which spares the interpreter's final collection over the whole heap
-    (~0.2 s). Not for ``run`` / ``replay`` (realtime ticks, rclpy finalizers) nor ``study``
-    / ``compare`` (long, plotting)."""
+    (~0.2 s). Not for ``run`` / ``replay`` (a large young collection is a pause inside a
+    realtime tick; a frozen heap skips the exit-time finalizers of objects in cycles) nor
+    ``study`` / ``compare`` (long, plotting)."""
     gc.set_threshold(*BATCH_GC_THRESHOLD)
 
 

@@ -66,7 +66,7 @@ def csv_rows(columns: dict, names, text=()):
     ``"%.10g" % value``, text (names in ``text``) as ``str``. One row format applied to
     each row of Python values: the same text as formatting each value with
     ``np.char.mod("%.10g", …)`` (which applies Python's ``%`` per element) and joining,
-    ~10× faster. ``%.10g`` keeps ten significant digits: a CSV does not round-trip
+    ~3× faster. ``%.10g`` keeps ten significant digits: a CSV does not round-trip
     float64 exactly (``.npz`` does)."""
     fmt = ",".join("%s" if k in text else NUMBER_FORMAT for k in names) + "\n"
     cols = [np.asarray(columns[k]).astype(str).tolist() if k in text else

@@ -608,7 +608,7 @@ class Chain:
             qk = np.array(q[k], float)             # forces() sets the prescribed ones
             qdk = np.array(qd[k], float)
             kchain.forces(float(t[k]), qk, qdk, np.array(z[k], float), self.kernel_args, ws)
-            total[k] = 0.5 * qdk @ named.M @ qdk + self._elastic_energy(q[k])
+            total[k] = 0.5 * qdk @ named.M @ qdk + self._elastic_energy(q[k]) + 0.0  # as energy()
             tip[k] = named.frames[-1, 1, :2]
         return total, tip
 

@@ -104,11 +104,11 @@ def flexarm_command() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "flexarm_ros.cli"]
 
 
-def _run(cmd, env) -> tuple[float, float]:
+def _run(cmd, env, cwd) -> tuple[float, float]:
     """(wall s, CPU s of the child) of one process."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+    subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, cwd=cwd)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -119,8 +119,8 @@ def process_times(args, workdir, env) -> dict:
     """Best wall and CPU time of the whole warm process."""
     cmd = flexarm_command() + ["simulate", args.scene, "--duration", str(args.duration),
                                "--out", str(workdir / args.out), "--quiet"]
-    _run(cmd, env)                          # the numba cache on disk, the files in the OS cache
-    runs = [_run(cmd, env) for _ in range(args.repeat)]
+    _run(cmd, env, workdir)                 # the numba cache on disk, the files in the OS cache
+    runs = [_run(cmd, env, workdir) for _ in range(args.repeat)]
     return {"command": " ".join(["flexarm"] + cmd[-7:]),
             "wall_s": [w for w, _ in runs], "cpu_s": [c for _, c in runs],
             "best_wall_s": min(w for w, _ in runs), "best_cpu_s": min(c for _, c in runs)}
@@ -135,7 +135,8 @@ def breakdown(args, workdir, env) -> dict:
     rows = []
     for _ in range(args.repeat):
         t_launch = time.time()
-        subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+        # cwd: not the source tree (``-c`` puts the cwd first on sys.path)
+        subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, cwd=workdir)
         t_done = time.time()
         ph = json.loads(out.read_text())
         ph["interpreter"] = ph.pop("start") - t_launch

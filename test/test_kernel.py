@@ -64,19 +64,3 @@ def test_compiled_run_matches_numpy_run(rung):
     for key in ("tip_x", "tip_y", "energy", "l1_joint", "l2_joint_rate"):
         assert np.allclose(a.columns[key], b.columns[key], rtol=1e-9, atol=1e-11), key
 
-
-@pytest.mark.parametrize("name", ["two_link_free", "link_tipmass", "two_link_case3_backlash",
-                                  "spin_up", "link_flexjoint"])
-def test_compiled_energy_matches_numpy_energy(name):
-    """The output table's energy and tip columns (one compiled pass over all samples) equal
-    Chain.energy per sample (numpy kinematics) to round-off, backlash included."""
-    from flexarm_ros.scene import load_scene
-    from flexarm_ros.sim.simulate import energy_and_tip
-    res = simulate(load_scene(name), 0.1)
-    ch = res.chain
-    assert ch.backend == "numba" and not ch.has_gravity
-    e, tip = energy_and_tip(ch, res.run.q, res.run.qd)
-    ref = [ch.energy(q, qd) for q, qd in zip(res.run.q, res.run.qd)]
-    e_ref = np.array([r["total"] for r in ref])
-    assert np.abs(e - e_ref).max() <= 1e-13 * np.abs(e_ref).max()
-    assert np.abs(tip - np.array([r["tip"] for r in ref])).max() <= 1e-14

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 
 from flexarm_ros.errors import SceneError
 
@@ -239,6 +238,7 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     K, M = np.array(fe.K), np.array(fe.M_e)
     if with_tip and (tip.mass > 0 or tip.inertia > 0):
         M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
+    import scipy.linalg       # lazily: start-up time of runs that never need it
     vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
     xs = np.linspace(0, L, 8 * n_fe + 1)
     peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)

@@ -577,13 +577,35 @@ class Chain:
         the actuators (½Li², oil compression) is not included."""
         kin = self.kinematics(q, qd, want_points=self.has_gravity)
         T = 0.5 * qd @ kin.M @ qd
+        V = self._elastic_energy(q)
+        Vg = -self._gravity_work(q, kin) if self.has_gravity else 0.0
+        return {"kinetic": T, "elastic": V, "gravity": Vg, "total": T + V + Vg,
+                "tip": kin.tip_frames[-1].o.copy()}
+
+    def _elastic_energy(self, q) -> float:
         V = 0.5 * q @ self.K @ q
         for im, ij, b, k, _ in self.backlash:
             d = q[im] - q[ij]
             V += 0.5 * k * max(abs(d) - b, 0.0) ** 2
-        Vg = -self._gravity_work(q, kin) if self.has_gravity else 0.0
-        return {"kinetic": T, "elastic": V, "gravity": Vg, "total": T + V + Vg,
-                "tip": kin.tip_frames[-1].o.copy()}
+        return V
+
+    def energies(self, t, q, qd, z) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`energy`'s ``total`` (J, (N,)) and ``tip`` (m, (N, 2)) at N samples (rows
+        of q, q̇, z at the times t; q, q̇ full, prescribed coordinates included). With the
+        numba backend and no gravity, one compiled pass over all samples
+        (:func:`kchain.energies`: the kernel's mass matrix and tip frame, equal to the
+        numpy reference to round-off, ~200× faster: the output columns of a 1 s run took
+        ~0.4 s of its process); else :meth:`energy` per sample."""
+        n_s = len(q)
+        total, tip = np.empty(n_s), np.empty((n_s, 2))
+        if self.backend != "numba" or self.has_gravity:
+            for k in range(n_s):
+                e = self.energy(q[k], qd[k])
+                total[k], tip[k] = e["total"], e["tip"]
+            return total, tip
+        kchain.energies(np.ascontiguousarray(q, float), np.ascontiguousarray(qd, float),
+                        self.kernel_args, kchain.workspace(self.kernel_args), total, tip)
+        return total, tip
 
     def _gravity_work(self, q, kin):
         g = self.gravity

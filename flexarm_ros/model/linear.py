@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.differentiate import REL_STEP, jacobian
@@ -79,6 +78,7 @@ def natural_modes(chain, q0=None, joints: str = "locked") -> Modes:
     else:
         Kt = chain.K[np.ix_(keep, keep)]
     Kt = 0.5 * (Kt + Kt.T)
+    import scipy.linalg       # lazily: start-up time of runs that never need it
     w2, V = scipy.linalg.eigh(Kt, M)
     V = np.ascontiguousarray(V)
     # ω² as the Rayleigh quotients vᵀK_t v of the mass-normalised shapes: the eigenvalue of

@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg
 
 from flexarm_ros.errors import WorkTooLarge
 
@@ -198,6 +197,7 @@ def dominant_eigenvalue(chain, x0):
             x = x0.copy()
             x[:nf] = q[free]
             states.append(x)
+    import scipy.linalg       # lazily: start-up time of runs that never need it
     best = None
     for x in states:
         w, WL, VR = scipy.linalg.eig(_jacobian(chain, x), left=True, right=True)

@@ -9,7 +9,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from flexarm_ros.sim.budget import Pace
 from flexarm_ros.errors import SimulationDiverged
@@ -187,6 +186,7 @@ class ContactStepper:
             ind1 = self._indicators(t + dt, x1, mode, s)
             hit = [j for j, (a, b) in enumerate(zip(ind0, ind1)) if a >= 0.0 > b]
             if hit:
+                from scipy.optimize import brentq   # on an event only: start-up time
                 best_tau, best_j = dt, hit[0]
                 for j in hit:                  # earliest crossing among the mode's events
                     def fun(tau, j=j):

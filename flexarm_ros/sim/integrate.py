@@ -15,7 +15,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 
 from flexarm_ros.errors import SceneError, SimulationDiverged
@@ -30,7 +29,17 @@ from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.step import choose_step, rk4_step
 from flexarm_ros.sim.budget import Pace, check_work
 
-SOLVE_IVP = {"rk45": RK45, "dop853": DOP853, "radau": Radau, "bdf": BDF, "lsoda": LSODA}
+#: scipy's solve_ivp methods by integrator name (the class by :func:`solve_ivp_method`)
+SOLVE_IVP = {"rk45": "RK45", "dop853": "DOP853", "radau": "Radau", "bdf": "BDF",
+             "lsoda": "LSODA"}
+
+
+def solve_ivp_method(integrator: str):
+    """scipy's OdeSolver class of ``integrator`` (rk45, dop853, radau, bdf, lsoda),
+    imported on first use: rk4 and trapezoid runs never load scipy.integrate (start-up,
+    README "Start-up")."""
+    import scipy.integrate
+    return getattr(scipy.integrate, SOLVE_IVP[integrator])
 
 
 @dataclass
@@ -167,8 +176,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         k_out = 1
         pace = Pace(chain, t_end, integrator)
         for t_hi in bps:   # restart at input discontinuities
-            solver = SOLVE_IVP[integrator](f, t_lo, x, t_hi, rtol=rtol, atol=atol,
-                                           **({"max_step": dt} if dt > 0 else {}))
+            solver = solve_ivp_method(integrator)(f, t_lo, x, t_hi, rtol=rtol, atol=atol,
+                                                  **({"max_step": dt} if dt > 0 else {}))
             while solver.status == "running":
                 try:
                     msg = solver.step()

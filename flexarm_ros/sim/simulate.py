@@ -178,32 +178,13 @@ def output_columns(chain: Chain, run: Integration) -> dict:
         cols[name] = run.q[:, j]
     for j, name in enumerate(chain.names):
         cols[f"{name}_rate"] = run.qd[:, j]
-    energy, tip = energy_and_tip(chain, run.q, run.qd)
+    energy, tip = chain.energies(run.t, run.q, run.qd, run.z)
     cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
     for lm in chain.links:           # w(L) = φ(L)ᵀη (Chain.tip_deflections, all samples)
         cols[f"{lm.name}_tip_deflection"] = run.q[:, lm.eta] @ lm.beam.phi_tip
     cols["energy"] = energy
     cols.update(actuator_columns(chain, run))
     return cols
-
-
-def energy_and_tip(chain: Chain, Q, QD) -> tuple[np.ndarray, np.ndarray]:
-    """Total energy (J) and last tip position (m) per sample (rows of Q, Q̇): one compiled
-    pass (:func:`~flexarm_ros.model.compiled.chain.energies`) where the chain is compiled and
-    has no gravity, else :meth:`Chain.energy` per sample (the same equations in numpy)."""
-    N = len(Q)
-    tip = np.empty((N, 2))
-    energy = np.empty(N)
-    if chain.backend == "numba" and not chain.has_gravity:
-        from flexarm_ros.model.compiled import chain as kchain
-        kchain.energies(np.ascontiguousarray(Q, float), np.ascontiguousarray(QD, float),
-                        chain.kernel_args, kchain.workspace(chain.kernel_args), energy, tip)
-        return energy, tip
-    for k in range(N):
-        e = chain.energy(Q[k], QD[k])
-        energy[k] = e["total"]
-        tip[k] = e["tip"]
-    return energy, tip
 
 
 def actuator_columns(chain: Chain, run: Integration) -> dict:

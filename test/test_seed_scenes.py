@@ -46,7 +46,7 @@ def pulse():
     runs 10)."""
     out = {}
     for name in ("link", "link_tipmass", "link_flexjoint_notip", "link_flexjoint"):
-        c = simulate(_bare(name, refine=4)).columns
+        c = simulate(_bare(name, rung="fd", refine=4)).columns
         out[name] = pulse_shape(c["t"], c["link1_joint_rate"])
     return out
 

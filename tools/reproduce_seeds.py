@@ -257,7 +257,7 @@ def seed001(rep: Report, plt):
     fig, ax = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     rows = []
     for name, joint, mt in cases:
-        res = _run(_load(name))
+        res = _run(_load(name).with_fidelity(rung="fd", refine=10))   # the seed's own model
         c = res.columns
         s = pulse_shape(c["t"], c["link1_joint_rate"])
         if joint == "rigid":
@@ -303,7 +303,7 @@ def seed001(rep: Report, plt):
              "later and the speed overshoots more.")
 
     # --- ±3 V motor test
-    scene = _load("link_motor")
+    scene = _load("link_motor").with_fidelity(rung="fd", refine=10)   # the seed's own
     res = _run(scene)
     c = res.columns
     t = c["t"]

@@ -119,7 +119,7 @@ def test_a_torque_at_the_hub_controls_a_flexible_link(rung):
     """One flexible link driven at the hub: every mode moves the hub, so the torque
     controls them all, whatever the rung (the controllability matrix's rank, numerically,
     says otherwise)."""
-    ss = linearize(Chain(load_scene("link").with_fidelity(rung=rung)))
+    ss = linearize(Chain(load_scene("link").with_fidelity(rung=rung, refine=10)))
     r = pbh_test(ss.A, ss.B)
     assert r.controllable, (r.uncontrollable, r.margins.min())
 

@@ -118,6 +118,7 @@ def test_budget_is_a_parameter(capsys):
 def test_collapsed_beam_step_names_the_beam_key(tmp_path, capsys, path, value, coordinate,
                                                 key):
     data = _set(shipped("link"), path, value)
+    data["fidelity"].update(rung="fd", refine=10)      # the seed's own: nodes link1_y…
     code = main(simulate_argv(tmp_path, data))
     msg = one_error_line(capsys, code)
     assert f"in which {coordinate}" in msg and key in msg
@@ -139,6 +140,7 @@ def test_adaptive_run_is_stopped_by_its_pace(tmp_path, capsys):
     """dop853 has no step to check up front: the pace of its first steps projects the
     total, and the run stops within a window of steps, not after hours."""
     data = _set(shipped("link"), ("links", 0, "beam", "mass_per_length"), 1e-12)
+    data["fidelity"].update(rung="fd", refine=10)      # the seed's own: nodes link1_y…
     t0 = time.perf_counter()
     code = main(simulate_argv(tmp_path, data, "--integrator", "dop853", "--max-steps",
                               "1e5"))

@@ -36,7 +36,8 @@ def _with_rung(scene, rung):
 def test_every_simulate_column_of_every_shipped_scene_has_a_unit():
     scenes = [load_scene(n) for n in shipped_scenes()]
     free = load_scene("two_link_free")
-    scenes += [_with_rung(free, "rigid"), _with_rung(free, "fem"), _with_rung(free, "modal")]
+    scenes += [_with_rung(free, "rigid"), _with_rung(free, "fem"), _with_rung(free, "modal"),
+               _with_rung(load_scene("link"), "fd")]
     rungs = set()
     for sc in scenes:
         rungs.add(sc.fidelity.rung)

@@ -351,7 +351,8 @@ def run_ensemble(base, assignments: Sequence[dict], metrics=None, duration=None,
                  params: Sequence[str] | None = None, executor=None,
                  workers: int | None = 0, scheduler: str | None = None,
                  series: Sequence[str] = (), quiet: bool = True, model=None,
-                 meta: dict | None = None) -> EnsembleTable:
+                 meta: dict | None = None, labels: Sequence[dict] | None = None
+                 ) -> EnsembleTable:
     """Run one simulation per assignment and return the table (see module doc).
 
     ``base``: the Scene; ``assignments``: ``[{key path: value}, ...]`` (a parameter may
@@ -361,7 +362,9 @@ def run_ensemble(base, assignments: Sequence[dict], metrics=None, duration=None,
     (default the scene's); ``executor``: an open executor, else one is opened from
     ``workers`` / ``scheduler`` and closed at the end; ``series``: channels returned per
     sample; ``model``: the task (default :class:`SceneModel`), a picklable callable
-    ``assignment → {"status", "message", "metrics", "series"}`` with ``columns``.
+    ``assignment → {"status", "message", "metrics", "series"}`` with ``columns``;
+    ``labels``: per sample the values of the ``params`` columns when they are not the
+    assignment's keys (an unknown setting several keys).
     """
     from flexarm_ros.ensemble.metrics import resolve_metrics
     if model is None:
@@ -387,7 +390,8 @@ def run_ensemble(base, assignments: Sequence[dict], metrics=None, duration=None,
     rows, series_out = [], []
     for i, (a, r) in enumerate(zip(assignments, results)):
         row = {"sample": i}
-        row.update({p: a.get(p) for p in params})
+        lab = labels[i] if labels is not None else a
+        row.update({p: lab.get(p) for p in params})
         row["status"] = r["status"]
         row.update({c: float(r["metrics"].get(c, math.nan)) for c in model.columns})
         row["message"] = r.get("message", "")

@@ -1,4 +1,5 @@
-"""The ``flexarm`` command: simulate, modes, linearize, explain, study, run, replay, compare.
+"""The ``flexarm`` command: simulate, modes, linearize, explain, study, run, replay, compare,
+sweep, uncertainty, sensitivity (the ensembles: :mod:`flexarm_ros.ensemble.cli`).
 
 ``simulate``, ``modes``, ``linearize``, ``explain`` and ``study`` need no ROS; ``run`` and
 ``replay`` use ROS 2 (loopback-only discovery unless set, see
@@ -540,6 +541,8 @@ def build_parser():
                    help="analyse only this span of the reference clock, s (e.g. 2.1:2.5)")
     c.set_defaults(func=cmd_compare)
     _bag_parser(sub)
+    from flexarm_ros.ensemble.cli import add_parsers    # sweep, uncertainty, sensitivity
+    add_parsers(sub)
     return p
 
 

@@ -403,5 +403,6 @@ def run_ensemble(base, assignments: Sequence[dict], metrics=None, duration=None,
                                                                         None)}
     info.update(meta or {})
     info["_scene"] = base
+    want_series = series or getattr(model, "series", ())
     return EnsembleTable(list(params), list(model.columns), rows, info,
-                         series_out if series else None)
+                         series_out if want_series else None)

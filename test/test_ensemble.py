@@ -458,3 +458,25 @@ def test_distribution_leaving_the_schema_bounds_exits_2(tmp_path, capsys):
                     "    dist: uniform\n    low: 1.2\n    high: 1.0\n")
     code, _, err = _cli(["sensitivity", str(spec), "--workers", "0", "--quiet"], capsys)
     assert code == 2 and "low = 1.2 >= high = 1, expected low < high" in err
+
+
+# ------------------------------------------------------------- the study on the runner
+def test_study_rows_are_runner_tasks_with_the_same_results_on_dask():
+    """flexarm study's ladder rows as tasks: on a Dask worker they give the serial rows'
+    errors, frequencies and step counts to the bit (only the timing columns differ)."""
+    pytest.importorskip("distributed")
+    from flexarm_ros.ensemble.runner import open_executor
+    from flexarm_ros.studies import ladder as study
+    sc = load_scene_dict(small_data())
+    ladder = [study.spec("rigid", 1, "rk4"), study.spec("fem", 2, "rk4")]
+    kw = dict(duration=0.02, ladder=ladder, reference=study.spec("fem", 4, "rk4"))
+    lines = []
+    serial = study.run_study(sc, progress=lines.append, **kw)
+    with open_executor(1) as ex:
+        dask_rows = study.run_study(sc, executor=ex, **kw)
+    timing = {"wall_s_per_sim_s", "real_time_factor", "timing_runs", "pareto"}
+    for a, b in zip(serial, dask_rows):
+        assert a["status"] == b["status"] == "ok"
+        assert {k: repr(v) for k, v in a.items() if k not in timing} == \
+            {k: repr(v) for k, v in b.items() if k not in timing}
+    assert sum(line.startswith("[") for line in lines) == len(ladder)   # one per row

@@ -142,13 +142,8 @@ def check_channels(scene, metrics, series=(), duration=None) -> None:
 
 def _executor(args, model):
     from flexarm_ros.ensemble.runner import open_executor
-    try:
-        ex = open_executor(args.workers, args.scheduler,
-                           warm_up=getattr(model, "warm_up", None), timeout_s=args.timeout)
-    except ImportError as exc:
-        raise SceneError(f"--workers: the Dask runner needs dask and distributed ({exc}), "
-                         f"expected pip install -e .[ensemble], or --workers 0 (in this "
-                         f"process)") from None
+    ex = open_executor(args.workers, args.scheduler,
+                       warm_up=getattr(model, "warm_up", None), timeout_s=args.timeout)
     if not args.quiet:
         print(f"ensemble: {ex.description}"
               + (f"; dashboard {ex.dashboard}" if ex.dashboard else ""), file=sys.stderr)

@@ -103,7 +103,11 @@ class DaskExecutor:
                              f"installed on every worker (pip install flexarm_ros[ensemble])"
                              ) from None
 
-    def map(self, fn, items, progress=None, status=lambda r: "ok") -> list:
+    def map(self, fn, items, progress=None, status=lambda r: "ok", on_result=None,
+            errors: str = "raise") -> list:
+        """Results in input order. A task that raises (or is lost with its worker more
+        than ``allowed-failures`` times): ``errors='row'`` gives ``{"status": "error",
+        "message": ...}`` in its place, ``'raise'`` re-raises (as the serial executor)."""
         token = uuid.uuid4().hex[:12]
         keys = [f"flexarm-{token}-{i}" for i in range(len(items))]
         futures = self.client.map(fn, items, key=keys, pure=False)
@@ -113,12 +117,16 @@ class DaskExecutor:
             try:
                 r = fut.result()
             except Exception as exc:  # noqa: BLE001 - the task's failure is a row
+                if errors != "row":
+                    raise
                 r = {"status": "error", "message": f"{type(exc).__name__}: {_one_line(exc)}",
                      "metrics": {}}
             out[where[fut.key]] = r
             fut.release()
             if progress:
                 progress.update(status(r))
+            if on_result:
+                on_result(where[fut.key], r)
         return out
 
     def close(self) -> None:

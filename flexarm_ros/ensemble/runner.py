@@ -162,13 +162,15 @@ class SerialExecutor:
     dashboard = None
 
     def map(self, fn: Callable, items: Sequence, progress: Progress | None = None,
-            status=lambda r: "ok") -> list:
+            status=lambda r: "ok", on_result=None, errors: str = "raise") -> list:
         out = []
-        for item in items:
+        for i, item in enumerate(items):
             r = fn(item)
             out.append(r)
             if progress:
                 progress.update(status(r))
+            if on_result:
+                on_result(i, r)
         return out
 
     def close(self) -> None:
@@ -187,16 +189,22 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
     cluster (``workers`` processes, default one per core) or on ``scheduler``."""
     if scheduler is None and workers == 0:
         return SerialExecutor()
-    from flexarm_ros.ensemble.cluster import DaskExecutor
+    try:
+        from flexarm_ros.ensemble.cluster import DaskExecutor
+    except ImportError as exc:
+        raise SceneError(f"--workers: got {workers}, the Dask runner needs dask and "
+                         f"distributed ({exc}), expected pip install -e .[ensemble], or "
+                         f"--workers 0 (in this process)") from None
     return DaskExecutor(workers=workers, scheduler=scheduler, warm_up=warm_up,
                         timeout_s=timeout_s)
 
 
 def run_tasks(fn: Callable, items: Sequence, executor=None, progress: Progress | None = None,
-              status=lambda r: "ok") -> list:
-    """``[fn(item) for item in items]`` on the executor (default serial), in input order."""
+              status=lambda r: "ok", on_result=None) -> list:
+    """``[fn(item) for item in items]`` on the executor (default serial), in input order;
+    ``on_result(index, result)`` as each completes (in completion order)."""
     executor = executor or SerialExecutor()
-    return executor.map(fn, list(items), progress, status)
+    return executor.map(fn, list(items), progress, status, on_result)
 
 
 # ------------------------------------------------------------------------------ table
@@ -381,7 +389,8 @@ def run_ensemble(base, assignments: Sequence[dict], metrics=None, duration=None,
     prog = Progress(len(assignments), quiet)
     t0 = time.perf_counter()
     try:
-        results = executor.map(model, assignments, prog, status=lambda r: r["status"])
+        results = executor.map(model, assignments, prog, status=lambda r: r["status"],
+                               errors="row")
     finally:
         prog.clear()
         if own:

@@ -104,6 +104,10 @@ def _map(table, m, d: Path) -> Path:
     if np.any(~good):
         ax.plot(x[~good], y[~good], "x", color="tab:red", label="not ok / undefined")
         ax.legend(fontsize=7)
+    for lim, v in ((ax.set_xlim, x), (ax.set_ylim, y)):     # room for the edge markers
+        lo, hi = float(np.min(v)), float(np.max(v))
+        pad = 0.05 * (hi - lo) if hi > lo else 0.5
+        lim(lo - pad, hi + pad)
     if "x" in labels:
         ax.set_xticks(range(len(labels["x"])), [str(c) for c in labels["x"]])
     if "y" in labels:

@@ -480,3 +480,33 @@ def test_study_rows_are_runner_tasks_with_the_same_results_on_dask():
         assert {k: repr(v) for k, v in a.items() if k not in timing} == \
             {k: repr(v) for k, v in b.items() if k not in timing}
     assert sum(line.startswith("[") for line in lines) == len(ladder)   # one per row
+
+
+def test_uncertainty_and_sensitivity_commands_on_a_scene_file(tmp_path, capsys):
+    import yaml
+    (tmp_path / "probe.yaml").write_text(yaml.safe_dump(small_data()))
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(yaml.safe_dump({
+        "scene": "probe.yaml", "duration": DURATION, "channel": "tip_y",
+        "metrics": ["max_tip_deflection"],
+        "unknowns": [{"name": "tip_mass", "key": "links[0].tip.mass", "dist": "uniform",
+                      "low": 0.2, "high": 0.4},
+                     {"name": "EI", "key": "links[0].beam.EI", "dist": "lognormal",
+                      "median": 2.0, "sigma": 0.1, "low": 1.5, "high": 2.5}]}))
+    code, out, err = _cli(["uncertainty", str(spec), "--samples", "4", "--workers", "0",
+                           "--quiet", "--json", "--png", str(tmp_path / "u"), "--out",
+                           str(tmp_path / "u.csv")], capsys)
+    assert code == 0, err
+    s = json.loads(out)["statistics"]["max_tip_deflection_m"]
+    vals = [r["max_tip_deflection_m"] for r in read_table(tmp_path / "u.csv")]
+    assert s["n"] == 4 and s["p50"] == pytest.approx(np.median(vals), rel=1e-15)
+    assert (tmp_path / "u" / "envelope_tip_y.png").is_file()
+    rows = read_table(tmp_path / "u.csv")               # columns named by the unknowns
+    assert all(0.2 <= r["tip_mass"] <= 0.4 and 1.5 <= r["EI"] <= 2.5 for r in rows)
+    code, out, err = _cli(["sensitivity", str(spec), "--method", "morris", "--samples", "2",
+                           "--workers", "0", "--quiet", "--markdown",
+                           str(tmp_path / "s.md"), "--png", str(tmp_path / "s")], capsys)
+    assert code == 0, err
+    assert "max_tip_deflection_m: morris over 6 samples" in out
+    assert (tmp_path / "s" / "sensitivity_morris.png").is_file()
+    assert "| rank | unknown | mu*" in (tmp_path / "s.md").read_text()

@@ -506,6 +506,9 @@ def test_uncertainty_and_sensitivity_commands_on_a_scene_file(tmp_path, capsys):
     vals = [r["max_tip_deflection_m"] for r in read_table(tmp_path / "u.csv")]
     assert s["n"] == 4 and s["p50"] == pytest.approx(np.median(vals), rel=1e-15)
     assert (tmp_path / "u" / "envelope_tip_y.png").is_file()
+    env = (tmp_path / "u.envelope_tip_y.csv").read_text().splitlines()
+    assert env[0] == "t [s],tip_y_p5 [m],tip_y_p50 [m],tip_y_p95 [m]"
+    assert not (tmp_path / "u.samples").exists()        # no per-sample files unasked
     rows = read_table(tmp_path / "u.csv")               # columns named by the unknowns
     assert all(0.2 <= r["tip_mass"] <= 0.4 and 1.5 <= r["EI"] <= 2.5 for r in rows)
     code, out, err = _cli(["sensitivity", str(spec), "--method", "morris", "--samples", "2",
@@ -515,3 +518,19 @@ def test_uncertainty_and_sensitivity_commands_on_a_scene_file(tmp_path, capsys):
     assert "max_tip_deflection_m: morris over 6 samples" in out
     assert (tmp_path / "s" / "sensitivity_morris.png").is_file()
     assert "| rank | unknown | mu*" in (tmp_path / "s.md").read_text()
+
+
+def test_the_case1_spec_example_loads_and_maps_quantiles_to_its_bounds():
+    from pathlib import Path
+    from flexarm_ros.ensemble.spec import load_spec
+    spec = load_spec(Path(__file__).resolve().parents[1] / "examples" /
+                     "sensitivity_case1.yaml")
+    base = spec.base_scene()
+    assert base.links[0].joint.backlash.width == 0.0                 # `set:` applied
+    lo, hi = spec.assignments(np.array([[0.0] * len(spec.unknowns),
+                                        [1.0] * len(spec.unknowns)]))
+    for u in spec.unknowns:
+        for k in u.keys:                                             # tied keys, one value
+            assert lo[k] == pytest.approx(u.low) and hi[k] == pytest.approx(u.high)
+    K.set_keys(base, lo)                                             # both ends valid
+    K.set_keys(base, hi)

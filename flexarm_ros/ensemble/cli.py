@@ -244,7 +244,17 @@ def cmd_uncertainty(args):
         table, stats, env = run_uncertainty(spec, args.samples, args.seed, args.design,
                                             channel, model=model, executor=ex,
                                             quiet=args.quiet or args.json)
+    table.series = None              # the channel served the envelope, written below
     _write(args, table)
+    if args.out and env is not None:
+        from flexarm_ros.io.tables import write_table
+        from flexarm_ros.io.units import table_units
+        t, med, p5, p95 = env
+        path = Path(args.out).with_name(f"{Path(args.out).stem}.envelope_{channel}.csv")
+        unit = table_units({channel: None}, base).get(channel)
+        cols = {"t": t, f"{channel}_p5": p5, f"{channel}_p50": med, f"{channel}_p95": p95}
+        write_table(path, cols, {"t": "s", **({k: unit for k in list(cols)[1:]}
+                                             if unit else {})})
     if args.png:
         from flexarm_ros.ensemble.plots import plot_envelope, plot_histograms
         plot_histograms(table, stats, args.png)

@@ -9,8 +9,9 @@ sensitivity analysis.
       links[0].joint.backlash: {width: 0.0, stiffness: 2000.0}
     unknowns:
       - name: K_base               # optional (default: the first key)
-        keys: [links[0].joint.drive.torque_constant,
-               links[0].joint.drive.back_emf_constant]   # one value, several keys
+        keys:                      # one value, several keys (a block list: [a[0].b]
+          - links[0].joint.drive.torque_constant         # is not valid flow YAML)
+          - links[0].joint.drive.back_emf_constant
         dist: uniform
         low: 0.0272
         high: 0.0332

@@ -5,6 +5,7 @@ table, not failures), 2 bad input (one line: key, value, expectation)."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
@@ -14,12 +15,39 @@ import numpy as np
 
 from flexarm_ros.errors import SceneError
 
+SCENE_HELP = "scene YAML path or shipped scene name (default two_link_case1)"
+
+
+def number(text):
+    """An option's number (as ``flexarm``'s other options: got 'abc', expected a number)."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected a number") from None
+
+
+def integer(text):
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer") from None
+
+
+def _check_duration(value):
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise SceneError(f"--duration: got {value}, expected a finite number > 0 s")
+    return value
+
+
+def _load_scene(name):
+    from flexarm_ros.scene import DEFAULT_SCENE, load_scene
+    return load_scene(name or DEFAULT_SCENE)
+
 
 def _executor_args(p):
     g = p.add_argument_group("where the samples run (default: a local Dask cluster, one "
                              "single-threaded worker process per core, on 127.0.0.1)")
     x = g.add_mutually_exclusive_group()
-    from flexarm_ros.cli import integer
     x.add_argument("--workers", type=integer, metavar="N",
                    help="local worker processes (0: in this process, no Dask)")
     x.add_argument("--scheduler", metavar="ADDRESS",
@@ -45,8 +73,8 @@ def _output_args(p, series=True):
 
 
 def add_parsers(sub) -> None:
-    """Register the three commands on ``flexarm``'s subparsers."""
-    from flexarm_ros.cli import SCENE_HELP, integer, number
+    """Register the three commands on ``flexarm``'s subparsers (its parser calls this;
+    nothing here imports the command-line module, which sits above every layer)."""
     s = sub.add_parser("sweep", help="a parameter sweep of a scene: one simulation per "
                                      "sample, a table of metrics")
     s.add_argument("scene", nargs="?", help=SCENE_HELP)
@@ -187,13 +215,12 @@ def _write(args, table):
 
 # ------------------------------------------------------------------------------ sweep
 def cmd_sweep(args):
-    from flexarm_ros.cli import _load, check_duration
     from flexarm_ros.ensemble.designs import make_design, parse_param
     from flexarm_ros.ensemble.metrics import resolve_metrics
     from flexarm_ros.ensemble.runner import SceneModel, run_ensemble
-    check_duration(args.duration)
+    _check_duration(args.duration)
     _check_out(args)
-    scene = _load(args)
+    scene = _load_scene(args.scene)
     if not args.param:
         raise SceneError("--param: missing, expected at least one KEY=LO:HI or KEY=v1,v2,...")
     params = [parse_param(p, scene) for p in args.param]

@@ -40,6 +40,10 @@ setup(
                 "ros-rmw-fastrtps-cpp"],
         "fast": ["numba>=0.60"],
         "viz": ["rerun-sdk>=0.20"],
+        # ensembles (flexarm sweep / uncertainty / sensitivity): Dask local or remote
+        # clusters, SALib's Morris and Sobol, the Dask dashboard, Parquet tables
+        "ensemble": ["dask>=2024.8", "distributed>=2024.8", "SALib>=1.5", "bokeh>=3.1",
+                     "pyarrow>=14"],
         "dev": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "colcon-common-extensions", "colcon-ros",
                 "ros-ament-package"],
     },

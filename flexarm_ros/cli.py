@@ -1,4 +1,5 @@
-"""The ``flexarm`` command: simulate, modes, linearize, explain, study, run, replay, compare.
+"""The ``flexarm`` command: simulate, modes, linearize, explain, study, run, replay, compare,
+sweep, uncertainty, sensitivity (the ensembles: :mod:`flexarm_ros.ensemble.cli`).
 
 ``simulate``, ``modes``, ``linearize``, ``explain`` and ``study`` need no ROS; ``run`` and
 ``replay`` use ROS 2 (loopback-only discovery unless set, see
@@ -275,9 +276,13 @@ def cmd_study(args):
         check_output_file("--png", args.png, (".png", ".pdf", ".svg"))
     scene = _load(args)
     quiet = args.quiet or args.json
-    rows = run_study(scene, duration=args.duration, quick=args.quick,
-                     progress=None if quiet else
-                     (lambda text: print(f"  {text}", file=sys.stderr, flush=True)))
+    from flexarm_ros.ensemble.runner import open_executor
+    if args.workers is not None and args.workers < 0:
+        _fail(f"--workers: got {args.workers}, expected an integer >= 0 (0: in this process)")
+    with open_executor(args.workers or 0, args.scheduler) as ex:   # rows as runner tasks
+        rows = run_study(scene, duration=args.duration, quick=args.quick, executor=ex,
+                         progress=None if quiet else
+                         (lambda text: print(f"  {text}", file=sys.stderr, flush=True)))
     if args.png:
         plot_pareto(rows, args.png, title=scene.name)
     if args.json:
@@ -438,6 +443,12 @@ def build_parser():
     # rung, refinement, integrator and tolerances are what the ladder varies: not options
     st.add_argument("--no-foreshortening", action="store_true",
                     help="drop the geometric-stiffening terms in every rung")
+    st.add_argument("--workers", type=integer, metavar="N",
+                    help="run the ladder rows on N local Dask worker processes (default 0: "
+                         "in this process, one at a time, so that each row's wall time is "
+                         "measured alone)")
+    st.add_argument("--scheduler", metavar="ADDRESS",
+                    help="run the ladder rows on an existing Dask cluster (docs/ensembles.md)")
     st.set_defaults(func=cmd_study)
     r = sub.add_parser("run", help="the ROS 2 twin: simulator, motor driver, controller and "
                                     "recorder nodes")
@@ -550,6 +561,8 @@ def build_parser():
                    help="analyse only this span of the reference clock, s (e.g. 2.1:2.5)")
     c.set_defaults(func=cmd_compare)
     _bag_parser(sub)
+    from flexarm_ros.ensemble.cli import add_parsers    # sweep, uncertainty, sensitivity
+    add_parsers(sub)
     return p
 
 

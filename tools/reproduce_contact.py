@@ -2,6 +2,12 @@
 Sec. 5.6), for the flexible rungs and the rigid-spring rung.
 
     python tools/reproduce_contact.py            # writes docs/reproduction_contact.md
+    python tools/reproduce_contact.py --workers 2     # the six runs on a local Dask cluster
+    python tools/reproduce_contact.py --scheduler tcp://127.0.0.1:8786
+
+The six runs (case x rung) are tasks of the ensemble runner
+(:func:`flexarm_ros.ensemble.runner.run_tasks`): in this process one after the other by
+default (the ``wall s`` column then times each run alone), or on Dask workers.
 
 Per case and rung: impact time, number of impacts, bounce height (largest gap within
 0.3 s after the first impact), the dominant post-impact acceleration frequency at points
@@ -80,8 +86,23 @@ def _ref(ref):
     return f"{ref[0]}–{ref[1]}" if isinstance(ref, tuple) else f"{ref}"
 
 
-def main():
-    rows = [analyse(name, rung, refine) for name in SOURCE for rung, refine in RUNGS]
+def _analyse(item):
+    return analyse(*item)
+
+
+def main(argv=None):
+    import argparse
+    from flexarm_ros.ensemble.runner import open_executor, run_tasks
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workers", type=int, default=0,
+                    help="local Dask worker processes (default 0: in this process)")
+    ap.add_argument("--scheduler", help="an existing Dask scheduler address")
+    args = ap.parse_args(argv)
+    items = [(name, rung, refine) for name in SOURCE for rung, refine in RUNGS]
+    with open_executor(args.workers, args.scheduler) as ex:
+        rows = run_tasks(_analyse, items, ex,
+                         on_result=lambda k, r: print(f"{r['case']} {r['rung']}: "
+                                                      f"{r['wall_s']:.1f} s", flush=True))
     lines = ["# Seed 000 with the wall: the twin against the source", "",
              "Regenerate: `python tools/reproduce_contact.py` (impulse–constraint contact, "
              f"{DURATION} s runs, about a minute).", "",

@@ -77,6 +77,7 @@ from flexarm_ros.sim.step import choose_step
 from flexarm_ros.model.linear import natural_modes
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.simulate import simulate
+from flexarm_ros.ensemble.runner import run_tasks
 
 #: duration cap of the study window when none is given, s
 DEFAULT_DURATION_S = 1.0
@@ -304,6 +305,22 @@ def _row(scene, s: dict, T: float, ref_res, f_ref, ref_label) -> dict:
     return row
 
 
+class LadderRow:
+    """One ladder row as a task (picklable: the scene, the window and the reference's
+    ``t``/``tip_x``/``tip_y`` columns): ``__call__(spec) → row`` (:func:`_row`)."""
+
+    def __init__(self, scene, T, ref_columns: dict, f_ref, ref_label):
+        self.scene, self.T, self.ref = scene, T, ref_columns
+        self.f_ref, self.ref_label = f_ref, ref_label
+
+    def warm_up(self):
+        _warm_up(self.scene)
+
+    def __call__(self, s: dict) -> dict:
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return _row(self.scene, s, self.T, self.ref, self.f_ref, self.ref_label)
+
+
 def _repeat_timing(chain, sc, T, wall):
     """Short runs are timed again (same model, integration only) until MIN_TIMING_S of
     wall time has been spent or MAX_TIMING_RUNS runs made; the fastest run counts (as
@@ -352,7 +369,7 @@ def _choose_duration(scene, ladder, ref, quick, budget_s, progress):
 def run_study(scene, duration: Optional[float] = None, quick: bool = False,
               progress: Optional[Callable[[str], None]] = None, *,
               ladder: Optional[list] = None, reference: Optional[dict] = None,
-              budget_s: Optional[float] = DEFAULT_BUDGET_S) -> StudyRows:
+              budget_s: Optional[float] = DEFAULT_BUDGET_S, executor=None) -> StudyRows:
     """Run the speed–accuracy study of ``scene``; returns the rows (see module doc). A
     scene with a wall gets the contact trade instead (:mod:`contact_study`).
 
@@ -361,6 +378,14 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     ``duration``: simulated seconds (default: see module doc); ``progress``: called with
     one line of text per row. Fidelity fields the specs do not set (foreshortening,
     modal basis, output sampling, deflection limit) stay the scene's.
+
+    The ladder rows are tasks of the ensemble runner (:class:`LadderRow`,
+    :func:`flexarm_ros.ensemble.runner.run_tasks`); ``executor`` (default: in this
+    process, one row after the other) may be a Dask executor
+    (:func:`flexarm_ros.ensemble.runner.open_executor`): the rows are then built and run
+    in the workers, with the same errors, frequencies and step counts, but rows that run
+    side by side share the machine, so their ``wall_s_per_sim_s`` (and the Pareto flags
+    drawn from it) measure a loaded machine; the default keeps one run at a time.
     """
     if scene.walls:
         from flexarm_ros.studies.contact import run_contact_study
@@ -408,12 +433,13 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
         progress(f"reference done: {meta['reference_wall_s_per_sim_s']:.3g} wall s per "
                  f"simulated s, first frequency "
                  + (f"{f_ref:.6g} Hz" if f_ref else "none"))
-    rows = []
-    for k, s in enumerate(ladder, 1):
-        row = _row(scene, s, T, ref_res, f_ref, ref_label)
-        rows.append(row)
+    task = LadderRow(scene, T, {k: np.asarray(ref_res.columns[k]) for k in
+                                ("t", "tip_x", "tip_y")}, f_ref, ref_label)
+
+    def done(k, row):
         if progress:
-            progress(f"[{k}/{len(ladder)}] {_label(s)}: " + _row_line(row))
+            progress(f"[{k + 1}/{len(ladder)}] {_label(ladder[k])}: " + _row_line(row))
+    rows = run_tasks(task, ladder, executor, on_result=done)
     meta["reference_error_estimate_m"] = _reference_error_estimate(rows, ref)
     flags = pareto_front([(r["wall_s_per_sim_s"], r["tip_rms_error_m"])
                           if r["status"] == "ok" else None for r in rows],

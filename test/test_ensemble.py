@@ -487,6 +487,26 @@ def test_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     assert sum(line.startswith("[") for line in lines) == len(ladder)   # one per row
 
 
+def test_contact_study_rows_are_runner_tasks_with_the_same_results_on_dask():
+    """The contact trade's rows (flexarm study on a scene with a wall) as tasks: on a Dask
+    worker the same rows, to the bit, as in this process (timing columns aside)."""
+    pytest.importorskip("distributed")
+    from flexarm_ros.ensemble.runner import open_executor
+    from flexarm_ros.scene import load_scene
+    from flexarm_ros.studies.contact import run_contact_study
+    sc = load_scene("two_link_case1")
+    lines = []
+    serial = run_contact_study(sc, 0.05, quick=True, progress=lines.append)
+    with open_executor(1) as ex:
+        dask_rows = run_contact_study(sc, 0.05, quick=True, executor=ex)
+    assert [r["contact"] for r in serial] == ["impulse", "compliant", "compliant"]
+    for a, b in zip(serial, dask_rows, strict=True):
+        assert a["status"] == b["status"] == "ok"
+        assert {k: repr(v) for k, v in a.items() if k != "wall_s_per_sim_s"} == \
+            {k: repr(v) for k, v in b.items() if k != "wall_s_per_sim_s"}
+    assert len(lines) == 1 + len(serial)        # the reference, then one line per row
+
+
 def test_uncertainty_and_sensitivity_commands_on_a_scene_file(tmp_path, capsys):
     import yaml
     (tmp_path / "probe.yaml").write_text(yaml.safe_dump(small_data()))

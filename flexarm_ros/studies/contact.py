@@ -25,6 +25,7 @@ import numpy as np
 
 from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.sim.simulate import simulate
+from flexarm_ros.ensemble.runner import run_tasks
 
 BOUNCE_WINDOW = 0.2          # s after the first impact
 STIFFNESSES = (1e4, 1e5, 1e6, 1e7)
@@ -68,8 +69,59 @@ def _metrics(res) -> dict:
             "normal_impulse_ns": impulse}
 
 
-def run_contact_study(scene, duration=None, quick=False, progress=None) -> list[dict]:
-    """Rows of the contact trade for ``scene`` (which must have a wall)."""
+class ContactRow:
+    """One row of the contact trade as a task of the ensemble runner (picklable: the base
+    scene, the window, the reference's tip columns and metrics): ``__call__(item) → row``
+    for ``item`` = dict(rung, refine, contact[, stiffness]); a refused or diverging run is
+    a row with its message as ``status``."""
+
+    def __init__(self, base, T, ref_tip: dict, m_ref: dict, repeats: int):
+        self.base, self.T, self.ref_tip, self.m_ref, self.repeats = (base, T, ref_tip,
+                                                                     m_ref, repeats)
+
+    def __call__(self, it: dict) -> dict:
+        import dataclasses
+        T, m_ref = self.T, self.m_ref
+        sc = self.base.with_fidelity(rung=it["rung"], refine=it["refine"],
+                                     contact=it["contact"], dt=0.0)
+        if it["contact"] == "compliant":
+            w = dataclasses.replace(sc.walls[0], stiffness=it["stiffness"])
+            sc = dataclasses.replace(sc, walls=(w,))
+        row = {"rung": it["rung"], "refinement": it["refine"], "contact": it["contact"],
+               "stiffness": it.get("stiffness")}
+        try:
+            best = math.inf
+            for _ in range(self.repeats):
+                res = simulate(sc, T)
+                best = min(best, res.run.wall_time_s)
+                if best * 3 > 60:
+                    break
+            m = _metrics(res)
+            tip = np.hypot(res.columns["tip_x"] - self.ref_tip["tip_x"],
+                           res.columns["tip_y"] - self.ref_tip["tip_y"])
+            row.update(
+                status="ok", step_s=res.run.dt, wall_s_per_sim_s=best / T,
+                impact_time_s=m["impact_time_s"],
+                impact_time_error_s=abs(m["impact_time_s"] - m_ref["impact_time_s"]),
+                bounce_height_m=m["bounce_height_m"],
+                bounce_height_error_m=abs(m["bounce_height_m"] - m_ref["bounce_height_m"]),
+                penetration_m=m["penetration_m"],
+                normal_impulse_ns=m["normal_impulse_ns"],
+                normal_impulse_error=(abs(m["normal_impulse_ns"] - m_ref["normal_impulse_ns"])
+                                      / max(abs(m_ref["normal_impulse_ns"]), 1e-12)),
+                tip_rms_error_m=float(np.sqrt(np.mean(tip ** 2))))
+        except (SimulationDiverged, SceneError) as exc:
+            row.update(status=str(exc))
+        return row
+
+
+def run_contact_study(scene, duration=None, quick=False, progress=None,
+                      executor=None) -> list[dict]:
+    """Rows of the contact trade for ``scene`` (which must have a wall). The rows are
+    tasks of the ensemble runner (:class:`ContactRow`,
+    :func:`flexarm_ros.ensemble.runner.run_tasks`): by default one after the other in this
+    process (each row times itself alone); ``executor`` may be a Dask executor, as for the
+    ladder (:func:`flexarm_ros.studies.ladder.run_study`)."""
     if not scene.walls:
         raise SceneError("study: the contact trade needs a scene with a wall")
     T = duration or scene.duration
@@ -81,48 +133,20 @@ def run_contact_study(scene, duration=None, quick=False, progress=None) -> list[
         progress(f"reference: {scene.fidelity.rung}, impulse, dt {h_auto / 4:.3g} s")
     ref = simulate(ref_scene, T)
     m_ref = _metrics(ref)
-    rows = []
     specs = [dict(contact="impulse")]
     specs += [dict(contact="compliant", stiffness=k)
               for k in (STIFFNESSES[1:3] if quick else STIFFNESSES)]
     rungs = [(scene.fidelity.rung, scene.fidelity.refine)]
     if not quick:
         rungs += [r for r in (("rigid", 0), ("modal", 2)) if r[0] != scene.fidelity.rung]
-    for rung, refine in rungs:
-        for sp in specs:
-            sc = base.with_fidelity(rung=rung, refine=refine, contact=sp["contact"], dt=0.0)
-            if sp["contact"] == "compliant":
-                import dataclasses
-                w = dataclasses.replace(sc.walls[0], stiffness=sp["stiffness"])
-                sc = dataclasses.replace(sc, walls=(w,))
-            row = {"rung": rung, "refinement": refine, "contact": sp["contact"],
-                   "stiffness": sp.get("stiffness")}
-            try:
-                best = math.inf
-                for _ in range(1 if quick else 3):
-                    res = simulate(sc, T)
-                    best = min(best, res.run.wall_time_s)
-                    if best * 3 > 60:
-                        break
-                m = _metrics(res)
-                tip = np.hypot(res.columns["tip_x"] - ref.columns["tip_x"],
-                               res.columns["tip_y"] - ref.columns["tip_y"])
-                row.update(
-                    status="ok", step_s=res.run.dt, wall_s_per_sim_s=best / T,
-                    impact_time_s=m["impact_time_s"],
-                    impact_time_error_s=abs(m["impact_time_s"] - m_ref["impact_time_s"]),
-                    bounce_height_m=m["bounce_height_m"],
-                    bounce_height_error_m=abs(m["bounce_height_m"] - m_ref["bounce_height_m"]),
-                    penetration_m=m["penetration_m"],
-                    normal_impulse_ns=m["normal_impulse_ns"],
-                    normal_impulse_error=(abs(m["normal_impulse_ns"] - m_ref["normal_impulse_ns"])
-                                          / max(abs(m_ref["normal_impulse_ns"]), 1e-12)),
-                    tip_rms_error_m=float(np.sqrt(np.mean(tip ** 2))))
-            except (SimulationDiverged, SceneError) as exc:
-                row.update(status=str(exc))
-            rows.append(row)
-            if progress:
-                progress(_line(row))
+    items = [dict(rung=rung, refine=refine, **sp) for rung, refine in rungs for sp in specs]
+    task = ContactRow(base, T, {k: np.asarray(ref.columns[k]) for k in ("tip_x", "tip_y")},
+                      m_ref, 1 if quick else 3)
+
+    def done(k, row):
+        if progress:
+            progress(_line(row))
+    rows = run_tasks(task, items, executor, on_result=done)
     for r in rows:
         r["reference"] = {"rung": scene.fidelity.rung, "contact": "impulse",
                           "dt": h_auto / 4, **m_ref}

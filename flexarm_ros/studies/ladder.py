@@ -389,7 +389,7 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     """
     if scene.walls:
         from flexarm_ros.studies.contact import run_contact_study
-        rows = run_contact_study(scene, duration, quick, progress)
+        rows = run_contact_study(scene, duration, quick, progress, executor=executor)
         ok = [r for r in rows if r.get("status") == "ok"]
         front = pareto_front([(r["wall_s_per_sim_s"], r["tip_rms_error_m"]) for r in ok])
         for r in rows:

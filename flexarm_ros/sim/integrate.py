@@ -112,11 +112,11 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     xs = np.empty((len(t_out), len(x0)))
     xs[0] = x0
     guard.check(0.0, x0)
-    if chain.backend == "numba":
-        kloops.warm_up(integrator, chain.kernel_args, x0, xs)   # compile outside the timing
+    dense = integrator == "rk4" and not _divides(h, output_dt)
+    if chain.backend == "numba":                                # compile outside the timing
+        kloops.warm_up(integrator, chain.kernel_args, x0, xs, dense=dense)
     wall0 = time.perf_counter()
     last_report = wall0
-    dense = integrator == "rk4" and not _divides(h, output_dt)
     if dense and chain.backend == "numba":
         ws = kchain.workspace(chain.kernel_args)
         x, t, k_next, steps = np.array(x0, float), 0.0, 1, 0

@@ -297,14 +297,18 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args
     return OK, n_out, steps, iters, xk, a0
 
 
-def warm_up(integrator, model, x0, xs):
+def warm_up(integrator, model, x0, xs, dense=None):
     """Compile (or load from cache) the loop of ``integrator`` with zero steps, so that
-    wall-time measurements count integration only (``model`` the plain tuple)."""
+    wall-time measurements count integration only (``model`` the plain tuple); for rk4,
+    ``dense`` True/False loads only the dense-output or the grid loop (None: both; each
+    load costs tens of ms of a short process's start-up)."""
     ws = workspace(model)
     x = np.array(x0, float)
     if integrator == "rk4":
-        rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
-        rk4_dense(x, 0.0, 1e-3, 0.0, 1e-3, xs.shape[0], 1.0, xs, model, ws)
+        if dense is not True:
+            rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
+        if dense is not False:
+            rk4_dense(x, 0.0, 1e-3, 0.0, 1e-3, xs.shape[0], 1.0, xs, model, ws)
     elif integrator == "trapezoid":
         nf = Model._make(model).free.shape[0]
         trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,

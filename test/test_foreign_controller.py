@@ -147,10 +147,12 @@ MUTE = """
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 rclpy.init()
 node = rclpy.create_node("mute_controller", namespace="%s")
-node.create_subscription(JointState, "joint_states", lambda m: None,
-                         QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+node.create_subscription(JointState, "joint_states", lambda m: None, qos)
+node.create_publisher(Float64MultiArray, "motor_driver/commands", qos)   # never publishes
 print("ready", flush=True)
 try:
     rclpy.spin(node)
@@ -160,7 +162,8 @@ except Exception:
 
 
 def test_lockstep_without_answers_ends_as_stalled_and_keeps_the_bag(tmp_path):
-    """A controller that reads joint_states but never commands: lockstep cannot step.
+    """A controller that reads joint_states and has a command publisher but never
+    commands (as if its answer were lost): lockstep cannot step.
     The twin warns what it waits for, then ends the run as stalled after
     stall_timeout_s (no hang), the summary says so, and the bag holds the first state."""
     from flexarm_ros.nodes.environment import child_environment

@@ -27,6 +27,7 @@ topic and reason.
 from __future__ import annotations
 
 import sys
+import time
 from collections import deque
 
 from rclpy.node import Node
@@ -63,11 +64,21 @@ class MotorDriverNode(Node):
         self.ready = C.Barrier(self, [(self.pub_eff, 1 + r, "the simulator"),
                                       (self.pub_ms, r, "the recorder")], r)
         self.commands, self.states = deque(), deque()
-        sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS, self._on_command)
+        self._cmd_sub = sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS,
+                                             self._on_command)
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
-        sub = C.subscription(self, T.TYPES[T.GT_JOINT_STATES], T.GT_JOINT_STATES,
-                             self._on_state)
-        self.state_source = Source(self, sub.topic_name, T.SOURCE[T.GT_JOINT_STATES])
+        # lockstep: the states are subscribed (and so the simulator, which waits for this
+        # subscriber, starts) only once a controller's command publisher is matched with
+        # the command subscription: a controller that answers the first state before the
+        # match would lose that answer, and lockstep would wait for it (seen with a
+        # foreign controller under load; the twin's own controller waits for the match
+        # itself, a foreign one cannot know to)
+        self._state_sub = None
+        self.state_source = None
+        self._since = time.monotonic()
+        self._said = 0.0
+        if not self.lockstep:
+            self._subscribe_states()
         self.rejections = Rejections(self)
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
@@ -112,11 +123,31 @@ class MotorDriverNode(Node):
         self.get_logger().info(f"{self.published[T.EFFORTS]} efforts published; "
                                f"{T.COMMANDS}: {self.core.validator.summary()}"
                                + (f"; {self.rejections.summary()}"
-                                  if self.rejections.total(self.state_source.topic) else "")
+                                  if self.state_source is not None and
+                                  self.rejections.total(self.state_source.topic) else "")
                                + (f"; torque held at the limit in {self.core.held} periods"
                                   if self.core.held else ""))
 
+    WARN_AFTER_S = 3.0
+
+    def _subscribe_states(self):
+        self._state_sub = C.subscription(self, T.TYPES[T.GT_JOINT_STATES], T.GT_JOINT_STATES,
+                                         self._on_state)
+        self.state_source = Source(self, self._state_sub.topic_name,
+                                   T.SOURCE[T.GT_JOINT_STATES])
+
     def _drain(self):
+        if self._state_sub is None:
+            if self._cmd_sub.get_publisher_count() < 1:
+                waited = time.monotonic() - self._since
+                if waited > self.WARN_AFTER_S and waited - self._said > 5.0:
+                    self._said = waited
+                    self.get_logger().warning(
+                        f"not started after {waited:.0f} s: waiting for a publisher on "
+                        f"{self._cmd_sub.topic_name} (a controller; lockstep steps on its "
+                        f"answers)")
+                return
+            self._subscribe_states()
         if not self.ready():
             return
         self.timer.cancel()

@@ -144,7 +144,9 @@ class SimulatorNode(Node):
             return int(any(i.node_name == UNKNOWN or (i.node_name == "controller" and
                                                        i.node_namespace == ns)
                            for i in infos))
-        needs = {T.GT_JOINT_STATES: (1, "the motor driver"),
+        needs = {T.GT_JOINT_STATES: (1, "the motor driver" + (
+                     ", which in lockstep subscribes once a controller publishes on "
+                     "motor_driver/commands" if lockstep else "")),
                  T.JOINT_STATES: (int(lockstep) if self.p["controllers"] < 0 else
                                   int(self.p["controllers"]), "a controller"),
                  T.TOOL_CONTACT: (own_controller, "the twin's controller"),

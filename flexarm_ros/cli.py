@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flexarm_ros.io.arguments import integer, number
 from flexarm_ros.nodes import environment
 from flexarm_ros.scene import DEFAULT_SCENE
 
@@ -45,22 +46,6 @@ class _Parser(argparse.ArgumentParser):
         if "expected" not in message:
             message += f", expected the usage of {self.prog} --help"
         self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def number(text):
-    """An option's number: got 'abc', expected a number (range checks come later, with
-    the option's name)."""
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"got {text!r}, expected a number") from None
-
-
-def integer(text):
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer") from None
 
 
 def _fail(text):

@@ -14,23 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from flexarm_ros.errors import SceneError
+from flexarm_ros.io.arguments import integer, number
 
 SCENE_HELP = "scene YAML path or shipped scene name (default two_link_case1)"
-
-
-def number(text):
-    """An option's number (as ``flexarm``'s other options: got 'abc', expected a number)."""
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"got {text!r}, expected a number") from None
-
-
-def integer(text):
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer") from None
 
 
 def _check_duration(value):

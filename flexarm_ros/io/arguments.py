@@ -1,0 +1,23 @@
+"""Option types shared by the command lines (``flexarm`` and its ensemble commands): a
+value that does not parse is an argparse error naming the value and the expectation
+(range checks come later, with the option's name)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def number(text):
+    """An option's number: got 'abc', expected a number."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected a number") from None
+
+
+def integer(text):
+    """An option's integer: got '1.5', expected an integer."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer") from None

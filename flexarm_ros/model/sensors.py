@@ -180,9 +180,19 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None
             for sm in acc:
                 acc_vals[sm.name][j] = true_value(sm, chain, run.q[k], run.qd[k], qdd,
                                                   q_initial, kin)
+        tips = None
+        if any(sm.spec.kind == "tip_position" for sm in group):
+            # the tip frame of all samples in one pass (compiled without gravity), equal
+            # to Chain.tip_position per sample (the output columns' tip_x/tip_y)
+            _, tips = chain.energies(run.t[idx], run.q[idx], run.qd[idx], run.z[idx])
         for sm in group:
             if sm.spec.kind == "accelerometer":
                 vals = acc_vals[sm.name]
+            elif sm.spec.kind == "tip_position":
+                vals = tips
+            elif sm.spec.kind == "encoder":   # true_value's floor, all samples at once
+                vals = np.floor(sm.gain * (run.q[idx, sm.coord] - q_initial[sm.coord])
+                                + 1e-9)
             else:
                 vals = [true_value(sm, chain, run.q[k], run.qd[k], None, q_initial)
                         for k in idx]

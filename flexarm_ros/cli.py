@@ -548,6 +548,8 @@ def build_parser():
     _bag_parser(sub)
     from flexarm_ros.ensemble.cli import add_parsers    # sweep, uncertainty, sensitivity
     add_parsers(sub)
+    from flexarm_ros.calibration.cli import add_parsers as add_calibrate
+    add_calibrate(sub)
     return p
 
 

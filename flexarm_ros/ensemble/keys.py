@@ -132,6 +132,30 @@ def set_keys(scene, assignment: dict):
     return load_scene_dict(_strip_created(data))
 
 
+def put_keys(data: dict, assignment: dict) -> dict:
+    """Write ``{key path: value}`` into a scene *mapping* in place (a scene file's YAML as
+    loaded, its own spelling kept) and return it; the caller validates (``set_keys`` on
+    the result). Sections a path runs through are created."""
+    for path, value in assignment.items():
+        tokens = parse_path(path)
+        node = data
+        for i, tok in enumerate(tokens):
+            last = i == len(tokens) - 1
+            if isinstance(tok, int):
+                if not isinstance(node, list) or tok >= len(node):
+                    raise SceneError(f"{path}: {_where(tokens[:i])} has no entry {tok} in "
+                                     f"this file")
+            elif not isinstance(node, dict):
+                raise SceneError(f"{path}: {_where(tokens[:i]) or 'scene'} is not a section")
+            if last:
+                node[tok] = _plain(_plain_value(value))
+            else:
+                if isinstance(node, dict) and node.get(tok) is None:
+                    node[tok] = {}
+                node = node[tok]
+    return data
+
+
 def get_key(scene, path: str):
     """The value at ``path`` (None when the path runs through a section the scene leaves
     out); SceneError for a path the schema does not have."""

@@ -1,0 +1,283 @@
+"""Building a calibration problem: a record's channels on the twin's names, the window,
+the clock offset, the noise scales; the spec form (several cases sharing parameters).
+
+Spec (YAML)::
+
+    parameters:                        # shared by every case
+      - key: links[0].joint.drive.resistance
+        low: 0.8
+        high: 1.6
+        start: 1.085                   # optional (default: the first case's scene value)
+      - keys: [links[0].joint.drive.torque_constant,     # one value, several keys
+               links[0].joint.drive.back_emf_constant]
+        low: 0.02
+        high: 0.04
+    cases:
+      - name: case1
+        scene: two_link_case1          # shipped name or path (relative to this file)
+        record: case1.csv              # optional: a CSV or MCAP `flexarm compare` reads
+        map: map.yaml                  # optional channel map of a foreign record
+        channels: [acc_A, acc_C]       # default: every record channel the twin has
+        sigma: {acc_A: 0.002}          # noise (1σ, the channel's unit); default: a scale
+        weights: {acc_A: 1.0}
+        window: [2.2, 3.4]             # s, record clock
+        offset: none                   # none | auto | seconds
+        duration: 3.5                  # s simulated (default: the scene's)
+        set: {fidelity.rung: cubic}    # fixed changes to this case's scene
+        targets:                       # features with uncertainties (1σ)
+          - {metric: impact_time, value: 2.10, sigma: 0.005}
+          - {metric: "frequency:acc_A_true@2.2:3.4", value: 10.96, sigma: 0.2}
+    starts: 1
+    seed: 0
+    diff_step: 1.0e-3
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from flexarm_ros.calibration.observables import Case, FeatureTarget, SeriesTarget, parse_feature
+from flexarm_ros.calibration.parameters import check_distinct, make_param
+from flexarm_ros.errors import SceneError
+
+SKIP = {"contact", "contact_phase"}      # flags: not a residual a gradient can follow
+MAX_SHIFT_S = 0.1                        # --offset auto: the cross-correlation's search
+
+
+def _scene_file(name, base_dir: Path | None) -> Path:
+    from flexarm_ros.scene.loading import resolve_scene_path
+    if base_dir is not None and name and not Path(str(name)).is_absolute():
+        cand = base_dir / str(name)
+        if cand.exists():
+            return cand
+    return resolve_scene_path(name)
+
+
+def _twin_channels(res, scene) -> dict:
+    """{name: unit} of every numeric channel of a run (output and sensor tables)."""
+    from flexarm_ros.io.units import column_unit
+    sensors = tuple(scene.sensors or ())
+    names = [k for k, v in res.columns.items()
+             if k != "t" and np.asarray(v).dtype.kind in "fiu"]
+    for tab in (res.sensor_tables or {}).values():
+        names += [k for k in tab if k != "t"]
+    return {k: column_unit(k, sensors) or "" for k in names}
+
+
+def parse_offset(value):
+    if value is None or value == "none":
+        return "none"
+    if value == "auto":
+        return "auto"
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not math.isfinite(v):
+        raise SceneError(f"offset: got {value!r}, expected none, auto or seconds")
+    return v
+
+
+def parse_window(value, where="window"):
+    if value is None:
+        return None
+    if isinstance(value, str):
+        parts = value.split(":")
+    else:
+        parts = list(value)
+    try:
+        a, b = (float(x) for x in parts)
+    except (TypeError, ValueError):
+        raise SceneError(f"{where}: got {value!r}, expected A:B in s with A < B") from None
+    if not (math.isfinite(a) and math.isfinite(b) and a < b):
+        raise SceneError(f"{where}: got {value!r}, expected A:B in s with A < B")
+    return a, b
+
+
+def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=None,
+              weights=None, window=None, offset="none", duration=None, targets=(),
+              probe=None) -> Case:
+    """A checked :class:`Case`. ``probe``: the twin's run at the start values (to learn
+    its channel names, and for ``offset='auto'``); made here when None."""
+    from flexarm_ros.sim.simulate import simulate
+    duration = float(duration if duration is not None else scene.duration)
+    if not (math.isfinite(duration) and duration > 0):
+        raise SceneError(f"{name}: duration got {duration}, expected a finite number > 0 s")
+    feats = []
+    for i, t in enumerate(targets or ()):
+        where = f"{name}: targets[{i}]"
+        if not isinstance(t, dict) or "metric" not in t or "value" not in t:
+            raise SceneError(f"{where}: got {t!r}, expected a mapping with metric, value "
+                             f"and sigma")
+        parse_feature(t["metric"])
+        v, s, w = t.get("value"), t.get("sigma"), t.get("weight", 1.0)
+        for x, what, pos in ((v, "value", False), (s, "sigma", True), (w, "weight", True)):
+            if not isinstance(x, (int, float)) or not math.isfinite(x) or (pos and x <= 0):
+                raise SceneError(f"{where}.{what}: got {x!r}, expected a finite number"
+                                 f"{' > 0' if pos else ''}")
+        feats.append(FeatureTarget(str(t["metric"]), float(v), float(s), float(w)))
+    series = []
+    off = parse_offset(offset)
+    if record is None:
+        if channels:
+            raise SceneError(f"{name}: channels given without a record, expected a record "
+                             f"(CSV or MCAP) to take them from")
+        if not feats:
+            raise SceneError(f"{name}: nothing to fit, expected a record or targets")
+        return Case(name, scene, duration, [], feats, 0.0, None)
+    from flexarm_ros.analysis.channels import load_channels, same_unit
+    from flexarm_ros.io.experiment import load_channel_map
+    cmap = load_channel_map(channel_map) if channel_map else None
+    cs = load_channels(record, cmap)
+    if probe is None:
+        with np.errstate(all="ignore"):
+            probe = simulate(scene, duration)
+    twin = _twin_channels(probe, scene)
+    if channels:
+        want = list(channels)
+        for c in want:
+            if c not in cs:
+                raise SceneError(f"--channels: got {c!r}, not in the record {record}; "
+                                 f"expected one of {', '.join(cs.names)}")
+            if c not in twin:
+                raise SceneError(f"--channels: got {c!r}, a channel the twin does not "
+                                 f"produce for this scene; expected one of "
+                                 f"{', '.join(sorted(twin))}")
+    else:
+        want = [c for c in cs.names if c in twin and c not in SKIP]
+        if not want:
+            raise SceneError(f"{record}: no channel the twin also produces (record: "
+                             f"{', '.join(cs.names) or 'none'}; twin: "
+                             f"{', '.join(sorted(twin))}), expected matching names or a "
+                             f"channel map (--map)")
+    win = parse_window(window)
+    sigma = dict(sigma or {})
+    weights = dict(weights or {})
+    for d, what in ((sigma, "sigma"), (weights, "weights")):
+        for c, v in d.items():
+            if c not in want:
+                raise SceneError(f"{name}: {what} for {c!r}, a channel not fitted (fitted: "
+                                 f"{', '.join(want)})")
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise SceneError(f"{name}: {what}.{c}: got {v!r}, expected a finite "
+                                 f"number > 0")
+    if off == "auto":
+        from flexarm_ros.analysis.metrics import estimate_offset
+        from flexarm_ros.ensemble.metrics import channel as run_channel
+        ests = []
+        for c in want:
+            t, y = run_channel(probe, c)
+            try:
+                ests.append(estimate_offset(cs[c].t, cs[c].y, t, y, MAX_SHIFT_S))
+            except ValueError:
+                pass
+        off = float(np.median(ests)) if ests else 0.0
+    elif off == "none":
+        off = 0.0
+    for c in want:
+        ch = cs[c]
+        u_tw = twin.get(c, "")
+        if ch.unit and u_tw and not same_unit(ch.unit, u_tw):
+            raise SceneError(f"{record}: channel {c!r} in {ch.unit}, the twin's in {u_tw}; "
+                             f"expected the same unit (a channel map can scale it)")
+        a, b = win if win is not None else (ch.t[0], ch.t[-1])
+        lo, hi = max(a, probe.run.t[0] - off), min(b, duration - off)
+        sel = (ch.t >= lo) & (ch.t <= hi)
+        if np.count_nonzero(sel) < 2:
+            raise SceneError(f"{record}: channel {c!r} has no samples in the fitted window "
+                             f"{lo:g}..{hi:g} s (record {ch.t[0]:g}..{ch.t[-1]:g} s, run "
+                             f"0..{duration:g} s, offset {off:g} s), expected an overlap")
+        t, y = ch.t[sel], ch.y[sel]
+        given = c in sigma
+        s = float(sigma[c]) if given else float(np.std(y))
+        if not s > 0:
+            s = float(np.max(np.abs(y))) or 1.0
+        series.append(SeriesTarget(c, t, y, s, given, ch.unit or u_tw,
+                                   float(weights.get(c, 1.0))))
+    return Case(name, scene, duration, series, feats, float(off), str(record))
+
+
+def _mapping(data, where):
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise SceneError(f"{where}: got {data!r}, expected a mapping")
+    return data
+
+
+def load_spec(path):
+    """(params, cases, options) from a spec file (see the module doc)."""
+    from flexarm_ros.ensemble.keys import set_keys
+    p = Path(path)
+    if not p.exists():
+        raise SceneError(f"spec: {p}: no such file, expected a calibration spec (YAML)")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise SceneError(f"spec: {p}: not YAML ({' '.join(str(exc).split())})") from None
+    data = _mapping(data, f"spec {p}")
+    unknown = set(data) - {"parameters", "cases", "starts", "seed", "diff_step",
+                           "max_evaluations"}
+    if unknown:
+        raise SceneError(f"spec: unknown key {sorted(unknown)[0]!r}, expected parameters, "
+                         f"cases, starts, seed, diff_step, max_evaluations")
+    cases_raw = data.get("cases")
+    if not isinstance(cases_raw, list) or not cases_raw:
+        raise SceneError(f"spec: cases: got {cases_raw!r}, expected a list of cases")
+    scenes, files = [], []
+    for i, c in enumerate(cases_raw):
+        c = _mapping(c, f"cases[{i}]")
+        if "scene" not in c:
+            raise SceneError(f"cases[{i}]: no scene, expected a scene name or path")
+        from flexarm_ros.scene import load_scene
+        files.append(_scene_file(c["scene"], p.parent))
+        sc = load_scene(files[-1])
+        fixed = _mapping(c.get("set"), f"cases[{i}].set")
+        scenes.append(set_keys(sc, fixed) if fixed else sc)
+    praw = data.get("parameters")
+    if not isinstance(praw, list) or not praw:
+        raise SceneError(f"spec: parameters: got {praw!r}, expected a list of "
+                         f"{{key, low, high}}")
+    params = []
+    for i, e in enumerate(praw):
+        e = _mapping(e, f"parameters[{i}]")
+        keys = e.get("keys") or ([e["key"]] if "key" in e else None)
+        if not keys:
+            raise SceneError(f"parameters[{i}]: got {e!r}, expected key: or keys:")
+        params.append(make_param(keys, e.get("low"), e.get("high"), e.get("start"),
+                                 scenes[0], where=f"parameters[{i}]"))
+    check_distinct(params)
+    cases = []
+    start = {}
+    for prm in params:
+        start.update(prm.assignment(prm.start))
+    for i, (c, sc) in enumerate(zip(cases_raw, scenes)):
+        rec = c.get("record")
+        if rec is not None and not Path(str(rec)).is_absolute():
+            rec = p.parent / str(rec)
+        cmap = c.get("map")
+        if cmap is not None and not Path(str(cmap)).is_absolute():
+            cmap = p.parent / str(cmap)
+        extra = set(c) - {"name", "scene", "record", "map", "channels", "sigma", "weights",
+                          "window", "offset", "duration", "set", "targets"}
+        if extra:
+            raise SceneError(f"cases[{i}]: unknown key {sorted(extra)[0]!r}")
+        probe = None
+        if rec is not None:
+            from flexarm_ros.sim.simulate import simulate
+            with np.errstate(all="ignore"):
+                probe = simulate(set_keys(sc, start), c.get("duration", sc.duration))
+        case = make_case(c.get("name", f"case{i + 1}"), sc, rec, cmap,
+                         c.get("channels"), c.get("sigma"), c.get("weights"),
+                         c.get("window"), c.get("offset", "none"), c.get("duration"),
+                         c.get("targets") or (), probe)
+        case.scene_file = None if c.get("set") else str(files[i])
+        cases.append(case)
+    opts = {"starts": data.get("starts", 1), "seed": data.get("seed", 0),
+            "diff_step": data.get("diff_step", 1e-3),
+            "max_evaluations": data.get("max_evaluations")}
+    return params, cases, opts

@@ -241,3 +241,40 @@ def test_the_dask_runner_gives_the_same_fit(base, truth_run):
     assert [p["value"] for p in dask["parameters"]] == [p["value"] for p in
                                                        serial["parameters"]]
     assert dask["evaluations"] == serial["evaluations"]
+
+
+def test_spec_form_shares_parameters_between_cases(capsys, record, truth_run):
+    """Two cases of one rig: the record (joint and tip), and a heavier drive's joint angle
+    at 0.4 s as a feature target with its σ; R and EI shared; one scene out per case."""
+    import yaml
+    d, scene, path = record
+    heavy = simulate(set_keys(truth_run_scene(scene), {"links[0].joint.drive_inertia": 0.2}),
+                     DURATION)
+    q = float(np.interp(0.4, heavy.columns["t"], heavy.columns["link1_joint"]))
+    spec = d / "spec.yaml"
+    spec.write_text(yaml.safe_dump({
+        "parameters": [{"key": R, "low": 0.6, "high": 2.4, "start": 1.4},
+                       {"key": EI, "low": 500.0, "high": 8000.0, "start": 1970.0}],
+        "cases": [{"name": "light", "scene": scene.name, "record": path.name,
+                   "sigma": {"link1_joint": 2e-3, "link1_tip_deflection": 5e-5}},
+                  {"name": "heavy", "scene": scene.name,
+                   "set": {"links[0].joint.drive_inertia": 0.2},
+                   "targets": [{"metric": "value:link1_joint@0.4", "value": q,
+                                "sigma": 1e-4}]}]}, sort_keys=False))
+    out_dir = d / "spec_out"
+    code, out, err = _cli(capsys, "--spec", str(spec), "--workers", "0", "--json",
+                          "--quiet", "--out", str(out_dir))
+    assert code == 0, err
+    res = json.loads(out)
+    for p in res["parameters"]:
+        assert abs(p["value"] - TRUTH[p["key"]]) < 3 * p["stderr"]
+    rows = {(r["case"], r["observable"]): r for r in res["observables"]}
+    assert rows[("heavy", "value:link1_joint@0.4")]["after"] == pytest.approx(q, abs=5e-4)
+    assert sorted(p.name for p in out_dir.iterdir()) == ["heavy.yaml", "light.yaml"]
+    assert load_scene(out_dir / "heavy.yaml").links[0].joint.drive_inertia == 0.2
+    code, _, err = _cli(capsys, "--spec", str(spec), "--param", f"{R}=1:2", "--workers", "0")
+    assert code == 2 and "expected the spec alone" in err
+
+
+def truth_run_scene(path):
+    return set_keys(load_scene(path), TRUTH)

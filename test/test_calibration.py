@@ -75,6 +75,19 @@ def test_round_trip_recovers_the_values_within_the_intervals(base, truth_run):
         assert lo < p["value"] < hi and hi - lo < 0.02 * TRUTH[p["key"]]
     assert out["unidentifiable"] == []
     assert out["evaluations"] >= 3
+    assert out["goodness_of_fit"]["p_value"] > 1e-3 and not out["warnings"]
+
+
+def test_a_model_that_cannot_meet_the_data_is_flagged(base, truth_run):
+    """The record's tip deflection with a stated σ ten times below its noise: the best
+    fit leaves χ² ≈ 100 (m − n), flagged, the intervals said to be too narrow."""
+    start = set_keys(base, {R: 1.25, EI: 1990.0})
+    case = _case(start, truth_run, 7)
+    tight = [SeriesTarget(s.channel, s.t, s.y, s.sigma / 10, True, s.unit)
+             for s in case.series]
+    out = calibrate(Problem(_params(start), [Case("tight", start, DURATION, tight)]))
+    assert out["goodness_of_fit"]["p_value"] < 1e-3
+    assert any("does not meet the data" in w for w in out["warnings"])
 
 
 def test_intervals_from_the_residual_level_when_no_noise_is_given(base, truth_run):

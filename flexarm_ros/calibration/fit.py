@@ -194,6 +194,9 @@ def calibrate(problem: Problem, executor=None, starts: int = 1, seed: int = 0,
     J = _jacobian(ev, zb, diff_step)
     stats = analyse(J, after["r"], problem.params, zb, problem.absolute, problem.blocks())
     wall = time.perf_counter() - t0
+    fit = goodness_of_fit(after["r"], n, problem.absolute)
+    if fit.get("warning"):
+        ev.warnings.append(fit["warning"])
     return {"parameters": stats["parameters"],
             "cost_before": 0.5 * float(before["r"] @ before["r"]),
             "cost_after": 0.5 * float(after["r"] @ after["r"]),
@@ -204,11 +207,32 @@ def calibrate(problem: Problem, executor=None, starts: int = 1, seed: int = 0,
             "statistics": {k: v for k, v in stats.items()
                            if k not in ("parameters", "unidentifiable")},
             "observables": observables_table(problem, before, after),
+            "goodness_of_fit": fit,
             "starts": [{k: v for k, v in r.items() if k != "z"} for r in runs],
             "history": ev.history,
             "warnings": list(dict.fromkeys(ev.warnings)),
             "residual_count": problem.size,
             "_z": zb, "_z0": first[0]}
+
+
+def goodness_of_fit(r, n: int, absolute: bool) -> dict:
+    """χ² = Σr² against m − n degrees of freedom when every σ is stated: a fit far worse
+    than the noise (p < 0.001) means the model cannot meet the data within their σ, and
+    the intervals (which assume it can) are too narrow."""
+    from scipy import stats
+    m = len(r)
+    chi2 = float(np.asarray(r) @ np.asarray(r))
+    dof = m - n
+    out = {"chi2": chi2, "degrees_of_freedom": dof, "p_value": None, "warning": ""}
+    if absolute and dof > 0:
+        p = float(stats.chi2.sf(chi2, dof))
+        out["p_value"] = p
+        if p < 1e-3:
+            out["warning"] = (f"the fit leaves χ² = {chi2:.4g} on {dof} degrees of freedom "
+                              f"(p = {p:.2g}): the model does not meet the data within their "
+                              f"σ at any value in the bounds; the intervals assume it does "
+                              f"and are too narrow (a missing effect, or σ too small)")
+    return out
 
 
 def observables_table(problem: Problem, before: dict, after: dict) -> list[dict]:

@@ -291,3 +291,26 @@ def test_spec_form_shares_parameters_between_cases(capsys, record, truth_run):
 
 def truth_run_scene(path):
     return set_keys(load_scene(path), TRUTH)
+
+
+def test_a_scale_parameter_fits_one_factor_on_the_scene_values(capsys, record, truth_run):
+    """`scale:` multiplies the scene's values: R × f and L × f together (L/R held; L is
+    unused with the quasi-static current, so R carries the fit); the record made at f = 1
+    gives f back, and the calibrated scene holds R and L scaled by it."""
+    import yaml
+    d, scene, _ = record
+    q = float(np.interp(0.4, truth_run.columns["t"], truth_run.columns["link1_joint"]))
+    spec = d / "scale.yaml"
+    spec.write_text(yaml.safe_dump({
+        "parameters": [{"name": "motor_factor", "scale": [R, "links[0].joint.drive.inductance"],
+                        "low": 0.5, "high": 2.0, "start": 1.3}],
+        "cases": [{"name": "s", "scene": scene.name, "targets": [
+            {"metric": "value:link1_joint@0.4", "value": q, "sigma": 1e-4}]}]}))
+    code, out, err = _cli(capsys, "--spec", str(spec), "--workers", "0", "--json", "--quiet",
+                          "--out", str(d / "scale_out"))
+    assert code == 0, err
+    (p,) = json.loads(out)["parameters"]
+    assert p["key"] == "motor_factor" and p["ci95"][0] <= 1.0 <= p["ci95"][1]
+    cal = load_scene(d / "scale_out" / "s.yaml")
+    assert cal.links[0].joint.drive.resistance == pytest.approx(1.2 * p["value"])
+    assert cal.links[0].joint.drive.inductance == pytest.approx(0.05 * p["value"])

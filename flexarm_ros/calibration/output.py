@@ -45,8 +45,7 @@ def calibrated_mapping(case, out: dict, records: str) -> dict:
     from flexarm_ros.ensemble.keys import put_keys, scene_mapping
     values = {}
     for p in out["parameters"]:
-        for k in p["keys"]:
-            values[k] = p["value"]
+        values.update(p["sets"])
     from flexarm_ros.scene.loading import load_scene_dict
     data = _source_mapping(case)
     try:
@@ -61,7 +60,11 @@ def calibrated_mapping(case, out: dict, records: str) -> dict:
                                                                             "flexarm"))]
     for p in out["parameters"]:
         for k in p["keys"]:
-            notes.append({"key": k, "note": note(p, out, records)})
+            text = note(p, out, records)
+            if p["key"] not in p["keys"]:         # a factor on the scene's values
+                text = (f"{k} = {p['sets'][k]:.6g}: the scene's value × the factor "
+                        f"{p['key']}. " + text)
+            notes.append({"key": k, "note": text})
     data["assumptions"] = notes
     load_scene_dict(data)
     return data

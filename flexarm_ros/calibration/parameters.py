@@ -39,6 +39,7 @@ class CalParam:
     start: float
     unit: str = ""
     log: bool = False
+    factors: tuple | None = None     # a scale parameter: key k set to value × factors[k]
 
     def to_z(self, p):
         p = np.asarray(p, float)
@@ -59,6 +60,8 @@ class CalParam:
         return self.high - self.low
 
     def assignment(self, value) -> dict:
+        if self.factors is not None:
+            return {k: float(value) * f for k, f in zip(self.keys, self.factors)}
         return {k: float(value) for k in self.keys}
 
 
@@ -109,6 +112,34 @@ def make_param(keys, low, high, start=None, scene=None, where: str = "--param") 
                          f"give one: {name}={low:g}:{high:g}@START)")
     log = low > 0 and high / low >= LOG_RATIO
     return CalParam(name, keys, float(low), float(high), float(start), unit, log)
+
+
+def make_scale(name: str, keys, low, high, start, scene, where: str) -> CalParam:
+    """A common factor on several keys (e.g. both motors' resistances): the fitted value
+    multiplies each key's value in the scene; start 1 unless given."""
+    from flexarm_ros.ensemble.keys import check_numeric, get_key
+    keys = tuple(keys)
+    if not name or not isinstance(name, str):
+        raise SceneError(f"{where}: a scale parameter needs a name, expected name: TEXT")
+    for x, what in ((low, "low"), (high, "high")):
+        if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
+            raise SceneError(f"{where} {name}: {what} got {x!r}, expected a factor > 0")
+    if not low < high:
+        raise SceneError(f"{where} {name}: got bounds {low:g}:{high:g}, expected low < high")
+    start = 1.0 if start is None else start
+    if not low <= start <= high:
+        raise SceneError(f"{where} {name}: start {start:g} lies outside the bounds "
+                         f"{low:g}:{high:g}, expected bounds that contain it")
+    factors = []
+    for k in keys:
+        check_numeric(k)
+        v = get_key(scene, k)
+        if v is None:
+            raise SceneError(f"{where} {name}: {k} has no value in the scene, expected a "
+                             f"key with a value to scale")
+        factors.append(float(v))
+    return CalParam(name, keys, float(low), float(high), float(start), "1",
+                    low > 0 and high / low >= LOG_RATIO, tuple(factors))
 
 
 def parse_param(text: str, scene=None) -> CalParam:

@@ -12,6 +12,10 @@ Spec (YAML)::
                links[0].joint.drive.back_emf_constant]
         low: 0.02
         high: 0.04
+      - name: resistance_factor        # one factor on several keys' scene values
+        scale: [links[0].joint.drive.resistance, links[1].joint.drive.resistance]
+        low: 0.8
+        high: 1.25
     cases:
       - name: case1
         scene: two_link_case1          # shipped name or path (relative to this file)
@@ -41,7 +45,7 @@ import numpy as np
 import yaml
 
 from flexarm_ros.calibration.observables import Case, FeatureTarget, SeriesTarget, parse_feature
-from flexarm_ros.calibration.parameters import check_distinct, make_param
+from flexarm_ros.calibration.parameters import check_distinct, make_param, make_scale
 from flexarm_ros.errors import SceneError
 
 SKIP = {"contact", "contact_phase"}      # flags: not a residual a gradient can follow
@@ -245,9 +249,14 @@ def load_spec(path):
     params = []
     for i, e in enumerate(praw):
         e = _mapping(e, f"parameters[{i}]")
+        if "scale" in e:
+            keys = e["scale"] if isinstance(e["scale"], list) else [e["scale"]]
+            params.append(make_scale(e.get("name"), keys, e.get("low"), e.get("high"),
+                                     e.get("start"), scenes[0], f"parameters[{i}]"))
+            continue
         keys = e.get("keys") or ([e["key"]] if "key" in e else None)
         if not keys:
-            raise SceneError(f"parameters[{i}]: got {e!r}, expected key: or keys:")
+            raise SceneError(f"parameters[{i}]: got {e!r}, expected key:, keys: or scale:")
         params.append(make_param(keys, e.get("low"), e.get("high"), e.get("start"),
                                  scenes[0], where=f"parameters[{i}]"))
     check_distinct(params)

@@ -153,6 +153,7 @@ def analyse(J, r, params, z, absolute: bool, blocks=None) -> dict:
             lo_hi = [float(prm.from_z(z[j] - q * se_z)), float(prm.from_z(z[j] + q * se_z))]
         at_bound = bool(z[j] <= 1e-6 or z[j] >= 1 - 1e-6)
         out.append({"key": prm.name, "keys": list(prm.keys), "value": float(p[j]),
+                    "sets": prm.assignment(float(p[j])),
                     "start": prm.start, "low": prm.low, "high": prm.high,
                     "unit": prm.unit, "scale": "log" if prm.log else "linear",
                     "stderr": float(math.sqrt(max(cov_p[j, j], 0.0))) if ok else None,

@@ -94,10 +94,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "calibration_seed000.md")
+    ap.add_argument("--quick", action="store_true",
+                    help="3 evaluations per fit (a smoke test of the pipeline, not a result)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     p1, c1, o1 = load_spec(ROOT / "examples" / "calibrate_case1.yaml")
     p12, c12, o12 = load_spec(ROOT / "examples" / "calibrate_case12.yaml")
+    if args.quick:
+        o1["max_evaluations"] = o12["max_evaluations"] = 3
     with open_executor(args.workers) as ex:
         fit1 = calibrate(Problem(p1, c1), ex, diff_step=o1["diff_step"],
                          max_evaluations=o1["max_evaluations"],

@@ -8,12 +8,15 @@ Spec (YAML)::
         low: 0.8
         high: 1.6
         start: 1.085                   # optional (default: the first case's scene value)
-      - keys: [links[0].joint.drive.torque_constant,     # one value, several keys
-               links[0].joint.drive.back_emf_constant]
+      - keys:                          # one value, several keys
+          - links[0].joint.drive.torque_constant
+          - links[0].joint.drive.back_emf_constant
         low: 0.02
         high: 0.04
       - name: resistance_factor        # one factor on several keys' scene values
-        scale: [links[0].joint.drive.resistance, links[1].joint.drive.resistance]
+        scale:                         # a block list ([a[0].b] is not flow YAML)
+          - links[0].joint.drive.resistance
+          - links[1].joint.drive.resistance
         low: 0.8
         high: 1.25
     cases:

@@ -630,3 +630,19 @@ def test_simulate_csv_with_a_wall_gives_the_contact_flag(tmp_path, capsys):
     assert r["contact"]["impact_time_run_s"] == pytest.approx((t[k - 1] + t[k]) / 2,
                                                               abs=1e-12)
 
+
+
+def test_a_simulate_csv_reads_with_its_sensor_tables(tmp_path):
+    """``flexarm simulate --out run.csv`` writes the sensors beside the main table; read
+    as a record they are one channel set (main columns and declared sensors)."""
+    from flexarm_ros.analysis.channels import load_channels
+    from flexarm_ros.cli import main
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "two_link_case1", "--duration", "0.05", "--out", str(out),
+                 "--quiet"]) == 0
+    cs = load_channels(out)
+    assert {"link1_joint", "tip_x", "acc_A", "acc_A_true", "enc1"} <= set(cs.names)
+    assert cs["acc_A"].unit == "V" and len(cs["acc_A"]) == 201    # 4 kHz, 0.05 s
+    assert len(cs["link1_joint"]) == 51
+    side = load_channels(tmp_path / "run.sensors_4000hz.csv")   # a table alone: itself
+    assert "link1_joint" not in side.names and "acc_A" in side.names

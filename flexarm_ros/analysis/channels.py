@@ -33,7 +33,9 @@ Channels of a CSV (:func:`flexarm_ros.io.experiment.read_experiment_csv`: an exp
 or ``flexarm simulate --out``): one per numeric column, by its header's name and unit; a
 ``[text]`` column is no channel, but ``contact_phase`` (``flexarm simulate`` with a wall)
 gives ``contact`` — 1 unless the phase is ``free``, the rule of the twin's ``tool/contact``
-— when the file has no ``contact`` column.
+— when the file has no ``contact`` column. The sensor tables ``flexarm simulate`` writes
+beside its main table (``run.sensors_<rate>hz.csv``) are read with it (without a channel
+map): a simulated run is one record, main columns and declared sensors.
 
 ``wall_gap`` is also derived for any input (a CSV, a mapped bag) that has ``tip_x`` and
 ``tip_y`` when the comparison supplies a scene with walls (:func:`add_wall_gap`).
@@ -44,6 +46,7 @@ ones whose dominant frequency is a pass criterion.
 
 from __future__ import annotations
 
+import glob
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -464,6 +467,20 @@ def _table_channels(path, columns, cmap: ChannelMap | None) -> dict[str, Channel
 
 # ----------------------------------------------------------------------------- loading
 
+_SENSOR_TABLE = re.compile(r"\.sensors_[0-9.]+hz\.csv$")
+
+
+def sensor_tables_beside(path) -> list[Path]:
+    """The sensor tables ``flexarm simulate --out run.csv`` writes next to its main table
+    (``run.sensors_<rate>hz.csv``), so that the run reads as one record: its declared
+    sensors (``acc_A``, ``enc1``, ``acc_A_true``, …) beside the main columns. None for a
+    file that is itself a sensor table."""
+    p = Path(path)
+    if _SENSOR_TABLE.search(p.name):
+        return []
+    return sorted(p.parent.glob(f"{glob.escape(p.stem)}.sensors_*hz.csv"))
+
+
 def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
     """Read ``path`` (``.csv`` by the CSV convention, anything else as MCAP) into a
     :class:`ChannelSet`. A twin bag gives the channels of :func:`bag_channels` (a map, if
@@ -482,6 +499,12 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
         columns, comments = read_experiment_csv(p)
         cs = ChannelSet(path=p, kind="csv", comments=comments)
         cs.channels = _table_channels(p, columns, channel_map)
+        if channel_map is None:
+            for side in sensor_tables_beside(p):
+                more, _ = read_experiment_csv(side)
+                for name, ch in _table_channels(str(side), more, None).items():
+                    cs.channels.setdefault(name, ch)
+                cs.comments.append(f"sensor channels from {side.name}")
         return cs
     caught = []
     with warnings.catch_warnings(record=True) as rec:

@@ -34,9 +34,14 @@ class ContactRun:
     mode: np.ndarray          # smooth mode (free/sliding/sticking) after each sample
     slip_sign: np.ndarray
     normal_impulse: np.ndarray   # cumulative normal impulse from the wall (N·s)
+    qdd: np.ndarray | None = None   # (N, n_free) q̈ at each sample, as the stepper read it
 
     def accelerations(self, contact, k, t, x) -> np.ndarray:
-        """q̈ of the free coordinates at sample k (the mode's constrained dynamics)."""
+        """q̈ of the free coordinates at sample k (the mode's constrained dynamics): the
+        stepper's own reading at the sample (:meth:`ContactStepper.sample`, what the ROS
+        plant's accelerometers read too), else evaluated again."""
+        if self.qdd is not None:
+            return self.qdd[k]
         return contact.free_accelerations(t, x, int(self.mode[k]), float(self.slip_sign[k]))
 
 
@@ -270,6 +275,7 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
     tool, tvel = np.zeros((N, 2)), np.zeros((N, 2))
     modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
     impulse = np.zeros(N)
+    qdd = np.zeros((N, contact.nf))
     st = ContactStepper(chain, contact, x0, h, guard)
     pace = Pace(chain, t_end, "contact rk4", explain=lambda t, x: _why_contact_step(st, h))
     last_report = time.perf_counter()
@@ -278,7 +284,7 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
             st.advance(k * output_dt)
             pace.check(st.steps, k * output_dt, st.x)
         xs[k] = st.x
-        phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], _ = st.sample()
+        phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], qdd[k] = st.sample()
         modes[k], signs[k] = st.mode, st.s
         impulse[k] = st.normal_impulse
         now = time.perf_counter()
@@ -286,7 +292,7 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
             progress(k * output_dt / t_end)
             last_report = now
     return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
-                          modes, signs, impulse), st.steps, st.calls
+                          modes, signs, impulse, qdd), st.steps, st.calls
 
 
 def _why_contact_step(st, h) -> str:

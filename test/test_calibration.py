@@ -314,3 +314,23 @@ def test_a_scale_parameter_fits_one_factor_on_the_scene_values(capsys, record, t
     cal = load_scene(d / "scale_out" / "s.yaml")
     assert cal.links[0].joint.drive.resistance == pytest.approx(1.2 * p["value"])
     assert cal.links[0].joint.drive.inductance == pytest.approx(0.05 * p["value"])
+
+
+def test_a_natural_frequency_target_fits_the_stiffness(capsys, record):
+    """`mode:1` is the first locked-joint frequency (`flexarm modes`); every frequency of
+    a beam with the joint locked and no gravity scales as √EI (the stiffness matrix is
+    linear in EI, the mass matrix does not see it): checked, then EI fitted from it."""
+    from flexarm_ros.calibration.observables import mode_frequency
+    d, scene, _ = record
+    sc = load_scene(scene)
+    f1 = mode_frequency(sc, 1)
+    assert mode_frequency(set_keys(sc, {EI: 4 * 2000.0}), 1) == pytest.approx(2 * f1,
+                                                                              rel=1e-9)
+    code, out, err = _cli(capsys, str(scene), "--param", f"{EI}=500:8000@1500", "--target",
+                          f"mode:1={f1!r}+-0.01", "--workers", "0", "--json", "--quiet")
+    assert code == 0, err
+    (p,) = json.loads(out)["parameters"]
+    assert p["ci95"][0] <= 2000.0 <= p["ci95"][1] and p["value"] == pytest.approx(2000, rel=1e-3)
+    code, _, err = _cli(capsys, str(scene), "--param", f"{EI}=500:8000", "--target",
+                        "mode:0=3+-0.1", "--workers", "0")
+    assert code == 2 and "K >= 1" in err

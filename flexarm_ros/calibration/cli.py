@@ -38,7 +38,8 @@ def add_parsers(sub) -> None:
                         "intervals take the noise as given, else from the residuals")
     c.add_argument("--target", action="append", metavar="METRIC=VALUE+-SIGMA",
                    help="a feature to meet, e.g. impact_time=2.10+-0.005, "
-                        "frequency:acc_A_true@2.2:3.4=10.96+-0.2, value:tip_x@1.0=0.3+-1e-3")
+                        "frequency:acc_A_true@2.2:3.4=10.96+-0.2, value:tip_x@1.0=0.3+-1e-3, "
+                        "mode:1=2.29+-0.05 (natural frequency, Hz)")
     c.add_argument("--window", metavar="A:B", help="fit the record only in A..B s")
     c.add_argument("--offset", default="none", metavar="none|auto|S",
                    help="the record's clock shift: none (default), auto (cross-correlation "

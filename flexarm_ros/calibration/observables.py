@@ -14,7 +14,10 @@ Residuals (the vector the least-squares fit makes small):
   (``impact_time``, ``bounce_height``, ``max_tip_deflection``, ``frequency:CH[@A:B]``,
   ``settling_time:CH``, ``energy_drift``; :mod:`flexarm_ros.ensemble.metrics`) or
   ``value:CH@T`` (the channel at time T, linear interpolation: a static deflection, an
-  angle at the end of a move) evaluated on the twin's run.
+  angle at the end of a move) evaluated on the twin's run, or ``mode:K[@locked|@free]``
+  (the K-th natural frequency in Hz of the chain linearized at the scene's initial
+  configuration, as ``flexarm modes`` prints it: joints locked when the scene has
+  inputs unless given; no simulation is run for a case whose targets are all modes).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 
 _VALUE = re.compile(r"^value:([^@\s]+)@([-+0-9.eE]+)$")
+_MODE = re.compile(r"^mode:(\d+)(?:@(locked|free))?$")
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,14 @@ def parse_feature(text: str):
     m = _VALUE.match(text.strip()) if isinstance(text, str) else None
     if m:
         return ("value", m.group(1), float(m.group(2)))
+    m = _MODE.match(text.strip()) if isinstance(text, str) else None
+    if m:
+        if int(m.group(1)) < 1:
+            raise SceneError(f"targets: got {text!r}, expected mode:K with K >= 1")
+        return ("mode", int(m.group(1)), m.group(2))
+    if isinstance(text, str) and text.startswith("mode:"):
+        raise SceneError(f"targets: got {text!r}, expected mode:K[@locked|@free] (K >= 1, "
+                         f"the K-th natural frequency in Hz)")
     if isinstance(text, str) and text.startswith("value:"):
         raise SceneError(f"targets: got {text!r}, expected value:CHANNEL@TIME (e.g. "
                          f"value:link1_tip_deflection@2.0)")
@@ -98,9 +110,27 @@ def parse_feature(text: str):
     return m
 
 
-def feature_value(res, feature) -> float:
+def mode_frequency(scene, k: int, joints=None) -> float:
+    """The k-th natural frequency (Hz) at the scene's initial configuration (``flexarm
+    modes``: rigid-body modes at 0 Hz count), NaN when the model has fewer."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.linear import natural_modes
+    from flexarm_ros.model.statics import initial_state
+    chain = Chain(scene)
+    joints = joints or ("locked" if scene.inputs else "free")
+    f = natural_modes(chain, initial_state(chain)[0], joints).frequencies_hz
+    return float(f[k - 1]) if k <= len(f) else math.nan
+
+
+def only_modes(parsed) -> bool:
+    return bool(parsed) and all(isinstance(f, tuple) and f[0] == "mode" for f in parsed)
+
+
+def feature_value(res, feature, scene=None) -> float:
     """The feature evaluated on a SimResult (NaN where undefined, e.g. no impact)."""
     from flexarm_ros.ensemble.metrics import channel, evaluate
+    if isinstance(feature, tuple) and feature[0] == "mode":
+        return mode_frequency(scene, feature[1], feature[2])
     if isinstance(feature, tuple):
         _, name, at = feature
         t, y = channel(res, name)
@@ -118,8 +148,10 @@ def series_residuals(res, s: SeriesTarget, offset_s: float) -> np.ndarray:
     return s.weight * (twin - s.y) / s.sigma
 
 
-def case_residuals(res, case: Case, parsed_features) -> tuple[np.ndarray, list, list]:
-    """(residual vector, feature values, per-series RMS error in the channel's unit)."""
+def case_residuals(res, case: Case, parsed_features, scene=None) -> tuple[np.ndarray, list,
+                                                                          list]:
+    """(residual vector, feature values, per-series RMS error in the channel's unit);
+    ``scene``: the case's scene with the sample's values (for ``mode:K``)."""
     parts, rms = [], []
     for s in case.series:
         r = series_residuals(res, s, case.offset_s)
@@ -127,7 +159,7 @@ def case_residuals(res, case: Case, parsed_features) -> tuple[np.ndarray, list, 
         rms.append(float(np.sqrt(np.mean((r * s.sigma / s.weight) ** 2))))
     values = []
     for f, pf in zip(case.features, parsed_features):
-        v = feature_value(res, pf)
+        v = feature_value(res, pf, scene)
         values.append(v)
         parts.append(np.array([f.weight * (v - f.value) / f.sigma]))
     vec = np.concatenate(parts) if parts else np.zeros(0)

@@ -51,15 +51,18 @@ class CaseTask:
             return simulate(set_keys(case.scene, assignment), case.duration)
 
     def __call__(self, item) -> dict:
-        from flexarm_ros.calibration.observables import case_residuals
+        from flexarm_ros.calibration.observables import case_residuals, only_modes
         k, _ = item
         case = self.cases[k]
         fail = {"residuals": None, "features": [np.nan] * len(case.features),
                 "rms": [np.nan] * len(case.series)}
         try:
-            res = self.simulate(item)
+            from flexarm_ros.ensemble.keys import set_keys
+            scene = set_keys(case.scene, item[1])
+            res = (None if not case.series and only_modes(self._parsed[k])
+                   else self.simulate(item))
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                vec, values, rms = case_residuals(res, case, self._parsed[k])
+                vec, values, rms = case_residuals(res, case, self._parsed[k], scene)
         except StepTooLarge as exc:
             return {"status": "refused", "message": _one_line(exc), **fail}
         except SimulationDiverged as exc:

@@ -5,7 +5,7 @@ flexarm_ros. Use it as the template of your own controller.
 
     flexarm run two_link_position --without controller            # terminal 1: the twin
     python examples/foreign_controller.py --ros-args -r __ns:=/flexarm \\
-        -p target:="[0.5, 0.9]"                                   # terminal 2: this node
+        -p target:="[0.66, 0.53]"                                 # terminal 2: this node
 
 In: ``joint_states`` (sensor_msgs/JointState: encoder angles in rad; stamps in simulation
 time). Out: ``motor_driver/commands`` (std_msgs/Float64MultiArray: one voltage per joint,
@@ -20,11 +20,11 @@ with ω_i the encoder rate (backward difference of the angles over the stamps, l
 filtered at ``velocity_filter_hz``), motor_gain = n·K_t/R (N·m/V) and back_emf = n·K_b
 (V·s/rad) of the gearmotor. The defaults are the Maxon motors and gearboxes of the
 seed 000 arm (``two_link_position``) and the gains its scene was tuned with: soft
-joints, because stiff ones leave the arm's 0.23 Hz beam mode ringing.
+joints, because stiff ones leave the arm's 0.25 Hz beam mode ringing.
 
 Parameters (``-p name:=value``; a list gives one value per joint): ``target`` (rad; unset:
-hold the first angles received), ``kp`` (N·m/rad, default [5, 8]), ``kd`` (N·m·s/rad,
-default [5, 8]), ``motor_gain`` (N·m/V, default [4.342, 1.371]), ``back_emf`` (V·s/rad,
+hold the first angles received), ``kp`` (N·m/rad, default [6, 8]), ``kd`` (N·m·s/rad,
+default [5, 8]), ``motor_gain`` (N·m/V, default [5.131, 1.621]), ``back_emf`` (V·s/rad,
 default [4.711, 6.089]), ``supply_voltage`` (V, default [24]), ``velocity_filter_hz``
 (default 20), ``idle_exit_s`` (exit after this many seconds without joint states once
 some have arrived; default 5, 0: never).
@@ -56,9 +56,9 @@ class ForeignController(Node):
     def __init__(self):
         super().__init__("my_controller")
         self.declare_parameter("target", Parameter.Type.DOUBLE_ARRAY)   # unset: hold
-        self.declare_parameter("kp", [5.0, 8.0])
+        self.declare_parameter("kp", [6.0, 8.0])
         self.declare_parameter("kd", [5.0, 8.0])
-        self.declare_parameter("motor_gain", [156 * 0.0302 / 1.085, 236 * 0.0258 / 4.44])
+        self.declare_parameter("motor_gain", [156 * 0.0302 / 0.9182, 236 * 0.0258 / 3.757])
         self.declare_parameter("back_emf", [156 * 0.0302, 236 * 0.0258])
         self.declare_parameter("supply_voltage", [24.0])
         self.declare_parameter("velocity_filter_hz", 20.0)

@@ -21,6 +21,7 @@ import pytest
 from flexarm_ros.analysis import compare as C
 from flexarm_ros.analysis.channels import Channel, ChannelSet, load_channels
 from flexarm_ros.analysis.report import write_report
+from flexarm_ros.analysis.spectra import dominant_frequency
 from flexarm_ros.bag.reader import TruncatedBagWarning
 from flexarm_ros.cli import main
 from flexarm_ros.io.experiment import (CompareInputError, load_channel_map, read_experiment_csv, write_experiment_csv)
@@ -78,8 +79,24 @@ def test_golden_bag_channels(golden):
     for j, n in enumerate(ACC):
         assert np.array_equal(golden[n].t[:4], np.array([1, 2, 3, 4]) * 2.5e-4)
         assert np.array_equal(golden[n].y[:4], rows[:, j])
-    # wall_gap = tip_x - (-0.025) for the wall x = -0.025 m with normal +x
-    assert np.allclose(golden["wall_gap"].y, golden["tip_x"].y + 0.025, rtol=0, atol=1e-15)
+    # wall_gap: the tool point's distance to the wall x = -0.025 m (normal +x). The tool
+    # sits on RB4 beyond the beam tip (tool.position), so the gap is derived from the
+    # coordinates through the scene's kinematics, not from tip_x. At t = 0 the arm is
+    # straight and undeformed: the tool lies at the straight reach R along q1 = 55 deg.
+    # Whenever the contact flag is up the impulse rung holds the tool on the wall (its
+    # drift bound is 1 nm); before the first contact the gap is open.
+    sc = golden.scene
+    reach = (sum(lk.beam.hub_radius + lk.beam.length for lk in sc.links)
+             + sc.links[0].tip.joint_offset[0] + sc.tool.position[0])
+    assert reach == pytest.approx(1.700, abs=1e-9)
+    gap, contact = golden["wall_gap"], golden["contact"]
+    assert gap.y[0] == pytest.approx(reach * math.cos(math.radians(55.0)) + 0.025, abs=1e-9)
+    assert gap.y[0] - (golden["tip_x"].y[0] + 0.025) == pytest.approx(
+        sc.tool.position[0] * math.cos(math.radians(55.0)), abs=1e-9)
+    assert np.array_equal(gap.t, contact.t)
+    on = contact.y > 0.5
+    assert on.any() and np.all(np.abs(gap.y[on]) < 1e-9)
+    assert np.all(gap.y[:np.argmax(on)] > 0.0)
 
 
 def test_golden_impact_time_matches_the_seed(self_cmp):
@@ -88,23 +105,23 @@ def test_golden_impact_time_matches_the_seed(self_cmp):
     c = self_cmp.result["contact"]
     assert c["impact_source"] == "contact"
     assert c["impact_time_reference_s"] == pytest.approx(2.1, abs=0.01)       # seed
-    assert c["impact_time_reference_s"] == pytest.approx(2.1005, abs=5e-4)    # pinned
+    assert c["impact_time_reference_s"] == pytest.approx(2.0995, abs=5e-4)    # pinned
 
 
 def test_golden_wall_gap_impact(golden):
-    """The gap falls through the wall between the 2.100 s and 2.101 s samples."""
+    """The gap falls through the wall between the 2.099 s and 2.100 s samples."""
     g = golden["wall_gap"]
     t = C.M.event_time(g.t, g.y, C.IMPACT_GAP_M, direction=-1)
-    assert 2.100 < t <= 2.101
-    assert g.y[np.searchsorted(g.t, 2.100)] > 1e-5      # still free at 2.100 s
+    assert 2.099 < t <= 2.100
+    assert g.y[np.searchsorted(g.t, 2.099)] > 1e-5      # still free at 2.099 s
 
 
 #: dominant frequency (Hz) of each accelerometer over the whole 2.5 s record, measured
 #: once on the golden bag; tolerance: the estimator's stated bound (0.1 bin = 0.04 Hz).
-GOLDEN_FREQ_HZ = {"acc_A": 12.837, "acc_B": 1.6765, "acc_C": 13.465, "acc_D": 1.7006}
+GOLDEN_FREQ_HZ = {"acc_A": 12.366, "acc_B": 1.5632, "acc_C": 12.372, "acc_D": 1.2430}
 
 
-def test_golden_accelerometer_frequencies(self_cmp):
+def test_golden_accelerometer_frequencies(golden, self_cmp):
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.linear import natural_modes
     chans = self_cmp.result["channels"]
@@ -113,16 +130,23 @@ def test_golden_accelerometer_frequencies(self_cmp):
         assert b["frequency_resolution_hz"] == pytest.approx(1 / 2.5, rel=1e-3)
         assert b["frequency_bound_hz"] == pytest.approx(0.1 * b["frequency_resolution_hz"])
         assert b["frequency_run_hz"] == pytest.approx(f, abs=b["frequency_bound_hz"])
-    # independent: the linearized arm (joints held by the drives) has modes near 1.70 Hz
-    # and 13.2 Hz at the start configuration; the beam-midpoint accelerometers A and C
-    # ring at the upper one, the rigid-body ones B and D at the lower one (the arm's
-    # configuration changes during the swing, hence 5 %)
+    # independent: the linearized arm (joints held by the drives) has modes near 1.6 Hz
+    # and 12.2 Hz at the start configuration. Over the whole record the beam-midpoint
+    # accelerometers A and C ring at the upper one, RB2's accelerometer B at the lower one
+    # (the arm's configuration changes during the swing, hence 5 %). D, on RB4 next to the
+    # tool, is dominated over the whole record by the 0.14 s the tool spends on the wall
+    # after the strike, which is no mode of the free arm; in the free swing before the
+    # strike (0.2-2.09 s) it rings at the upper mode as C does, while A and B carry the
+    # lower one.
     modes = natural_modes(Chain(golden_scene(self_cmp)), joints="locked").frequencies_hz
-    low = min(modes, key=lambda f: abs(f - 1.7))
-    high = min(modes, key=lambda f: abs(f - 13.0))
+    low = min(modes, key=lambda f: abs(f - 1.6))
+    high = min(modes, key=lambda f: abs(f - 12.5))
     assert 1.5 < low < 1.9 and 12.0 < high < 14.5
-    for n, mode in (("acc_A", high), ("acc_C", high), ("acc_B", low), ("acc_D", low)):
+    for n, mode in (("acc_A", high), ("acc_C", high), ("acc_B", low)):
         assert chans[n]["frequency_run_hz"] == pytest.approx(mode, rel=0.05), n
+    free = C.compare(golden, golden, window=(0.2, 2.09)).result["channels"]
+    for n, mode in (("acc_A", low), ("acc_B", low), ("acc_C", high), ("acc_D", high)):
+        assert free[n]["frequency_run_hz"] == pytest.approx(mode, rel=0.05), n
 
 
 def golden_scene(cmp):
@@ -158,14 +182,20 @@ def test_time_shifted_copy_offset_recovered(golden, tmp_path, shift):
     """A copy whose clock runs ``shift`` s ahead (a sample at t written at t + shift):
     the run lags by -shift. Recovered to within one sample period of the finest channel
     (0.25 ms); after alignment the errors are interpolation-small."""
-    names = ("acc_A", "acc_C", "tip_x", "tip_y", "link1_joint", "contact")
+    # every coordinate of the chain: the tool sits beyond the recorded tip, so the
+    # reference's wall gap is derived from them through the scene's kinematics
+    coords = tuple(n for n in golden.channels if n.startswith(("link1_", "link2_"))
+                   and n.split("_", 1)[1] in ("joint", "tip_disp", "tip_rot"))
+    assert len(coords) == 6
+    names = ("acc_A", "acc_C", "tip_x", "tip_y", *coords, "contact")
     cols = {n: (u, t + shift, y) for n, (u, t, y) in _subset(golden, names).items()}
     path = write_experiment_csv(tmp_path / "shifted.csv", cols)
     cmp = C.compare(golden, load_channels(path))
     off = cmp.result["offset"]
     assert off["sample_period_s"] == pytest.approx(2.5e-4)
     assert abs(off["offset_s"] - (-shift)) < off["sample_period_s"]
-    assert set(off["estimates_s"]) == set(names) | {"wall_gap"}   # derived from the tip
+    assert set(off["estimates_s"]) == set(names) | {"wall_gap"}   # derived from the coordinates
+    assert cmp.result["contact"]["bounce_height_error"] == pytest.approx(0.0, abs=1e-3)
     tip = cmp.result["channels"]["tip_x"]
     assert tip["relative_rms_error"] < 1e-4
     assert cmp.result["channels"]["acc_A"]["frequency_error"] == pytest.approx(0, abs=5e-3)
@@ -180,12 +210,37 @@ def test_synthetic_experiment_in_bags(golden):
     cmp = C.compare(golden, ref)
     r = cmp.result
     assert abs(r["offset"]["offset_s"] + SYNTHETIC_SHIFT_S) < r["offset"]["sample_period_s"]
-    assert r["pass"] is True, r["failed"]
     assert r["contact"]["impact_time_error_s"] == pytest.approx(0.0, abs=2.5e-4)
+    # the bounce from the tool's gap (0.5 mm noise on a ~38 mm bounce)
+    assert r["contact"]["bounce_height_run_m"] == pytest.approx(0.0375, abs=1e-3)
+    assert abs(r["contact"]["bounce_height_error"]) < 0.05
     for n in ("acc_A", "acc_C"):
-        assert abs(r["channels"][n]["frequency_error"]) < 0.01
         # noise of 2 % of the signal's std: relative RMS error ~ 0.02
         assert r["channels"][n]["relative_rms_error"] == pytest.approx(0.02, rel=0.1)
+    assert abs(r["channels"]["acc_C"]["frequency_error"]) < 0.01
+    # acc_A and acc_D carry two spectral peaks of nearly equal height over this record
+    # (A: 12.4 Hz, the free arm, and 18.8 Hz, the 0.14 s with the tool held on the wall;
+    # D: 1.5 and 2.2 Hz), so the noise decides which one is the dominant frequency: the
+    # reference's is one of the run's two. Every other criterion passes.
+    for n, bands in TIED_PEAKS.items():
+        b = r["channels"][n]
+        t, y = golden[n].t, golden[n].y
+        sel = (t >= b["span_s"][0]) & (t <= b["span_s"][1])
+        peaks = [dominant_frequency(t[sel], y[sel], window="hann", detrend="linear",
+                                    f_min=lo, f_max=hi) for lo, hi in bands]
+        assert min(p.amplitude for p in peaks) > 0.9 * max(p.amplitude for p in peaks), n
+        assert b["frequency_run_hz"] in [pytest.approx(p.frequency_hz, abs=p.bound_hz)
+                                         for p in peaks], n
+        assert b["frequency_reference_hz"] in [pytest.approx(p.frequency_hz, abs=2 * p.bound_hz)
+                                               for p in peaks], n
+    rest = [n for n in r["channels"] if n not in TIED_PEAKS]
+    rr = C.compare(golden, ref, channels=rest).result
+    assert rr["pass"] is True, rr["failed"]
+
+
+#: accelerometers whose dominant frequency over the whole golden record is a near tie of
+#: two peaks (Hz bands holding them)
+TIED_PEAKS = {"acc_A": ((10.0, 15.0), (15.0, 25.0)), "acc_D": ((1.0, 1.8), (1.8, 3.0))}
 
 
 def test_scaled_copy_amplitude_error(golden):
@@ -232,7 +287,7 @@ def _no_nan(value):
 
 
 def test_json_stable_and_keys_pinned(capsys):
-    args = (GOLDEN, SYNTHETIC, "--json", "--channels", "acc_A,acc_C", "tip_x", "tip_y",
+    args = (GOLDEN, SYNTHETIC, "--json", "--channels", "acc_B,acc_C", "tip_x", "tip_y",
             "contact", "normal_force")
     code1, out1, _ = _cli(capsys, *args)
     code2, out2, _ = _cli(capsys, *args)
@@ -245,7 +300,7 @@ def test_json_stable_and_keys_pinned(capsys):
     assert sorted(r["offset"]) == OFFSET
     assert sorted(r["contact"]) == CONTACT
     assert sorted(r["tip"]) == TIP
-    assert list(r["channels"]) == sorted(["acc_A", "acc_C", "tip_x", "tip_y", "contact",
+    assert list(r["channels"]) == sorted(["acc_B", "acc_C", "tip_x", "tip_y", "contact",
                                           "normal_force"])     # sorted keys
     for b in list(r["channels"].values()) + [r["contact"], r["tip"]]:
         if "criteria" in b:
@@ -258,7 +313,7 @@ def test_json_stable_and_keys_pinned(capsys):
 
 
 def test_report_renders(golden, tmp_path):
-    names = ["acc_A", "acc_C", "tip_x", "tip_y", "contact", "normal_force"]
+    names = ["acc_B", "acc_C", "tip_x", "tip_y", "contact", "normal_force"]
     cmp = C.compare(golden, load_channels(SYNTHETIC), channels=names)
     md = write_report(cmp, tmp_path / "rep")
     text = md.read_text()
@@ -272,7 +327,7 @@ def test_report_renders(golden, tmp_path):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, p
         assert f"]({p})" in text, p
     assert "**Result: PASS**" in text
-    a = cmp.result["channels"]["acc_A"]
+    a = cmp.result["channels"]["acc_B"]
     assert f"{a['frequency_run_hz']:.5g}" in text
     assert "resolution" in text and "## Reading this report" in text
 
@@ -463,25 +518,28 @@ def test_truncated_bag_is_analysed_up_to_the_cut(golden, tmp_path, capsys):
 def test_cli_writes_report_and_exit_status(tmp_path, capsys):
     rep = tmp_path / "r"
     code, out, err = _cli(capsys, GOLDEN, SYNTHETIC, "--report", rep, "--channels",
-                          "acc_A", "tip_x", "tip_y")
+                          "acc_C", "tip_x", "tip_y")
     assert code == 0, err
     assert "PASS" in out and (rep / "report.md").exists()
-    code, out, err = _cli(capsys, GOLDEN, SYNTHETIC, "--channels", "acc_A",
+    code, out, err = _cli(capsys, GOLDEN, SYNTHETIC, "--channels", "acc_C",
                           "--threshold", "0.001")
     assert code == 1 and "FAIL" in out
 
 
 def test_gannon_tip_error_of_a_displaced_tip(golden):
     """Tip moved by (3 mm, 4 mm) at every instant: distance 5 mm, normalized by the arm
-    length L = 0.65 + 0.6575 m (the two beams of two_link_case1, no hub radius)."""
+    length from joint 1 to the recorded (beam-2) tip of the straight arm of two_link_case1:
+    L = 0.038585 + 0.65 + 0.042867 + 0.027663 + 0.6575 m (hub radius, beam 1, joint-2
+    offset on RB2, hub radius, beam 2)."""
+    L = 0.038585 + 0.65 + 0.042867 + 0.027663 + 0.6575
     moved = dataclasses.replace(golden, channels=dict(golden.channels))
     for n, d in (("tip_x", 0.003), ("tip_y", 0.004)):
         moved.channels[n] = dataclasses.replace(golden[n], y=golden[n].y + d)
     r = C.compare(moved, golden, offset="none", channels=["tip_x", "tip_y"]).result
     tip = r["tip"]
-    assert tip["arm_length_m"] == pytest.approx(1.3075, abs=1e-12)
-    assert tip["normalized_amplitude_error"] == pytest.approx(0.005 / 1.3075, rel=1e-9)
-    assert tip["normalized_rms_amplitude_error"] == pytest.approx(0.005 / 1.3075, rel=1e-9)
+    assert tip["arm_length_m"] == pytest.approx(L, abs=1e-12)
+    assert tip["normalized_amplitude_error"] == pytest.approx(0.005 / L, rel=1e-9)
+    assert tip["normalized_rms_amplitude_error"] == pytest.approx(0.005 / L, rel=1e-9)
     assert tip["criteria"]["normalized_amplitude_error"] is True
     strict = C.compare(moved, golden, offset="none", channels=["tip_x", "tip_y"],
                        threshold=0.003).result
@@ -555,7 +613,7 @@ def test_golden_contact_flag_is_boolean(self_cmp):
     assert b["signal"] == "boolean" and b["frequency_run_hz"] is None
     ev = b["events"]["run"]
     assert ev == b["events"]["reference"] and ev["rises"] >= 1
-    assert ev["first_rise_s"] == pytest.approx(2.101, abs=1e-9)   # the 1 ms sample after 2.1005
+    assert ev["first_rise_s"] == pytest.approx(2.100, abs=1e-9)   # the 1 ms sample after 2.0995
     assert self_cmp.result["channels"]["acc_A"]["signal"] == "continuous"
 
 

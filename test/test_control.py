@@ -12,15 +12,19 @@
 * The sanding state machine on a synthetic kinematic tool.
 
 Geometry. Link lengths come from config/two_link_case1.yaml: l1 = hub radius + beam 1 +
-joint-2 offset = 0.65 m, l2 = hub radius + beam 2 = 0.6575 m (reach 1.3075 m). From a base
-at the world origin the seed's demo points are NOT reachable with these lengths
-(|(1.15, 1.2)| = 1.662 m, |(1.0, 1.0)| = 1.414 m, sanding tip y up to 1.35 m on x = −25 mm:
-1.350 m); the seed's hub radii and tool length are figure-only. The closed-loop tests
-therefore put the base at (0.3, 0.3) m, which makes all of them reachable (checked).
+joint-2 offset = 0.731452 m, l2 = hub radius + beam 2 + tool offset = 0.968548 m (reach
+1.700 m, the middle of the window the source's own demo points and Fig. 5.24 allow; the
+scene's assumptions). From a base at the world origin, as in the seed, the demo points are
+reachable (|(1.15, 1.2)| = 1.662 m, |(1.0, 1.0)| = 1.414 m, sanding tip y up to 1.35 m on
+x = −25 mm: 1.350 m; checked).
 
 Gains of the closed-loop tests (not given in the source; chosen for a critically damped
-~1 Hz joint response, well below the ~10 Hz beam modes): kp = (60, 25) N·m/rad,
-kd = (20, 7) N·m·s/rad; control rate 200 Hz; encoder velocity low-pass 20 Hz; supply 24 V.
+~1 Hz joint response, well below the ~10 Hz beam modes): kp = (100, 50) N·m/rad,
+kd = (26, 10) N·m·s/rad; control rate 200 Hz; encoder velocity low-pass 20 Hz; supply 24 V.
+(They were (60, 25) and (20, 7) with every rigid-body offset at zero: reach 1.3075 m, the
+tool at the beam-2 tip, l2 = 0.6575 m. The reach grew by 1.30 and the tool's lever about
+joint 2 by 1.47, so kp by about their squares and kd by the ratios, which keeps the
+stiffness and damping the tool feels.)
 """
 
 import inspect
@@ -37,10 +41,10 @@ from scipy.integrate import solve_ivp
 from flexarm_ros.control import (EncoderVelocity, JointPD, JointPositionController, MotorVoltageMap, PlanarTwoLink, SandingTask)
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "two_link_case1.yaml"
-KP = np.array([60.0, 25.0])         # N·m/rad ("spring_i" of Eq. 5.16)
-KD = np.array([20.0, 7.0])          # N·m·s/rad ("damp_i")
+KP = np.array([100.0, 50.0])        # N·m/rad ("spring_i" of Eq. 5.16)
+KD = np.array([26.0, 10.0])         # N·m·s/rad ("damp_i")
 CONTROL_DT = 0.005                  # s, 200 Hz
-BASE = (0.3, 0.3)                   # m, see the module doc
+BASE = (0.0, 0.0)                   # m, the seed's Newtonian origin at joint 1
 SUPPLY = 24.0                       # V
 
 
@@ -51,11 +55,12 @@ def _scene():
 
 def _link_lengths(sc):
     """l1 = hub_radius + beam length + joint-2 offset along the link; l2 = hub_radius + beam
-    length (the tool point is the RB4 centre at the beam-2 tip)."""
+    length + the tool's offset along the link in RB4's frame (the tool point)."""
     a, b = sc["links"]
     l1 = (a["beam"].get("hub_radius", 0.0) + a["beam"]["length"]
           + a["tip"].get("joint_offset", [0.0, 0.0])[0])
-    l2 = b["beam"].get("hub_radius", 0.0) + b["beam"]["length"]
+    l2 = (b["beam"].get("hub_radius", 0.0) + b["beam"]["length"]
+          + sc.get("tool", {}).get("position", [0.0, 0.0])[0])
     return l1, l2
 
 
@@ -67,10 +72,12 @@ class RigidArm:
         M11 = I_A + I_B + m_B l1² + 2 s_B l1 cos q2 + J1,  M12 = I_B + s_B l1 cos q2,
         M22 = I_B + J2,  h = s_B l1 sin q2,  c = [−h (2 q̇1 q̇2 + q̇2²), h q̇1²],
 
-    link 1 about the base: I_A = I_hub1 + m_b1 L1²/3 + m_RB2 l1² + I_RB2; link 2 about
-    joint 2: mass m_B = m_hub3 + m_b2 + m_RB4, first moment s_B = m_b2 L2/2 + m_RB4 l2,
-    I_B = I_hub3 + m_b2 L2²/3 + m_RB4 l2² + I_RB4 (beams as uniform rods); J_i, C_i the
-    gearbox J_eq, C_eq. DC motors with quasi-static current: τ = n K_t (V − K_b n q̇)/R,
+    link 1 about the base: I_A = I_hub1 + m_b1 (L1²/12 + (r1 + L1/2)²) + m_RB2 c2² + I_RB2;
+    link 2 about joint 2: mass m_B = m_hub3 + m_b2 + m_RB4, first moment s_B =
+    m_b2 (r3 + L2/2) + m_RB4 c4, I_B = I_hub3 + m_b2 (L2²/12 + (r3 + L2/2)²) + m_RB4 c4²
+    + I_RB4 (beams as uniform rods from the hub rims r1, r3; the hubs centred on the joints;
+    RB2's and RB4's CGs at c2 = r1 + L1 + cg2, c4 = r3 + L2 + cg4 along the links; the
+    tool at l2); J_i, C_i the gearbox J_eq, C_eq. DC motors with quasi-static current: τ = n K_t (V − K_b n q̇)/R,
     V clipped to ±supply. Optional wall x = wall_x (free side x > wall_x): penalty normal
     force f_n = max(0, k δ + c δ̇), δ = wall_x − x_tip, and Coulomb friction
     −μ f_n tanh(ẏ/v_s) along y.
@@ -83,12 +90,16 @@ class RigidArm:
         mb1 = a["beam"]["mass_per_length"] * a["beam"]["length"]
         mb2 = b["beam"]["mass_per_length"] * b["beam"]["length"]
         L1, L2 = a["beam"]["length"], b["beam"]["length"]
-        self.IA = a["hub"]["inertia"] + mb1 * L1 ** 2 / 3 + a["tip"]["mass"] * self.l1 ** 2 \
-            + a["tip"]["inertia"]
+        r1, r3 = a["beam"].get("hub_radius", 0.0), b["beam"].get("hub_radius", 0.0)
+        assert a["hub"].get("cg", [0.0, 0.0]) == b["hub"].get("cg", [0.0, 0.0]) == [0.0, 0.0]
+        c2 = r1 + L1 + a["tip"].get("cg", [0.0, 0.0])[0]
+        c4 = r3 + L2 + b["tip"].get("cg", [0.0, 0.0])[0]
+        self.IA = (a["hub"]["inertia"] + mb1 * (L1 ** 2 / 12 + (r1 + L1 / 2) ** 2)
+                   + a["tip"]["mass"] * c2 ** 2 + a["tip"]["inertia"])
         self.mB = b["hub"]["mass"] + mb2 + b["tip"]["mass"]
-        self.sB = mb2 * L2 / 2 + b["tip"]["mass"] * self.l2
-        self.IB = b["hub"]["inertia"] + mb2 * L2 ** 2 / 3 + b["tip"]["mass"] * self.l2 ** 2 \
-            + b["tip"]["inertia"]
+        self.sB = mb2 * (r3 + L2 / 2) + b["tip"]["mass"] * c4
+        self.IB = (b["hub"]["inertia"] + mb2 * (L2 ** 2 / 12 + (r3 + L2 / 2) ** 2)
+                   + b["tip"]["mass"] * c4 ** 2 + b["tip"]["inertia"])
         self.J = [a["joint"]["drive_inertia"], b["joint"]["drive_inertia"]]
         self.C = [a["joint"]["drive_damping"], b["joint"]["drive_damping"]]
         d = [a["joint"]["drive"], b["joint"]["drive"]]
@@ -304,14 +315,16 @@ def test_closed_form_is_independent_law_of_cosines(kin):
 
 
 def test_unreachable_targets_fail_with_a_message(kin):
+    for p in [(1.15, 1.2), (1.0, 1.0), (-0.025, 1.35)]:        # the seed's points: reachable
+        assert kin.reachable(p, margin=0.01)
     origin = PlanarTwoLink(kin.l1, kin.l2)
-    for p in [(1.15, 1.2), (1.0, 1.0), (-0.025, 1.35)]:        # the seed's points, base (0, 0)
+    for p in [(1.4, 1.0), (-0.025, 1.75), (0.0, -1.71)]:        # beyond the 1.700 m reach
         res = origin.inverse(p, (0.5, 0.5))
         assert not res.success and np.all(np.isfinite(res.q))
         assert "unreachable" in res.message and "annulus" in res.message
         assert f"({p[0]:.6g}, {p[1]:.6g})" in res.message
         assert f"{math.hypot(*p):.6g} m" in res.message
-    inner = kin.base + np.array([0.001, 0.0])                   # inside |l1 − l2| = 7.5 mm
+    inner = kin.base + np.array([0.001, 0.0])                   # inside |l1 − l2| = 237 mm
     res = kin.inverse(inner, (0.0, 2.0))
     assert not res.success and "unreachable" in res.message and "inner" in res.message
     assert np.all(np.isfinite(res.q)) and math.isfinite(res.residual)

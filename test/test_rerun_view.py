@@ -1,8 +1,9 @@
 """The rerun view of a twin bag (flexarm_ros.viz), read back from the .rrd file with
 rerun's own chunk reader, against truths taken from the bag and the scene YAML: entity
 paths, the accelerometer batches expanded to one row per sample on a uniform 1/fs grid
-ending at each message's log time, the arm centerline ending at ground_truth/tip, the
-wall on its line, the contact-force arrow (F_n·n + F_t·E·n at the tool), and the
+ending at each message's log time, the arm centerline from the hub's rim to
+ground_truth/tip, the tool at the tip frame's tool.position, the wall on its line, the
+contact-force arrow (F_n·n + F_t·E·n at the tool), and the
 `flexarm run --rerun` / `--rerun-spawn` / `flexarm replay --rerun` commands."""
 
 import os
@@ -143,10 +144,16 @@ def test_centerline_ends_at_the_recorded_tip(rrd, bag_path):
         strip = np.array(v["LineStrips3D:strips"][0])
         assert strip.shape == (21, 3) and np.all(strip[:, 2] == 0)
         assert np.abs(strip[-1, :2] - tips[t]).max() < 1e-6       # float32 in the file
+    # beam 1 starts at the rim of the hub RB1, hub_radius from joint 1 along q1 = 55 deg
+    # (at rest and undeformed at t = 0)
+    r1 = load_scene(SCENE).links[0].beam.hub_radius
     base = np.array(rrd["world/arm/link1"][0][1]["LineStrips3D:strips"][0])[0]
-    assert np.abs(base).max() < 1e-7                                   # the base joint
+    assert r1 > 0.03
+    assert np.abs(base[:2] - r1 * np.array([np.cos(np.radians(55.0)),
+                                            np.sin(np.radians(55.0))])).max() < 1e-7
     tool = {t: v["Points3D:positions"][0] for t, v in rrd["world/tool"]}
-    assert all(np.abs(np.array(tool[t][:2]) - tips[t]).max() < 1e-6 for t, _ in rows)
+    assert all(np.abs(np.array(tool[t][:2]) - _tool_truth(bag, t)).max() < 1e-6
+               for t, _ in rows)
     path = np.array(rrd["world/tip_path"][-1][1]["LineStrips3D:strips"][0])
     assert np.abs(path[-1, :2] - tips[max(tips)]).max() < 1e-6
     assert np.abs(path[0, :2] - tips[0]).max() < 1e-6
@@ -171,6 +178,21 @@ def test_centerlines_match_the_tip_in_double_precision(bag_path, tmp_path, cosim
         assert all(np.array_equal(x, y) for x, y in zip(a.centerlines, b.centerlines))
 
 
+def _tool_truth(bag, t_ns):
+    """The tool point at ``t_ns``: ground_truth/tip plus the scene's tool.position turned
+    by the tip frame's angle, which on the cubic rung is the sum of the joint angles and
+    the beams' tip-rotation coordinates (the cubic shapes have slope 1 at the tip for the
+    rotation coordinate and 0 for the displacement)."""
+    sc = load_scene(SCENE)
+    assert sc.fidelity.rung == "cubic" and sc.tool.position[1] == 0.0
+    (_, tip), = [(t, m) for t, m in bag[f"{NS}/{T.GT_TIP}"] if t == t_ns]
+    (_, co), = [(t, m) for t, m in bag[f"{NS}/{T.GT_COORDINATES}"] if t == t_ns]
+    c = dict(zip(co.name, co.position))
+    psi = c["link1_joint"] + c["link1_tip_rot"] + c["link2_joint"] + c["link2_tip_rot"]
+    return (np.array([tip.point.x, tip.point.y])
+            + sc.tool.position[0] * np.array([np.cos(psi), np.sin(psi)]))
+
+
 def test_wall_is_drawn_on_the_scene_wall(rrd):
     wall = yaml.safe_load(resolve_scene_path(SCENE).read_text())["walls"][0]
     (t, v), = rrd["world/wall"]
@@ -183,14 +205,14 @@ def test_wall_is_drawn_on_the_scene_wall(rrd):
 
 
 def test_contact_force_arrow_at_the_tool(rrd, bag_path):
-    tips = {t: (m.point.x, m.point.y) for t, m in read_bag(bag_path)[f"{NS}/{T.GT_TIP}"]}
+    bag = read_bag(bag_path)
     rows = rrd["world/contact_force"]
     shown = [(t, v) for t, v in rows if v.get("Arrows3D:vectors")]
     assert [t // 1_000_000 for t, _ in shown] == list(CONTACT_TICKS)
     # the wall's inward normal is +x, so t = E·n = +y: F = FN·x + FT·y, 0.01 m/N
     for t, v in shown:
         assert np.allclose(v["Arrows3D:vectors"][0], [0.01 * FN, 0.01 * FT, 0.0], atol=1e-7)
-        assert np.abs(np.array(v["Arrows3D:origins"][0][:2]) - tips[t]).max() < 1e-6
+        assert np.abs(np.array(v["Arrows3D:origins"][0][:2]) - _tool_truth(bag, t)).max() < 1e-6
     cleared = [t for t, v in rows if "Clear:is_recursive" in v]
     assert cleared == [(CONTACT_TICKS[-1] + 1) * 1_000_000]
     flag = rrd["plots/contact/in_contact"]

@@ -103,10 +103,18 @@ def test_motor_test_current_and_speed_signs_and_plateaus():
 
 # ------------------------------------------------------------------ seed 000
 def test_case1_tool_reaches_the_wall_line_near_2_1_s():
-    # the calibration of the motor resistances (scene assumption): 2.100 s on the cubic rung
-    c = simulate(_bare("two_link_case1")).columns
-    tc = event_time(c["t"], c["tip_x"], -0.025, direction=-1)
+    # the calibration of the motor resistances (scene assumption): 2.100 s on the cubic rung.
+    # The tool point sits on RB4 beyond the beam-2 tip (tool.position), so its gap to the
+    # wall line, not the beam tip's x, marks the crossing.
+    res = simulate(_bare("two_link_case1"))
+    c = res.columns
+    tc = res.contact.impacts[0].time
     assert tc == pytest.approx(2.1, abs=0.01)
+    # the sampled gap falls through 1 µm in the output step of the impact
+    assert event_time(c["t"], c["gap"], 1e-6, direction=-1) == pytest.approx(tc, abs=1e-3)
+    k = np.searchsorted(c["t"], tc)                 # first sample after the impact
+    assert c["tool_x"][k] == pytest.approx(-0.025, abs=1e-9)
+    assert c["tip_x"][k] > -0.025                   # the beam tip is short of the wall
     assert c["link1_joint_rate"][-1] > 0 and c["link2_joint_rate"][-1] > 0
 
 

@@ -12,9 +12,9 @@
    (chunks are flushed on wall-clock time), the decoded messages do not.
 
 2. ``bags/synthetic_experiment_case1.csv``: a SYNTHETIC "experiment" made from the golden
-   bag, NOT a measurement: ten channels of the golden bag (accelerometers A-D at 4 kHz;
-   encoder joint angles, tip position, wall normal force and the contact flag at 1 kHz)
-   with seeded Gaussian noise added and the clock shifted by ``SHIFT_S`` (the "DAQ"
+   bag, NOT a measurement: eleven channels of the golden bag (accelerometers A-D at
+   4 kHz; encoder joint angles, tip position, the tool's gap to the wall, wall normal force
+   and the contact flag at 1 kHz) with seeded Gaussian noise added and the clock shifted by ``SHIFT_S`` (the "DAQ"
    started before the twin's t = 0), written to the CSV convention of
    ``flexarm_ros.io.experiment`` with a comment header saying so. It exercises
    ``flexarm compare`` end to end (time offset, noise, mixed sample rates) where no
@@ -39,7 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from flexarm_ros.analysis.channels import load_channels  # noqa: E402
+from flexarm_ros.analysis.channels import add_wall_gap, load_channels  # noqa: E402
 from flexarm_ros.io.experiment import write_experiment_csv  # noqa: E402
 from flexarm_ros.nodes import environment  # noqa: E402
 
@@ -59,6 +59,7 @@ NOISE = {
     "acc_C": (0.02, "rel"), "acc_D": (0.02, "rel"),
     "link1_joint_measured": (1e-4, "abs"), "link2_joint_measured": (1e-4, "abs"),
     "tip_x": (5e-4, "abs"), "tip_y": (5e-4, "abs"),
+    "wall_gap": (5e-4, "abs"),
     "normal_force": (0.02, "abs"),
     "contact": (0.0, "abs"),
 }
@@ -77,8 +78,14 @@ def make_golden(path: Path = GOLDEN) -> Path:
 
 
 def make_synthetic(golden: Path = GOLDEN, out: Path = SYNTHETIC) -> Path:
-    """Noise + clock shift on ten channels of the golden bag -> the CSV convention."""
+    """Noise + clock shift on eleven channels of the golden bag -> the CSV convention.
+    ``wall_gap`` is the one derived channel: the tool point's distance to the wall (the
+    tool sits beyond the recorded beam tip, so an experiment without it could not give
+    the bounce)."""
     cs = load_channels(golden)
+    why = add_wall_gap(cs.channels, cs.scene)
+    if why is not None:
+        raise SystemExit(f"wall_gap: {why}")
     rng = np.random.default_rng(NOISE_SEED)
     columns, notes = {}, []
     for name, (level, how) in NOISE.items():

@@ -26,8 +26,10 @@ names and units from the scene embedded there):
 * ``normal_force``, ``friction_force`` — N, ``tool/wrench`` force x, y;
 * ``contact`` — 1 in contact, 0 free, ``tool/contact``;
 * ``<link>_command`` — V, A or N·m, ``motor_driver/commands``;
-* ``wall_gap`` — m, derived: ``min_k (p_tip - a_k) · n_k`` over the scene's walls (the tool
-  at the tip).
+* ``wall_gap`` — m, derived: ``min_k (p_tool - a_k) · n_k`` over the scene's walls: the
+  tool point is the recorded tip when the scene's ``tool.position`` is (0, 0), else the
+  last tip frame o + A(ψ)·``tool.position`` of the coordinates of
+  ``ground_truth/coordinates`` through the scene's kinematics.
 
 Channels of a CSV (:func:`flexarm_ros.io.experiment.read_experiment_csv`: an experiment,
 or ``flexarm simulate --out``): one per numeric column, by its header's name and unit; a
@@ -38,7 +40,8 @@ beside its main table (``run.sensors_<rate>hz.csv``) are read with it (without a
 map): a simulated run is one record, main columns and declared sensors.
 
 ``wall_gap`` is also derived for any input (a CSV, a mapped bag) that has ``tip_x`` and
-``tip_y`` when the comparison supplies a scene with walls (:func:`add_wall_gap`).
+``tip_y`` (or, with the tool offset from the tip body, every coordinate of the scene's
+chain) when the comparison supplies a scene with walls (:func:`add_wall_gap`).
 Channels flagged ``vibration`` (accelerometers, strain gauges, elastic beam coordinates,
 tip position; in a CSV by name: ``tip_x``, ``tip_y`` and the beam coordinates) are the
 ones whose dominant frequency is a pass criterion.
@@ -280,37 +283,73 @@ def bag_channels(bag, scene=None, notes: list | None = None) -> dict[str, Channe
 
 def add_wall_gap(channels: dict[str, Channel], scene) -> str | None:
     """Add ``wall_gap`` = ``min_k (p - a_k) · n_k`` (m; a_k a point of wall k, n_k its unit
-    inward normal, p = (tip_x, tip_y)) when the scene has walls and ``channels`` has the
-    tip but no ``wall_gap``. The tip stands for the tool point, so this needs the scene's
-    ``tool.position`` at the tip-body origin (0, 0). Returns why nothing was added, or None.
+    inward normal, p the tool point) when the scene has walls and ``channels`` has no
+    ``wall_gap``. With the scene's ``tool.position`` at the tip-body origin (0, 0) the
+    tool point is the tip, p = (tip_x, tip_y); with the tool offset from it, p is the last
+    tip frame o + A(ψ)·``tool.position`` of the coordinate channels (every ``Chain.names``
+    entry on one time base, as ``ground_truth/coordinates`` gives them) through the
+    scene's kinematics. Returns why nothing was added, or None.
     """
     if "wall_gap" in channels:
         return None
     if scene is None or not getattr(scene, "walls", ()):
         return "no scene with walls"
-    if "tip_x" not in channels or "tip_y" not in channels:
-        return "no tip_x / tip_y channels"
     if any(float(v) != 0.0 for v in scene.tool.position):
-        return (f"the tool point sits at {list(scene.tool.position)} m from the tip body, "
-                f"not at the recorded tip")
-    tx, ty = channels["tip_x"], channels["tip_y"]
-    if tx.t.shape != ty.t.shape or not np.array_equal(tx.t, ty.t):
-        from flexarm_ros.analysis.spectra import resample
-        lo, hi = max(tx.t[0], ty.t[0]), min(tx.t[-1], ty.t[-1])
-        t = tx.t[(tx.t >= lo) & (tx.t <= hi)]
-        if t.size < 2:
-            return "tip_x and tip_y do not overlap in time"
-        x, y = resample(tx.t, tx.y, t), resample(ty.t, ty.y, t)
+        path = _tool_path(channels, scene)
+        if isinstance(path, str):
+            return path
+        t, x, y = path
+        how = "derived: distance of the tool point (the coordinates through the scene's " \
+              "kinematics) to the wall line(s)"
     else:
-        t, x, y = tx.t, tx.y, ty.y
+        if "tip_x" not in channels or "tip_y" not in channels:
+            return "no tip_x / tip_y channels"
+        tx, ty = channels["tip_x"], channels["tip_y"]
+        if tx.t.shape != ty.t.shape or not np.array_equal(tx.t, ty.t):
+            from flexarm_ros.analysis.spectra import resample
+            lo, hi = max(tx.t[0], ty.t[0]), min(tx.t[-1], ty.t[-1])
+            t = tx.t[(tx.t >= lo) & (tx.t <= hi)]
+            if t.size < 2:
+                return "tip_x and tip_y do not overlap in time"
+            x, y = resample(tx.t, tx.y, t), resample(ty.t, ty.y, t)
+        else:
+            t, x, y = tx.t, tx.y, ty.y
+        how = "derived: distance of (tip_x, tip_y) to the wall line(s)"
     gaps = []
     for w in scene.walls:
         n = np.asarray(w.normal, float)
         n = n / np.linalg.norm(n)
         gaps.append((x - w.point[0]) * n[0] + (y - w.point[1]) * n[1])
-    channels["wall_gap"] = Channel("wall_gap", "m", t, np.min(gaps, axis=0),
-                                   "derived: distance of (tip_x, tip_y) to the wall line(s)")
+    channels["wall_gap"] = Channel("wall_gap", "m", t, np.min(gaps, axis=0), how)
     return None
+
+
+def _tool_path(channels: dict[str, Channel], scene):
+    """``(t, x, y)`` of the tool point offset from the last tip body, from the coordinate
+    channels through the scene's kinematics, or why not (a string)."""
+    where = f"the tool point sits at {list(scene.tool.position)} m from the tip body"
+    from flexarm_ros.model import Chain
+    try:
+        chain = Chain(scene, backend="numpy")
+    except Exception as exc:            # noqa: BLE001 - a scene the model refuses
+        return f"{where} and the scene's model does not build ({exc})"
+    names = list(chain.names)
+    missing = [n for n in names if n not in channels]
+    if missing:
+        return f"{where}, not at the recorded tip, and the coordinates {missing} are missing"
+    t = channels[names[0]].t
+    if any(channels[n].t.shape != t.shape or not np.array_equal(channels[n].t, t)
+           for n in names):
+        return f"{where}, not at the recorded tip, and the coordinates are not on one time base"
+    Q = np.column_stack([channels[n].y for n in names])
+    p = np.asarray(scene.tool.position, float)
+    qd = np.zeros(chain.n)
+    xy = np.empty((len(t), 2))
+    for i, q in enumerate(Q):
+        fr = chain.kinematics(q, qd, frames_only=True).tip_frames[-1]
+        c, s = np.cos(fr.psi), np.sin(fr.psi)
+        xy[i] = (fr.o[0] + c * p[0] - s * p[1], fr.o[1] + s * p[0] + c * p[1])
+    return t, xy[:, 0], xy[:, 1]
 
 
 # ----------------------------------------------------------------------------- mapped bags

@@ -381,16 +381,25 @@ def _contact_block(run, ref, off, scene):
     else:
         for k in ("bounce_height_run_m", "bounce_height_reference_m",
                   "bounce_height_abs_error_m", "bounce_height_error"):
-            why[k] = "wall_gap is not in both records (needs the tip and a wall)"
+            why[k] = ("wall_gap is not in both records (needs a wall and the tool point: "
+                      "the tip, or the coordinates when the tool is offset from it)")
     blk["null_reasons"] = why
     return blk
 
 
 def arm_length(scene) -> float | None:
-    """Sum of the hub radii and beam lengths (m): Gannon's normalizing arm length."""
+    """Gannon's normalizing arm length (m): the distance from the first joint to the
+    recorded tip (the last beam's tip) of the straight, undeformed arm, i.e. the hub
+    radii and beam lengths plus the joint offsets of the tip bodies between the links."""
     if scene is None:
         return None
-    return float(sum(lk.beam.hub_radius + lk.beam.length for lk in scene.links))
+    x, y = 0.0, 0.0
+    for k, lk in enumerate(scene.links):
+        x += lk.beam.hub_radius + lk.beam.length
+        if k + 1 < len(scene.links):
+            x += lk.tip.joint_offset[0]
+            y += lk.tip.joint_offset[1]
+    return float(np.hypot(x, y))
 
 
 def _tip_block(run, ref, off, scene, names, blocks, window, threshold):

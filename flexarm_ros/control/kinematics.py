@@ -240,6 +240,7 @@ class PlanarTwoLink:
         q[1] = q2w = _wrap(q[1])
         if elbow is not None and ((elbow == "up" and q2w > 0) or (elbow == "down" and q2w < 0)):
             q = _near(self._mirror(q, target), q)
+            q[1] = _wrap(q[1])          # _near may have moved the mirrored q2 by 2π
             err = float(np.hypot(*(target - self.forward(q))))
             msg += f"; mirrored onto the elbow-{elbow} branch"
         return IKResult(q, bool(err <= tol), it, err, msg)

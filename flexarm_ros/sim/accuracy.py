@@ -92,7 +92,9 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
     if e1 <= 0.0:
         h = h_stable
     else:
-        h = min(h_stable, h1 * (SAFETY * tol / (e1 * growth)) ** 0.25)
+        # (1 − 1e-12): the estimate below then stays at or under SAFETY·tol despite the
+        # round-off of the fourth root and power (it came out 1 ulp above)
+        h = min(h_stable, h1 * (SAFETY * tol / (e1 * growth)) ** 0.25 * (1.0 - 1e-12))
     if h < MIN_STEP_S:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m, expected a tolerance the RK4 "
                          f"step can reach above {MIN_STEP_S:g} s (it would need "

@@ -90,6 +90,28 @@ def _params_table(out) -> list[str]:
     return L
 
 
+def _into_reproduction(L, fit1, fit12, full: Path) -> None:
+    """docs/reproduction_contact.md: the fitted-vs-predicted table after the uncalibrated
+    one (a block tools/reproduce_contact.py keeps when it regenerates the file)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    from reproduce_contact import CALIBRATION_BEGIN
+    doc = ROOT / "docs" / "reproduction_contact.md"
+    text = doc.read_text() if doc.exists() else ""
+    if CALIBRATION_BEGIN in text:
+        text = text[:text.index(CALIBRATION_BEGIN)].rstrip() + "\n"
+    a = L.index("## 2. Case 1 fit, Case 2 predicted (held out)")
+    b = L.index("## 3. Fitted on Cases 1 and 2 together")
+    fitted = ", ".join(f"{p['key']} = {p['value']:.4g}"
+                       + (f" ± {p['stderr']:.2g}" if p["stderr"] is not None else
+                          " (not identifiable alone)") for p in fit1["parameters"])
+    block = [CALIBRATION_BEGIN, "", "## Calibrated on Case 1, Case 2 predicted", "",
+             f"`flexarm calibrate --spec examples/calibrate_case1.yaml` on Case 1's reported "
+             f"features (cubic rung): {fitted}. Fitted (Case 1) and predicted (Case 2) "
+             f"side by side; details, the fit on both cases and what the data cannot "
+             f"separate: [`{full.name}`]({full.name}).", ""] + L[a + 2:b]
+    doc.write_text(text + "\n" + "\n".join(block).rstrip() + "\n", encoding="utf-8")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=2)
@@ -148,6 +170,7 @@ def main(argv=None) -> int:
                      + " | ".join(_metric_cell(m, v) for v in vals) + " |")
     L += ["", "## 3. Fitted on Cases 1 and 2 together", ""] + _params_table(fit12)
     args.out.write_text("\n".join(L) + "\n", encoding="utf-8")
+    _into_reproduction(L, fit1, fit12, args.out)
     print(f"wrote {args.out} in {wall:.0f} s")
     return 0
 

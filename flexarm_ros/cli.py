@@ -70,17 +70,20 @@ def _scene_arg(p):
 
 
 def _fidelity_args(p):
-    from flexarm_ros.scene import INTEGRATORS, RUNGS
+    from flexarm_ros.scene import INTEGRATORS, RUNG_CHOICES
     g = p.add_argument_group("fidelity overrides (default: the scene's)")
-    g.add_argument("--rung", choices=RUNGS, help="beam discretization rung")
+    g.add_argument("--rung", choices=RUNG_CHOICES,
+                   help="beam discretization rung; auto: the cheapest rung, refinement and "
+                        "RK4 step estimated to meet --tolerance (default 1e-5 m tip)")
     g.add_argument("--refine", type=integer, help="modes / elements / FD segments")
     g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
     g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
     g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
     g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
     g.add_argument("--tolerance", type=number, metavar="M",
-                   help="tip-position error bound, m (rk4 without a wall): the step is "
-                        "chosen for it (simulate)")
+                   help="tip-position error bound, m: with --rung auto the model and step "
+                        "are chosen for it; with a named rung (rk4 without a wall) the "
+                        "step (simulate)")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",

@@ -18,6 +18,7 @@ curvature basis φ″ for strain. The chain never needs to know which rung it go
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -234,17 +235,8 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     """
     L = beam.length
     n_fe = mesh or max(48, 12 * n_modes)   # eigen-solve error < 1e-6 up to 12 modes
-    fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
-    K, M = np.array(fe.K), np.array(fe.M_e)
-    if with_tip and (tip.mass > 0 or tip.inertia > 0):
-        M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
-    import scipy.linalg       # lazily: start-up time of runs that never need it
-    vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
-    xs = np.linspace(0, L, 8 * n_fe + 1)
-    peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)
-    sign = np.sign(fe.phi_tip @ vecs)
-    sign[sign == 0] = 1.0
-    V = vecs * (sign / peak)[None, :]
+    K, V = _mode_shapes(beam, tip if with_tip else None, n_fe, max(n_modes, n_fe // 12))
+    V = V[:, :n_modes]
 
     def evaluate(x):
         return [a @ V for a in _hermite_eval(x, L, n_fe)]
@@ -257,6 +249,29 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     return _gauss_build("modal", n_modes, suffixes, L, beam.hub_radius, beam.mass_per_length,
                         beam.EI, beam.damping, np.linspace(0.0, L, n_q + 1), evaluate,
                         K=V.T @ K @ V, gauss_points=6)
+
+
+@functools.lru_cache(maxsize=32)
+def _mode_shapes(beam, tip, n_fe, n_modes):
+    """(K, V) of :func:`natural_modes`: the FEM stiffness of ``n_fe`` Hermite elements and
+    its first ``n_modes`` clamped modes (with the tip body's mass when ``tip`` is given),
+    scaled to unit peak deflection, positive at the tip. Kept per process (read-only): the
+    ladder's modal rungs on one mesh share one eigen-solve (rung auto builds several)."""
+    L = beam.length
+    fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
+    K, M = np.array(fe.K), np.array(fe.M_e)
+    if tip is not None and (tip.mass > 0 or tip.inertia > 0):
+        M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
+    import scipy.linalg       # lazily: start-up time of runs that never need it
+    vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
+    xs = np.linspace(0, L, 8 * n_fe + 1)
+    peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)
+    sign = np.sign(fe.phi_tip @ vecs)
+    sign[sign == 0] = 1.0
+    V = vecs * (sign / peak)[None, :]
+    K.setflags(write=False)
+    V.setflags(write=False)
+    return K, V
 
 
 def _tip_body_mass(phi_tip, slope_tip, tip):

@@ -163,6 +163,13 @@ def cmd_simulate(args):
               + (f" → {args.out}" if args.out else ""))
         for rate, path in summ.get("sensor_tables", {}).items():
             print(f"  sensors at {rate} Hz → {path}")
+        if summ.get("auto"):
+            print(f"  rung auto: {summ['rung']} {summ['refine']}, rk4 step "
+                  f"{summ['step_s']:.3g} s, estimated tip error "
+                  f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
+                  f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
+    if summ.get("warning"):
+        print(f"flexarm: warning: {summ['warning']}", file=sys.stderr)
     return 0
 
 
@@ -184,7 +191,7 @@ def cmd_modes(args):
     joints = args.joints or ("locked" if scene.inputs else "free")
     m = natural_modes(chain, q0, joints)
     n = min(args.count, len(m.frequencies_hz))
-    out = {"scene": scene.name, "rung": scene.fidelity.rung, "joints": joints,
+    out = {"scene": scene.name, "rung": chain.fidelity.rung, "joints": joints,
            "coordinates": list(m.coordinates),
            "frequencies_hz": [float(f) for f in m.frequencies_hz[:n]],
            "mode_shapes": [[float(v) for v in m.shapes[:, k]] for k in range(n)]}

@@ -89,7 +89,7 @@ FINER_FACTOR = 4
 #: ... looked for among at most this many more candidates
 FINER_TRIES = 5
 #: the candidates, by family, each family in increasing refinement (and cost)
-LADDER = (("rigid", (0,)), ("cubic", (0,)), ("modal", tuple(range(1, 13))),
+LADDER = (("rigid", (0,)), ("cubic", (0,)), ("modal", tuple(range(1, 11))),
           ("fem", (2, 4, 8)), ("fd", (10, 20)))
 #: modes per beam of the linear reference (its own error: the change from 2 fewer); the
 #: modal sequence converges much faster than FEM's on these arms (measured, linear, max tip
@@ -151,7 +151,8 @@ class AutoChoice:
     reference: str = ""
     reference_error_m: float = 0.0
     cross_check_m: float | None = None   # the reference against FEM (independent family)
-    finer: tuple | None = None     # (rung, refine, stable step) for the check after the run
+    finer: tuple | None = None     # (rung, refine, stable step s, spatial estimate m): the
+    #                                check after the run runs it
     window_s: float = 0.0          # the check's window
     growth: float = 1.0            # linear error at the end / in the window
     wall: bool = False
@@ -196,8 +197,9 @@ class AutoChoice:
         lines = [f"rung auto: chose {self.label}, rk4 at {how} {self.step_s:.4g} s, for a "
                  f"tip tolerance of {self.tolerance_m:.3g} m ({src}) over "
                  f"{self.duration_s:.4g} s",
-                 f"  why: the cheapest candidate whose estimated spatial error is <= "
-                 f"{SPATIAL_SHARE:g}·TOL and whose RK4 error at its step is within the rest",
+                 f"  why: the least predicted work among the candidates whose estimated spatial "
+                 f"error is <= {SPATIAL_SHARE:g} TOL and whose RK4 error at their step is "
+                 f"within the rest",
                  f"  estimates (linearized model, the scene's inputs, the whole run): "
                  f"spatial {self.spatial_m:.2g} m against {self.reference} (its own error "
                  f"{self.reference_error_m:.2g} m, included)"
@@ -222,12 +224,13 @@ class AutoChoice:
                 f"{self.finer[0]} {self.finer[1]}"
             lines.append(f"  after a run: the first {self.window_s:.3g} s again with {fl} at "
                          f"half the step; the difference × {self.growth:.3g} (the linear "
-                         f"error's growth to the end) is the run's estimate")
+                         f"error's growth to the end) × 2 (margin) + {fl}'s own spatial "
+                         f"estimate {self.finer[3]:.2g} m is the run's estimate")
         if self.wall:
             lines.append("  with a wall: the estimates cover the free flight; the impacts "
                          "and the contact stepper's step are not error-controlled")
-        lines.append(f"  analysis {self.analysis_s:.2f} s; the seed's own model is one "
-                     f"flag away (--rung …, see the scene file)")
+        lines.append(f"  analysis {self.analysis_s:.2f} s; a named rung overrides auto "
+                     f"(--rung …; the scene file names the seed's own model)")
         return "\n".join(lines)
 
 
@@ -237,11 +240,12 @@ def tolerance_of(fidelity) -> float:
 
 def choose(scene, duration=None, output_dt=None) -> AutoChoice:
     """The model and step for ``scene`` (rung auto) over ``duration`` (default: the scene's)
-    with outputs every ``output_dt`` (default fidelity.output_dt). Results are kept per
-    process (the same scene, duration and grid: the same choice)."""
-    fid = scene.fidelity
+    with outputs every ``output_dt`` (default: a batch run's sample period, fidelity.output_dt
+    or the sensors' common grid). Results are kept per process (the same scene, duration and
+    grid: the same choice)."""
+    from flexarm_ros.model.sensors import output_period
     T = scene.duration if duration is None else float(duration)
-    out_dt = fid.output_dt if output_dt is None else float(output_dt)
+    out_dt = output_period(scene) if output_dt is None else float(output_dt)
     if not (T > 0 and math.isfinite(T)):
         raise SceneError(f"duration: got {T}, expected a finite number > 0 s (rung auto "
                          f"analyses the run's length)")
@@ -529,7 +533,7 @@ class _Analysis:
                         f"can be certified here")
             raise SceneError(f"fidelity.tolerance: got {self.tol:g} m with fidelity.rung "
                              f"'auto', expected a tolerance some rung of the ladder is "
-                             f"estimated to meet (spatial error <= {SPATIAL_SHARE:g}·TOL"
+                             f"estimated to meet (spatial error <= {SPATIAL_SHARE:g} TOL"
                              f"{got}); loosen it or name a rung")
         chosen, lin = best
         for c in cands:
@@ -549,7 +553,7 @@ class _Analysis:
             reference=self.reference, reference_error_m=self.e_ref,
             cross_check_m=self.cross_check,
             finer=None if finer is None else (finer[0].rung, finer[0].refine,
-                                              finer[1].stable_step),
+                                              finer[1].stable_step, finer[0].spatial_m),
             window_s=window, growth=growth, wall=self.wall,
             analysis_s=time.perf_counter() - t0)
 
@@ -602,7 +606,7 @@ class _Analysis:
         lin.y_exact = y
         c.spatial_m = float(np.max(np.linalg.norm(y - self.y_ref, axis=1))) + self.e_ref
         if c.spatial_m > SPATIAL_SHARE * self.tol:
-            c.verdict = f"spatial estimate above {SPATIAL_SHARE:g}·TOL"
+            c.verdict = f"spatial estimate above {SPATIAL_SHARE:g} TOL"
             return c, lin
         if self.wall:
             c.verdict = "admissible"
@@ -620,7 +624,7 @@ class _Analysis:
             c.steps = int(math.ceil(self.T / h - 1e-9))
             c.work_s = c.steps * lin.cost_us * 1e-6
         if c.temporal_m > budget_t:
-            c.verdict = f"temporal estimate above TOL − spatial at {h:.3g} s"
+            c.verdict = f"temporal estimate above TOL - spatial at {h:.3g} s"
             c.work_s = math.inf
             return c, lin
         c.verdict = "admissible"

@@ -14,7 +14,8 @@ from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact, check_integrator
-from flexarm_ros.model.sensors import build_sensors, sample_grid_ns, sensor_tables
+from flexarm_ros.model.sensors import (build_sensors, output_period, sample_grid_ns,
+                                       sensor_tables)
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.budget import check_output, check_work
 from flexarm_ros.sim.contact_stepper import integrate_contact
@@ -67,7 +68,7 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
         scene, auto = chain.scene, chain.auto
     elif scene.fidelity.rung == "auto":         # the model and step for this run's length
         from flexarm_ros.model.autofidelity import resolve
-        scene, auto = resolve(scene, T, _output_grid(scene))
+        scene, auto = resolve(scene, T, output_period(scene))
     chain = chain or Chain(scene)
     fid = scene.fidelity
     if fid.output_dt > T:
@@ -114,16 +115,6 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
         from flexarm_ros.sim.accuracy import posterior_check
         check = posterior_check(scene, auto, cols, run.dt, T)
     return SimResult(scene.name, chain, run, cols, tables, crun, choice, auto, check)
-
-
-def _output_grid(scene) -> float:
-    """The run's sample period: fidelity.output_dt, or the common grid of it and the
-    sensors' periods (checked in :func:`simulate`)."""
-    fid = scene.fidelity
-    if not scene.sensors:
-        return fid.output_dt
-    ns = sample_grid_ns([fid.output_dt] + [1.0 / s.rate_hz for s in scene.sensors])
-    return ns * 1e-9 if ns >= 1000 else fid.output_dt
 
 
 def _step_for_tolerance(chain, contact, x0, T, out_dt):

@@ -6,58 +6,69 @@ tip error over the run stays below TOL, and say why (:meth:`AutoChoice.explain`,
 ``flexarm explain``). The check after the run is in :mod:`flexarm_ros.sim.accuracy`
 (:func:`~flexarm_ros.sim.accuracy.posterior_check`).
 
-Method: a priori, on the linearized model
-    Every candidate of the ladder (:data:`LADDER`: rigid, cubic, modal 1–12, fem 2/4/8,
+A priori, on the linearized model
+    Every candidate of the ladder (:data:`LADDER`: rigid, cubic, modal 1–10, fem 2/4/8,
     fd 10/20; the modal basis is the scene's ``modal_basis``) is linearized about the
     scene's initial state (:func:`~flexarm_ros.model.statespace.linearize`: M δq̈ + D_t δq̇
-    + K_t δq = B u, the drive states included; a prescribed motion enters as the inputs
-    δq_p, q̇_p, q̈_p through −M_fp q̈_p − D_fp q̇_p − K_fp δq_p). Its tip response to the
-    scene's own input programs over the whole run is computed exactly in time (the
-    state-transition matrix e^{AΔt} with the inputs held over each output interval, the
-    input jumps on the grid) and compared with the same response of a converged
-    reference: Hermite FEM on :data:`REFERENCE_ELEMENTS` elements per beam, whose own
-    error is estimated by Richardson's rule from FEM on half as many (h⁴: |y₁₆ − y₈|/15)
-    and added to every estimate. The spatial estimate of a candidate is
-    E_s = max_t |tip_c(t) − tip_ref(t)| + e_ref: the truncated modes and the mesh error
-    together, weighted by how much the scene's inputs excite each mode — the excitation
-    bandwidth enters through the input's own spectrum, and a frequency error shows as the
-    phase drift it causes over this run's length, with no extrapolation in time. (Model
-    reduction error analysis by comparison of input–output responses: Antoulas,
-    *Approximation of Large-Scale Dynamical Systems*, SIAM 2005, ch. 7; mode truncation
-    error: Craig & Kurdila, *Fundamentals of Structural Dynamics*, 2006, Sec. 14.)
-    The temporal estimate E_t(h) of a candidate is the same linear model stepped by RK4
-    exactly as the integrator steps it (steps of h ending on every input jump, inputs at
-    the stage times, outputs inside a step from the cubic Hermite dense output) against
-    its exact response: RK4's global error on the linearized system, again over the whole
-    run. A candidate is admissible when E_s ≤ :data:`SPATIAL_SHARE`·TOL; its step is its
-    automatic (stable) step RK4_AUTO/|λ|max when E_t there is ≤ (1 − SPATIAL_SHARE)·TOL,
-    else the largest step that meets it (E_t ∝ h⁴, checked on the linear model). The
-    candidate chosen is the admissible one of least predicted integration work: steps
-    × a per-step cost fitted on this machine (:data:`COST_US`, µs per RK4 step
-    ≈ 9 + 0.11·n·P, n coordinates, P mass points; modal 1/3/4/6, fem 2/4/6, fd 10 and
-    cubic measured within 20 %). Families are walked upward in refinement and dropped
-    once their predicted work at the stable step exceeds the best found (more modes or
-    elements only cost more), so most candidates are never built.
+    + K_t δq = B u with the drive states; a prescribed motion enters as the inputs δq_p,
+    q̇_p, q̈_p through −M_fp q̈_p − D_fp q̇_p − K_fp δq_p; a backlash mesh is taken
+    engaged). Its tip position — where the model starts (a static deflection differs
+    between rungs) plus the linear response to the scene's own input programs over the
+    whole run — is computed exactly in time (state-transition matrix e^{AΔt}, the inputs
+    held over each output interval, the input jumps on the grid) and compared with the
+    same of a converged reference, :data:`REFERENCE_MODES` modes per beam, whose own error
+    is taken as the change from two fewer modes and added to every estimate; FEM on
+    :data:`CROSS_CHECK_ELEMENTS` elements is reported beside it as an independent
+    cross-check. The spatial estimate of a candidate is E_s = max_t |tip_c(t) − tip_ref(t)|
+    + e_ref: truncated modes and mesh error together, weighted by how much the scene's
+    inputs excite each mode — the excitation bandwidth enters through the input's own
+    spectrum, and a frequency error shows as the phase drift it causes over this run's
+    length, with no extrapolation in time. (Model reduction judged by the error of its
+    input–output response: Antoulas, *Approximation of Large-Scale Dynamical Systems*,
+    SIAM 2005, ch. 7; the static and dynamic error of mode truncation: Craig & Kurdila,
+    *Fundamentals of Structural Dynamics*, 2nd ed. 2006, ch. 14.)
 
-Measured (link_tipmass, 3 s, tip error max over the run against FEM 8 nonlinear; the
-linear estimate against FEM 16 linear): rigid 3.4e-5 / 3.6e-5 m, cubic 6.1e-5 / 6.5e-5,
-modal 2 1.2e-5 / 2.5e-5, modal 3 3.9e-6 / 4.4e-6, modal 4 9.6e-7 / 1.6e-6, fem 4 3.7e-6 /
-3.9e-6, fd 10 1.02e-3 / 1.02e-3: the linear estimate is within 15 % of the nonlinear
-error, or above it (docs/accuracy.md has every seed scene).
+    The temporal estimate E_t(h) is the same linear candidate stepped by RK4 exactly as the
+    integrator steps it (steps of h ending on every input jump, inputs at the stage times,
+    outputs inside a step from the cubic Hermite dense output) against its exact response:
+    RK4's global error on the linearized system over the whole run (the step-halving
+    machinery of ``--tolerance``, :func:`~flexarm_ros.sim.accuracy.step_for_tolerance`,
+    extrapolates a pilot window's error linearly in time; measured 10× conservative on
+    link_tipmass over 3 s, where it would halve the step for nothing).
 
-Where the estimate is blind: large motions change the linearization (configuration-
-dependent inertia of a two-link arm, centrifugal stiffening of a fast spin), the
-hydraulic orifice's square root near the supply pressure, backlash (its dead zone is
-linearized at the start, teeth apart), and contact (walls: the free-flight model is
-analysed; the contact stepper keeps its own step, which auto does not choose). The check
-after the run covers what the linearization misses: the run's first window is run again
-one level finer (a candidate whose spatial estimate is at most 1/:data:`FINER_FACTOR` of
-the chosen one's, at half the step) and the observed difference, scaled by the linear
-model's growth of the error from that window to the end, is the run's reported estimate.
+    A candidate is admissible when E_s ≤ :data:`SPATIAL_SHARE`·TOL; its step is its
+    automatic (stable) step RK4_AUTO/|λ|max when E_t there is ≤ TOL − E_s, else the
+    largest step that meets it (E_t ∝ h⁴, checked). The candidate chosen is the admissible
+    one of least predicted integration work: steps × a per-step cost fitted on this
+    machine (:data:`COST_US`: µs per RK4 step ≈ 9 + 0.11·n·P, n coordinates, P mass
+    points; within 20 % for modal 1/3/4/6, fem 2/4/6, fd 10 and cubic on link_tipmass).
+    Families are walked upward in refinement and left once their predicted work at the
+    stable step exceeds the best found (more modes or elements only cost more), so most
+    candidates are never built. Integrators other than RK4 are not candidates: the
+    trapezoidal rule's step has no error control yet, and the adaptive methods cost 2–40×
+    more at equal error on these models (docs/ladder.md).
 
-In the ROS twin (``flexarm run``) and wherever a model is built from a scene with rung
-auto (:class:`~flexarm_ros.model.chain.Chain`), auto chooses the rung and refinement over
-the scene's ``duration``; the twin's plant steps on its own tick grid.
+Measured (link_tipmass, 3 s; linear estimate / nonlinear error against FEM 8):
+rigid 3.6e-5 / 3.4e-5 m, cubic 6.4e-5 / 6.1e-5, modal 2 2.5e-5 / 1.2e-5, modal 3
+4.4e-6 / 3.9e-6, modal 4 1.7e-6 / 9.6e-7: within 15 % or above (docs/accuracy.md has the
+seed scenes against FEM with DOP853).
+
+Where the linearization is blind: large motions change it (configuration-dependent inertia
+of a two-link arm: the linear estimate of cubic on two_link_free over 2 s is 6.4e-7 m, the
+nonlinear error 9.9e-7 m; centrifugal stiffening of a fast spin), the hydraulic orifice's
+square root near the supply pressure, backlash (linearized engaged), and contact (with a
+wall the free flight is analysed; the contact stepper keeps its own step, which auto does
+not choose). The check after the run covers what the linearization misses: the run's
+first window is run again one level finer (a candidate whose spatial estimate is at most
+1/:data:`FINER_FACTOR` of the chosen one's, at half the step) and the observed difference,
+extrapolated by the linear model's growth of the error with a margin, is the run's
+reported estimate.
+
+Not analysable: a scene whose arm only its controller moves (``control.mode`` position or
+sanding without input programs): the excitation is unknown before the run, so auto is
+refused there. In the ROS twin (``flexarm run``) and wherever a model is built from a scene
+with rung auto (:class:`~flexarm_ros.model.chain.Chain`), auto chooses over the scene's
+``duration``; the twin's plant steps on its own tick grid.
 """
 
 from __future__ import annotations

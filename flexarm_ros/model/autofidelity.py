@@ -230,7 +230,8 @@ class AutoChoice:
                 isinstance(v, float) and math.isnan(v)) else "-"
         for c in self.candidates:
             lines.append(f"  {c.label:10s} {num(c.coordinates, '6d'):>6s} "
-                         f"{num(c.step_s, '9.3g'):>9s} {num(c.steps, '8d') if c.steps else '-':>8s} "
+                         f"{num(c.step_s, '9.3g'):>9s} "
+                         f"{num(c.steps, '8d') if c.steps else '-':>8s} "
                          f"{num(c.work_s, '8.2g'):>8s} {num(c.spatial_m, '9.2g'):>9s} "
                          f"{num(c.temporal_m, '10.2g'):>10s}  {c.verdict}")
         if self.finer is not None:
@@ -302,9 +303,10 @@ class _Linear:
     """The linearized chain: ẋ = A x + B u, tip = C_t q_free; u = the actuator programs and,
     for prescribed coordinates, (q_p − q_p(0), q̇_p, q̈_p)."""
 
-    def __init__(self, chain):
+    def __init__(self, chain, input_memo=None):
         from flexarm_ros.model.statespace import linearize
         self.chain = chain
+        self.input_memo = input_memo     # shared by the candidates of one analysis
         ss = linearize(chain, outputs=False)
         free = chain.free
         nf = len(free)
@@ -362,6 +364,10 @@ class _Linear:
         """u at ``times`` (N, m). A program constant between the breakpoints ``bps`` (a
         piecewise-constant one, given its breakpoints) is evaluated once per piece."""
         times = np.asarray(times, float)
+        key = (len(times), float(times[0]) if len(times) else 0.0,
+               float(times[-1]) if len(times) else 0.0, hash(times.tobytes()), tuple(bps))
+        if self.input_memo is not None and key in self.input_memo:
+            return self.input_memo[key]      # every candidate has the scene's programs
         U = np.empty((len(times), self.m))
         na = len(self.acts)
         edges = np.unique(np.concatenate([[0.0], np.asarray(bps, float)]))
@@ -381,6 +387,8 @@ class _Linear:
             U[:, na + j] = mv[:, 0] - self.q_p0[j]
             U[:, na + k + j] = mv[:, 1]
             U[:, na + 2 * k + j] = mv[:, 2]
+        if self.input_memo is not None:
+            self.input_memo[key] = U
         return U
 
     def tip(self, X) -> np.ndarray:
@@ -474,6 +482,7 @@ class _Analysis:
     def __init__(self, scene, T, out_dt):
         self.scene = scene
         self.fid = scene.fidelity
+        self.input_memo: dict = {}
         self.T = T
         self.out_dt = out_dt
         self.tol = tolerance_of(self.fid)
@@ -495,6 +504,9 @@ class _Analysis:
         from flexarm_ros.model.chain import Chain
         return Chain(self._scene(rung, refine))
 
+    def _memo_chain(self, rung, refine):
+        return self._chain(rung, refine), self.input_memo
+
     def _fits(self, rung, refine) -> bool:
         return elastic_coordinates(rung, refine) * self.n_beams <= MAX_ELASTIC_COORDINATES
 
@@ -503,7 +515,7 @@ class _Analysis:
         nm = REFERENCE_MODES
         while not self._fits("modal", nm) and nm > 4:
             nm -= 2
-        y = {n: _Linear(self._chain("modal", n)).exact(self.grid, self.bps)
+        y = {n: _Linear(*self._memo_chain("modal", n)).exact(self.grid, self.bps)
              for n in (nm - 2, nm)}
         self.y_ref = y[nm]
         # its own error: the last refinement's change (the modal sequence converges fast:
@@ -513,7 +525,8 @@ class _Analysis:
         # an independent cross-check (reported, not added): FEM on CROSS_CHECK_ELEMENTS
         self.cross_check = None
         if self._fits("fem", CROSS_CHECK_ELEMENTS):
-            yf = _Linear(self._chain("fem", CROSS_CHECK_ELEMENTS)).exact(self.grid, self.bps)
+            fem = _Linear(*self._memo_chain("fem", CROSS_CHECK_ELEMENTS))
+            yf = fem.exact(self.grid, self.bps)
             self.cross_check = float(np.max(np.linalg.norm(yf - self.y_ref, axis=1)))
         mode = self.scene.control.mode
         if mode != "open_loop" and not np.any(self.y_ref != self.y_ref[0]):
@@ -599,7 +612,7 @@ class _Analysis:
             return c, None
         c.coordinates = chain.n
         try:
-            lin = _Linear(chain)
+            lin = _Linear(chain, self.input_memo)
         except SceneError as exc:
             c.verdict = f"refused: {exc}"
             return c, None
@@ -692,7 +705,7 @@ class _Analysis:
                     break
                 tries += 1
                 try:
-                    lin = _Linear(self._chain(rung, n))
+                    lin = _Linear(*self._memo_chain(rung, n))
                 except SceneError:
                     break
                 y = lin.exact(self.grid, self.bps)

@@ -265,9 +265,10 @@ def choose(scene, duration=None, output_dt=None) -> AutoChoice:
         raise SceneError(f"duration: got {T}, expected a finite number > 0 s (rung auto "
                          f"analyses the run's length)")
     try:
-        return _choose(scene, T, out_dt)
+        hash(scene)
     except TypeError:                      # an unhashable scene (built by hand): no memo
         return _Analysis(scene, T, out_dt).run()
+    return _choose(scene, T, out_dt)
 
 
 @functools.lru_cache(maxsize=16)

@@ -70,17 +70,20 @@ def _scene_arg(p):
 
 
 def _fidelity_args(p):
-    from flexarm_ros.scene import INTEGRATORS, RUNGS
+    from flexarm_ros.scene import INTEGRATORS, RUNG_CHOICES
     g = p.add_argument_group("fidelity overrides (default: the scene's)")
-    g.add_argument("--rung", choices=RUNGS, help="beam discretization rung")
+    g.add_argument("--rung", choices=RUNG_CHOICES,
+                   help="beam discretization rung; auto: the cheapest rung, refinement and "
+                        "RK4 step estimated to meet --tolerance (default 1e-5 m tip)")
     g.add_argument("--refine", type=integer, help="modes / elements / FD segments")
     g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
     g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
     g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
     g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
     g.add_argument("--tolerance", type=number, metavar="M",
-                   help="tip-position error bound, m (rk4 without a wall): the step is "
-                        "chosen for it (simulate)")
+                   help="tip-position error bound, m: with --rung auto the model and step "
+                        "are chosen for it; with a named rung (rk4 without a wall) the "
+                        "step (simulate)")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",
@@ -160,6 +163,13 @@ def cmd_simulate(args):
               + (f" → {args.out}" if args.out else ""))
         for rate, path in summ.get("sensor_tables", {}).items():
             print(f"  sensors at {rate} Hz → {path}")
+        if summ.get("auto"):
+            print(f"  rung auto: {summ['rung']} {summ['refine']}, rk4 step "
+                  f"{summ['step_s']:.3g} s, estimated tip error "
+                  f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
+                  f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
+    if summ.get("warning"):
+        print(f"flexarm: warning: {summ['warning']}", file=sys.stderr)
     return 0
 
 
@@ -181,7 +191,7 @@ def cmd_modes(args):
     joints = args.joints or ("locked" if scene.inputs else "free")
     m = natural_modes(chain, q0, joints)
     n = min(args.count, len(m.frequencies_hz))
-    out = {"scene": scene.name, "rung": scene.fidelity.rung, "joints": joints,
+    out = {"scene": scene.name, "rung": chain.fidelity.rung, "joints": joints,
            "coordinates": list(m.coordinates),
            "frequencies_hz": [float(f) for f in m.frequencies_hz[:n]],
            "mode_shapes": [[float(v) for v in m.shapes[:, k]] for k in range(n)]}

@@ -18,6 +18,7 @@ curvature basis φ″ for strain. The chain never needs to know which rung it go
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -116,8 +117,8 @@ def _hermite_eval(x, length, n_el):
     rows = np.arange(len(x))
     for arr in (N, dN, ddN):
         full = np.zeros((len(x), ndof))
-        for k in range(4):
-            np.add.at(full, (rows, 2 * e + k), arr[:, k])
+        for k in range(4):       # one entry per row and k: plain indexing adds as add.at
+            full[rows, 2 * e + k] += arr[:, k]
         out.append(full[:, 2:])
     return out
 
@@ -141,9 +142,7 @@ def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
     ne = phi.shape[1]
     if not with_S:
         mass = rho_a * ws
-        M_e = np.einsum("p,pi,pj->ij", mass, phi, phi)
-        if K is None:
-            K = EI * np.einsum("p,pi,pj->ij", ws, ddphi, ddphi)
+        M_e, K = _mass_stiffness(mass, ws, phi, ddphi, EI, K)
         phiL, dphiL, _ = evaluate(np.array([length]))
         D = damping.viscous_per_length / rho_a * M_e + damping.stiffness_proportional * K
         return BeamDiscretization(rung, refine, tuple(suffixes), length, hub_radius, xs, mass,
@@ -165,9 +164,7 @@ def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
         S[k] = start[el] + np.einsum("p,pi,pj->ij", hk * gw, dp, dp)
     S_tip = start[-1] + elem_tot[-1]
     mass = rho_a * ws
-    M_e = np.einsum("p,pi,pj->ij", mass, phi, phi)
-    if K is None:
-        K = EI * np.einsum("p,pi,pj->ij", ws, ddphi, ddphi)
+    M_e, K = _mass_stiffness(mass, ws, phi, ddphi, EI, K)
     phiL, dphiL, _ = evaluate(np.array([length]))
     D = damping.viscous_per_length / rho_a * M_e + damping.stiffness_proportional * K
 
@@ -183,6 +180,16 @@ def _gauss_build(rung, refine, suffixes, length, hub_radius, rho_a, EI, damping,
     return BeamDiscretization(rung, refine, tuple(suffixes), length, hub_radius, xs, mass,
                               phi, S, phiL[0], dphiL[0], S_tip, _sym(K), _sym(D), _sym(M_e),
                               lambda x: evaluate(x)[2], lambda x: evaluate(x)[0], point)
+
+
+def _mass_stiffness(mass, ws, phi, ddphi, EI, K=None):
+    """M = Σ_p m_p φ_p φ_pᵀ and (unless given) K = EI Σ_p w_p φ″_p φ″_pᵀ over the quadrature
+    points, as matrix products (BLAS: einsum's loop took 0.1 s on a modal rung's 144-element
+    eigen-solve mesh); the same in the full and the matrices-only build."""
+    M_e = (phi * mass[:, None]).T @ phi
+    if K is None:
+        K = EI * ((ddphi * ws[:, None]).T @ ddphi)
+    return M_e, K
 
 
 def _sym(a):
@@ -234,17 +241,8 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     """
     L = beam.length
     n_fe = mesh or max(48, 12 * n_modes)   # eigen-solve error < 1e-6 up to 12 modes
-    fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
-    K, M = np.array(fe.K), np.array(fe.M_e)
-    if with_tip and (tip.mass > 0 or tip.inertia > 0):
-        M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
-    import scipy.linalg       # lazily: start-up time of runs that never need it
-    vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
-    xs = np.linspace(0, L, 8 * n_fe + 1)
-    peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)
-    sign = np.sign(fe.phi_tip @ vecs)
-    sign[sign == 0] = 1.0
-    V = vecs * (sign / peak)[None, :]
+    K, V = _mode_shapes(beam, tip if with_tip else None, n_fe, max(n_modes, n_fe // 12))
+    V = V[:, :n_modes]
 
     def evaluate(x):
         return [a @ V for a in _hermite_eval(x, L, n_fe)]
@@ -257,6 +255,29 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     return _gauss_build("modal", n_modes, suffixes, L, beam.hub_radius, beam.mass_per_length,
                         beam.EI, beam.damping, np.linspace(0.0, L, n_q + 1), evaluate,
                         K=V.T @ K @ V, gauss_points=6)
+
+
+@functools.lru_cache(maxsize=32)
+def _mode_shapes(beam, tip, n_fe, n_modes):
+    """(K, V) of :func:`natural_modes`: the FEM stiffness of ``n_fe`` Hermite elements and
+    its first ``n_modes`` clamped modes (with the tip body's mass when ``tip`` is given),
+    scaled to unit peak deflection, positive at the tip. Kept per process (read-only): the
+    ladder's modal rungs on one mesh share one eigen-solve (rung auto builds several)."""
+    L = beam.length
+    fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
+    K, M = np.array(fe.K), np.array(fe.M_e)
+    if tip is not None and (tip.mass > 0 or tip.inertia > 0):
+        M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
+    import scipy.linalg       # lazily: start-up time of runs that never need it
+    vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
+    xs = np.linspace(0, L, 8 * n_fe + 1)
+    peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)
+    sign = np.sign(fe.phi_tip @ vecs)
+    sign[sign == 0] = 1.0
+    V = vecs * (sign / peak)[None, :]
+    K.setflags(write=False)
+    V.setflags(write=False)
+    return K, V
 
 
 def _tip_body_mass(phi_tip, slope_tip, tip):

@@ -126,6 +126,10 @@ class Chain:
                              "(pip install -e .[fast]) or FLEXARM_NO_NUMBA is set")
         self.backend = "numba" if backend == "auto" and kchain.HAVE_NUMBA else (
             "numpy" if backend == "auto" else backend)
+        self.auto = None            # autofidelity.AutoChoice when the scene says rung auto
+        if (fidelity or scene.fidelity).rung == "auto":
+            scene, self.auto = _resolve_auto(scene, fidelity)
+            fidelity = None
         self.scene = scene
         self.fidelity = fidelity or scene.fidelity
         beams.check_model_size(len(scene.links), self.fidelity)   # before a minutes-long build
@@ -643,6 +647,16 @@ class Chain:
 
     def drive_index(self) -> list[int]:
         return [lm.i_motor if lm.i_motor >= 0 else lm.i_joint for lm in self.links]
+
+
+def _resolve_auto(scene, fidelity):
+    """A scene with rung auto (:mod:`~flexarm_ros.model.autofidelity`) as the chosen model
+    over the scene's duration: (resolved scene, AutoChoice)."""
+    import dataclasses
+    from flexarm_ros.model.autofidelity import resolve
+    if fidelity is not None:
+        scene = dataclasses.replace(scene, fidelity=fidelity)
+    return resolve(scene)
 
 
 def _offset_frame(fr: Frame, p) -> Frame:

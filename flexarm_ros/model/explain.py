@@ -10,12 +10,15 @@ from flexarm_ros.model.linear import natural_modes
 
 def explain(scene) -> str:
     """A human-readable account of the model: coordinates, rung, forces kept and omitted."""
-    chain = Chain(scene)
-    fid = scene.fidelity
+    chain = Chain(scene)            # rung auto: the choice over the scene's duration
+    fid = chain.fidelity
     lines = [f"scene {scene.name}: {scene.description.strip()}".rstrip(": "),
              f"rung {fid.rung} (refine {chain.links[0].beam.refine}), integrator "
-             f"{fid.integrator}" + (f", dt {fid.dt} s" if fid.dt else ", automatic step"),
-             f"{chain.n} generalized coordinates:"]
+             f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else ", automatic step")
+             + (" — chosen by rung auto" if chain.auto is not None else "")]
+    if chain.auto is not None:
+        lines.extend(chain.auto.explain().splitlines())
+    lines.append(f"{chain.n} generalized coordinates:")
     for lm in chain.links:
         b = lm.beam
         idx = np.arange(chain.n)

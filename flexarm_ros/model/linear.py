@@ -18,6 +18,10 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.differentiate import REL_STEP, jacobian
 
+#: h·|λ|max above which a fixed RK4 step is refused (re-exported by sim.step)
+RK4_STABILITY = 2.78
+#: h·|λ|max of the automatic RK4 step (re-exported by sim.step)
+RK4_AUTO = 1.5
 #: largest difference step of :func:`highest_rate` with backlash (the dead zone's kink)
 BACKLASH_MAX_STEP = 1e-9
 #: a mode is rigid when its ω² is within this fraction of ‖K_t‖₂·‖v‖² (:func:`rigid_modes`)
@@ -115,3 +119,22 @@ def highest_rate(chain, q0, qd0, z0=None) -> float:
         Jm = jacobian(lambda x: chain.rhs(0.0, x), x0, max_step=max_step)
         worst = max(worst, float(np.abs(np.linalg.eigvals(Jm)).max()))
     return worst
+
+
+def smooth_rhs(chain) -> bool:
+    """True when the model's right-hand side is smooth between input jumps, so its stable
+    step, taken from the linearization at the start, holds over the run and RK4 may step
+    past the output period (dense output). Not so with backlash (the dead zone's kinks)
+    or a hydraulic actuator (the orifice flow ∝ √(P_S − p) stiffens without bound as the
+    pressure nears the supply): their automatic step stays capped by the output period."""
+    from flexarm_ros.model import drives
+    return not chain.backlash and all(a.kind != drives.HYDRAULIC for a in chain.actuators)
+
+
+def grid_step(h, output_dt, dense=False):
+    """The step RK4 takes when asked for h: above the output period only with ``dense``
+    output (kept as is), else shortened to the largest whole fraction of the period."""
+    if dense and h > output_dt:
+        return h            # above the output period: dense output
+    h = min(h, output_dt)
+    return output_dt / np.ceil(output_dt / h - 1e-9)

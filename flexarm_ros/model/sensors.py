@@ -141,6 +141,17 @@ def sample_grid_ns(periods_s) -> int:
     return g
 
 
+def output_period(scene) -> float:
+    """A batch run's sample period: fidelity.output_dt, or the common grid of it and the
+    declared sensors' periods (``flexarm simulate`` refuses a grid finer than 1 µs; here
+    fidelity.output_dt stands in for it)."""
+    fid = scene.fidelity
+    if not scene.sensors:
+        return fid.output_dt
+    ns = sample_grid_ns([fid.output_dt] + [1.0 / s.rate_hz for s in scene.sensors])
+    return ns * 1e-9 if ns >= 1000 else fid.output_dt
+
+
 def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None) -> dict:
     """Per sample rate: a table {'t': …, column: …} of every sensor at that rate, from the
     run's samples (the run's grid must contain every sensor's sample times). ``qdd_fn(k, t,

@@ -95,8 +95,10 @@ def _drive_derivatives(a, w, z):
     return 0.0, eta * D_m, 0.0, -gain * D_m, gain * (dq_dp - ctm), gain * dq_di
 
 
-def linearize(chain) -> StateSpace:
-    """The linear model of ``chain`` about the scene's initial state (see module doc)."""
+def linearize(chain, outputs: bool = True) -> StateSpace:
+    """The linear model of ``chain`` about the scene's initial state (see module doc).
+    ``outputs=False`` leaves C, D and the output names empty (A and B only: the automatic
+    fidelity's analysis, :mod:`flexarm_ros.model.autofidelity`)."""
     q0, qd0, z0 = initial_state(chain)
     if np.any(qd0 != 0.0):
         moving = [chain.names[i] for i in np.nonzero(qd0)[0]]
@@ -110,7 +112,9 @@ def linearize(chain) -> StateSpace:
     M = kin.M[np.ix_(free, free)]
     x0 = np.concatenate([q0[free], qd0[free], z0])
     qdd0 = chain.full_qdd(0.0, x0) if na == 0 else _qdd_zero_input(chain, q0, z0)
-    Kt = tangent_stiffness(chain, q0)                     # −∂(Q_g − h − K q)/∂q, all coords
+    # −∂(Q_g − h − K q)/∂q, all coords: at rest h = 0 to first order, so without gravity
+    # K_t is the elastic K itself (as natural_modes takes it)
+    Kt = tangent_stiffness(chain, q0) if chain.has_gravity else chain.K.copy()
     Dt = chain.D.copy()
     for im, ij, b, k, c in chain.backlash:                # engaged mesh springs
         if abs(q0[im] - q0[ij]) > b:
@@ -146,9 +150,12 @@ def linearize(chain) -> StateSpace:
     A[2 * nf:, 2 * nf:] = Zz
     B[nf:2 * nf] = Minv @ Bu[free]
     B[2 * nf:] = Zu
-    C, D, outputs, out_units = _outputs(chain, q0, kin, A, B, nf, qdd0)
+    if outputs:
+        C, D, names, out_units = _outputs(chain, q0, kin, A, B, nf, qdd0)
+    else:
+        C, D, names, out_units = np.zeros((0, ns)), np.zeros((0, na)), [], []
     inputs = [f"{chain.links[a.link].name}_{a.input_kind}" for a in chain.actuators]
-    return StateSpace(A, B, C, D, chain.state_labels(), inputs, outputs, x0,
+    return StateSpace(A, B, C, D, chain.state_labels(), inputs, names, x0,
                       chain.state_units(), [INPUT_UNITS[a.input_kind] for a in chain.actuators],
                       out_units)
 

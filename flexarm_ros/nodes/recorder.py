@@ -136,7 +136,12 @@ class RecorderNode(Node):
         from flexarm_ros.model.explain import explain
         ns = self.get_namespace()
         over = fidelity_overrides(self.p)
-        info = {"scene": scene.name, "scene_yaml": scene_yaml(self.p["scene"], over),
+        embed = dict(over)
+        if scene.fidelity.rung == "auto":       # the model that runs, for whoever rebuilds it
+            from flexarm_ros.model.autofidelity import choose
+            c = choose(scene)
+            embed.update(rung=c.rung, refine=c.refine, dt=c.dt_request, tolerance=0.0)
+        info = {"scene": scene.name, "scene_yaml": scene_yaml(self.p["scene"], embed),
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],
                 "namespace": ns, "control_mode": scene.control.mode,
                 "fidelity_overrides": json.dumps(over, sort_keys=True)}

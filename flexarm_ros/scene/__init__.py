@@ -10,7 +10,7 @@ YAML files and finds the shipped scenes. Nothing here imports the rest of the pr
 from flexarm_ros.scene.loading import (DEFAULT_SCENE, config_dir, load_scene, load_scene_dict,
                                        resolve_scene_path, shipped_scenes)
 from flexarm_ros.scene.sections import (DRIVE_TYPES, INPUT_KINDS, INTEGRATORS, MOTION_PROGRAMS,
-                                        RUNGS, SENSOR_KINDS, TORQUE_PROGRAMS, Assumption,
+                                        RUNG_CHOICES, RUNGS, SENSOR_KINDS, TORQUE_PROGRAMS, Assumption,
                                         Backlash, Beam, BeamDamping, Control, Drive, Fidelity,
                                         Initial, Input, Joint, JointFlexibility, Link, Program,
                                         RigidBody, Sanding, Scene, Sensor, TipBody, Tool, Wall,
@@ -19,6 +19,7 @@ from flexarm_ros.scene.sections import (DRIVE_TYPES, INPUT_KINDS, INTEGRATORS, M
 __all__ = [
     "DEFAULT_SCENE", "config_dir", "load_scene", "load_scene_dict", "resolve_scene_path",
     "shipped_scenes", "DRIVE_TYPES", "INPUT_KINDS", "INTEGRATORS", "MOTION_PROGRAMS", "RUNGS",
+    "RUNG_CHOICES",
     "SENSOR_KINDS", "TORQUE_PROGRAMS", "Assumption", "Backlash", "Beam", "BeamDamping",
     "Control", "Drive", "Fidelity", "Initial", "Input", "Joint", "JointFlexibility", "Link",
     "Program", "RigidBody", "Sanding", "Scene", "Sensor", "TipBody", "Tool", "Wall",

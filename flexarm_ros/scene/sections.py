@@ -19,6 +19,10 @@ from flexarm_ros.errors import SceneError
 from flexarm_ros.scene.schema import from_mapping, param
 
 RUNGS = ("rigid", "cubic", "modal", "fem", "fd")
+#: what ``fidelity.rung`` / ``--rung`` accept: a rung of the ladder, or ``auto`` (the
+#: cheapest rung, refinement and RK4 step estimated to meet the tip tolerance,
+#: :mod:`flexarm_ros.model.autofidelity`)
+RUNG_CHOICES = RUNGS + ("auto",)
 INTEGRATORS = ("rk4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
 TORQUE_PROGRAMS = ("constant", "step", "pulse", "square", "piecewise_constant",
                    "piecewise_linear")
@@ -504,8 +508,11 @@ class Control:
 @dataclass(frozen=True, kw_only=True)
 class Fidelity:
     """Model and integrator choice: the rung of the ladder and how finely it is refined."""
-    rung: str = param("cubic", choices=RUNGS, doc="beam discretization")
-    refine: int = param(0, ge=0, doc="modes / elements / FD segments (0 → rung default)")
+    rung: str = param("cubic", choices=RUNG_CHOICES,
+                      doc="beam discretization; auto: the cheapest rung, refinement and RK4 "
+                          "step estimated to meet fidelity.tolerance (docs/accuracy.md)")
+    refine: int = param(0, ge=0, doc="modes / elements / FD segments (0 → rung default; "
+                                     "0 with rung auto, which chooses it)")
     modal_basis: str = param("tip_loaded", choices=("tip_loaded", "clamped_free"),
                              doc="modal rung: modes of the beam with or without its tip body")
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
@@ -516,9 +523,11 @@ class Fidelity:
     atol: float = param(1e-10, gt=0.0, doc="absolute tolerance (adaptive)")
     output_dt: float = param(1e-3, unit="s", gt=0.0, doc="sample period of the output")
     tolerance: float = param(0.0, unit="m", ge=0.0,
-                             doc="tip-position error bound of a batch run (rk4 without a "
-                                 "wall): the step is chosen from a step-halving estimate "
-                                 "(0: off; the step from dt)")
+                             doc="tip-position error bound of a batch run. With a named "
+                                 "rung (rk4 without a wall): the step is chosen from a "
+                                 "step-halving estimate (0: off; the step from dt). With "
+                                 "rung auto: the bound the rung, refinement and step are "
+                                 "chosen for (0: the default 1e-5 m)")
     motor_current: str = param("dynamic", choices=("dynamic", "quasi_static"),
                                doc="dc_motor with inductance: integrate the current as a "
                                    "state, or take it quasi-static (L/R far below the step)")
@@ -535,6 +544,20 @@ class Fidelity:
                                  "this (duration / step, estimated before integrating) is "
                                  "refused with the eigenvalue and coordinate that set the "
                                  "step and what to change (--max-steps)")
+
+
+    def validate(self, where):
+        if self.rung != "auto":
+            return
+        key = f"{where}." if where else ""
+        if self.refine != 0:
+            raise SceneError(f"{key}refine: got {self.refine} with {key}rung 'auto', expected "
+                             f"0 (auto chooses the refinement; name a rung to set it, e.g. "
+                             f"--rung modal --refine {self.refine})")
+        if self.integrator != "rk4":
+            raise SceneError(f"{key}integrator: got {self.integrator!r} with {key}rung "
+                             f"'auto', expected rk4 (auto chooses the RK4 step; with an "
+                             f"adaptive or implicit integrator name the rung)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -732,6 +755,8 @@ class Scene:
         if not changes:
             return self
         data = dataclasses.asdict(self.fidelity)
+        if changes.get("rung") == "auto" and "refine" not in changes:
+            changes["refine"] = 0       # the scene's refinement belonged to its own rung
         data.update(changes)
         fid = from_mapping(Fidelity, data, "fidelity")
         return dataclasses.replace(self, fidelity=fid)

@@ -101,3 +101,110 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                          f"{h:.3g} s); loosen it or use --integrator dop853 with --rtol")
     est = e1 * (h / h1) ** 4 * growth
     return StepChoice(h, est, tol, h1, window, e1, h_stable)
+
+
+# ----------------------------------------------------------------- rung auto: the check
+#: the check's extrapolation from its window to the whole run uses the linear model's growth
+#: of the error; a large motion makes the error grow faster than the linearization says
+#: (measured: two_link_free, cubic, 2 s: 1.6× the linear growth), hence this factor
+POSTERIOR_SAFETY = 2.0
+
+
+@dataclass(frozen=True)
+class PosteriorCheck:
+    """The check after a rung-auto run (:mod:`flexarm_ros.model.autofidelity`): its first
+    ``window_s`` run again one level finer — the ``finer`` model, whose a-priori spatial
+    estimate is at most a quarter of the run's, at half the run's step (never above its own
+    stable step) — and the largest tip distance between the two (``observed_m``: spatial
+    and temporal error of the window together), scaled by ``growth`` to the whole run
+    (:attr:`AutoChoice.growth`) with the margin :data:`POSTERIOR_SAFETY`, plus the finer
+    model's own a-priori spatial estimate (``estimate_m``, by the triangle inequality)."""
+    finer: str
+    window_s: float
+    step_s: float
+    observed_m: float
+    growth: float
+    estimate_m: float
+    wall_s: float
+    status: str = "ok"          # or why the check could not run (the a-priori estimate stands)
+
+
+def posterior_check(scene, auto, columns, run_step, T) -> PosteriorCheck:
+    """The check of an auto run of ``scene`` (the chosen model) over ``T`` s: ``columns``
+    are its output columns (tip_x, tip_y every fidelity.output_dt), ``run_step`` its step."""
+    import time
+    from flexarm_ros.errors import SimulationDiverged
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.contact import build_contact
+    from flexarm_ros.model.statics import initial_x
+    from flexarm_ros.sim.integrate import integrate
+    t0 = time.perf_counter()
+    if auto.finer is None:
+        return PosteriorCheck("", 0.0, 0.0, math.nan, auto.growth, math.nan, 0.0,
+                              "no finer model on the ladder")
+    rung, refine, stable, finer_error = auto.finer
+    label = rung if rung in ("rigid", "cubic") else f"{rung} {refine}"
+    window = min(auto.window_s, T)
+    fid = scene.fidelity
+    h = min(0.5 * run_step, stable)
+    try:
+        sc = scene.with_fidelity(rung=rung, refine=refine, dt=h, tolerance=0.0)
+        chain = Chain(sc)
+        x0 = initial_x(chain)
+        contact = build_contact(chain)
+        if contact is None:
+            run = integrate(chain, x0, window, "rk4", h, output_dt=fid.output_dt,
+                            max_deflection_ratio=fid.max_deflection_ratio)
+        else:
+            from flexarm_ros.sim.simulate import integrate_with_contact
+            run, _ = integrate_with_contact(chain, contact, x0, window, fid.output_dt)
+        tip = chain.energies(run.t, run.q, run.qd, run.z)[1]
+    except (SceneError, SimulationDiverged) as exc:
+        return PosteriorCheck(label, window, h, math.nan, auto.growth, math.nan,
+                              time.perf_counter() - t0,
+                              "not run: " + " ".join(str(exc).split()))
+    k = min(len(tip), len(columns["tip_x"]))
+    mine = np.c_[columns["tip_x"][:k], columns["tip_y"][:k]]
+    observed = float(np.max(np.linalg.norm(mine - tip[:k], axis=1)))
+    # |run − truth| ≤ |run − finer| + |finer − truth|: the finer model's own a-priori
+    # spatial estimate is added
+    return PosteriorCheck(label, float(run.t[k - 1]), float(run.dt), observed, auto.growth,
+                          POSTERIOR_SAFETY * observed * auto.growth + finer_error,
+                          time.perf_counter() - t0)
+
+
+def auto_summary(auto, check) -> dict:
+    """The run summary's keys of a rung-auto run: the choice, the estimate and its basis."""
+    ok = check is not None and check.status == "ok"
+    est = check.estimate_m if ok else auto.estimated_m
+    if ok:
+        basis = (f"a posteriori, spatial + temporal: the first {check.window_s:.3g} s again "
+                 f"with {check.finer} at {check.step_s:.3g} s; their difference "
+                 f"{check.observed_m:.2g} m times {check.growth:.3g} (the linear model's "
+                 f"growth of the error to the end) times {POSTERIOR_SAFETY:g} (margin for "
+                 f"large motions) plus {check.finer}'s own a-priori spatial estimate")
+    else:
+        basis = "a priori (linearized model): spatial" + (
+            "" if auto.wall else " + temporal") + (
+            f"; the check did not run: {check.status}" if check is not None else "")
+    if auto.wall:
+        basis += "; with a wall: free flight only, the impacts are not covered"
+    detail = auto.as_dict()
+    if check is not None:
+        detail["check"] = {"finer": check.finer, "window_s": check.window_s,
+                           "step_s": check.step_s, "observed_m": _num(check.observed_m),
+                           "growth": check.growth, "estimate_m": _num(check.estimate_m),
+                           "wall_s": check.wall_s, "status": check.status}
+    met = bool(est <= auto.tolerance_m)
+    out = {"tolerance_m": auto.tolerance_m, "estimated_tip_error_m": est,
+           "a_priori_tip_error_m": auto.estimated_m, "estimate": basis,
+           "tolerance_met": met, "auto": detail}
+    if not met:
+        out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
+                          f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}); tighten "
+                          f"--tolerance or name a finer rung")
+    return out
+
+
+def _num(v):
+    return None if isinstance(v, float) and math.isnan(v) else v

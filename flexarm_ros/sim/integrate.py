@@ -21,9 +21,9 @@ from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled.layout import Workspace
-from flexarm_ros.model import drives
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.differentiate import jacobian
+from flexarm_ros.model.linear import smooth_rhs
 from flexarm_ros.model.programs import torque_breakpoints
 from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.step import choose_step, rk4_step
@@ -209,12 +209,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
 
 
 def smooth(chain) -> bool:
-    """True when the model's right-hand side is smooth between input jumps, so its stable
-    step, taken from the linearization at the start, holds over the run and RK4 may step
-    past the output period (dense output). Not so with backlash (the dead zone's kinks)
-    or a hydraulic actuator (the orifice flow ∝ √(P_S − p) stiffens without bound as the
-    pressure nears the supply): their automatic step stays capped by the output period."""
-    return not chain.backlash and all(a.kind != drives.HYDRAULIC for a in chain.actuators)
+    """:func:`flexarm_ros.model.linear.smooth_rhs`: RK4 may step past the output period."""
+    return smooth_rhs(chain)
 
 
 def input_breakpoints(chain, t_end: float) -> list[float]:

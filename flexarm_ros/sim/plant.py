@@ -68,7 +68,11 @@ class Plant:
 
     def __init__(self, scene, duration: float | None = None):
         self.scene = scene
-        self.chain = ch = Chain(plant_scene(scene))
+        # rung auto is chosen on the scene as given (its drives and input programs are the
+        # excitation; plant_scene replaces them by held torques)
+        from flexarm_ros.model.autofidelity import resolve
+        resolved, self.auto = resolve(scene)
+        self.chain = ch = Chain(plant_scene(resolved))
         self.contact = build_contact(ch)
         q0, qd0, _ = initial_state(ch)
         self.q_initial = q0.copy()

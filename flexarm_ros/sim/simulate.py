@@ -14,7 +14,8 @@ from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact, check_integrator
-from flexarm_ros.model.sensors import build_sensors, sample_grid_ns, sensor_tables
+from flexarm_ros.model.sensors import (build_sensors, output_period, sample_grid_ns,
+                                       sensor_tables)
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.budget import check_output, check_work
 from flexarm_ros.sim.contact_stepper import integrate_contact
@@ -33,29 +34,43 @@ class SimResult:
     sensor_tables: dict = None   # rate (Hz) -> {'t': …, sensor columns} (declared sensors)
     contact: object = None       # contact.ContactRun of a scene with a wall
     accuracy: object = None      # accuracy.StepChoice when fidelity.tolerance chose the step
+    auto: object = None          # autofidelity.AutoChoice when the scene said rung auto
+    check: object = None         # accuracy.PosteriorCheck of an auto run
 
     def summary(self) -> dict:
         r = self.run
         sim = float(r.t[-1]) if len(r.t) else 0.0
-        return {"scene": self.scene_name, "status": r.status, "message": r.message,
-                "success": r.success, "sim_time_s": sim, "wall_time_s": r.wall_time_s,
-                "real_time_factor": sim / r.wall_time_s if r.wall_time_s > 0 else float("inf"),
-                "rhs_evaluations": r.rhs_evaluations, "steps": r.steps, "dt": r.dt,
-                "rung": self.chain.fidelity.rung, "coordinates": list(self.chain.names),
-                "integrator": self.chain.fidelity.integrator,
-                "refine": self.chain.fidelity.refine, "step_s": r.dt,
-                "tolerance_m": self.accuracy.tolerance_m if self.accuracy else None,
-                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
-                                          if self.accuracy else None)}
+        out = {"scene": self.scene_name, "status": r.status, "message": r.message,
+               "success": r.success, "sim_time_s": sim, "wall_time_s": r.wall_time_s,
+               "real_time_factor": sim / r.wall_time_s if r.wall_time_s > 0 else float("inf"),
+               "rhs_evaluations": r.rhs_evaluations, "steps": r.steps, "dt": r.dt,
+               "rung": self.chain.fidelity.rung, "coordinates": list(self.chain.names),
+               "integrator": self.chain.fidelity.integrator,
+               "refine": self.chain.fidelity.refine, "step_s": r.dt,
+               "tolerance_m": self.accuracy.tolerance_m if self.accuracy else None,
+               "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
+                                         if self.accuracy else None)}
+        if self.accuracy:
+            out["estimate"] = "a priori: RK4 step halving (temporal only, the rung's own)"
+        if self.auto is not None:
+            from flexarm_ros.sim.accuracy import auto_summary
+            out.update(auto_summary(self.auto, self.check))
+        return out
 
 
 def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     """Run ``scene`` (fidelity already applied) for ``duration`` seconds."""
-    chain = chain or Chain(scene)
-    fid = scene.fidelity
     T = scene.duration if duration is None else duration
     if not (T > 0 and math.isfinite(T)):
         raise SceneError(f"duration: got {T}, expected a finite number > 0 s")
+    auto = None
+    if chain is not None and chain.auto is not None:
+        scene, auto = chain.scene, chain.auto
+    elif scene.fidelity.rung == "auto":         # the model and step for this run's length
+        from flexarm_ros.model.autofidelity import resolve
+        scene, auto = resolve(scene, T, output_period(scene))
+    chain = chain or Chain(scene)
+    fid = scene.fidelity
     if fid.output_dt > T:
         raise SceneError(f"fidelity.output_dt: got {fid.output_dt} s, expected at most the "
                          f"run's duration {T:g} s (the output would hold the start sample "
@@ -95,7 +110,11 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     cols = output_columns(chain, run)
     if crun is not None:
         cols.update(contact_columns(crun, every))
-    return SimResult(scene.name, chain, run, cols, tables, crun, choice)
+    check = None
+    if auto is not None:
+        from flexarm_ros.sim.accuracy import posterior_check
+        check = posterior_check(scene, auto, cols, run.dt, T)
+    return SimResult(scene.name, chain, run, cols, tables, crun, choice, auto, check)
 
 
 def _step_for_tolerance(chain, contact, x0, T, out_dt):

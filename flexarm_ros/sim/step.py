@@ -16,12 +16,9 @@ import numpy as np
 from flexarm_ros.errors import StepTooLarge
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.contact import constrained_rate
-from flexarm_ros.model.linear import highest_rate
+from flexarm_ros.model.linear import RK4_AUTO, RK4_STABILITY, grid_step, highest_rate
 
-#: h·|λ|max above which a fixed RK4 step is refused
-RK4_STABILITY = 2.78
-#: h·|λ|max of the automatic RK4 step
-RK4_AUTO = 1.5
+__all__ = ["RK4_AUTO", "RK4_STABILITY", "choose_step", "grid_step", "rk4_step"]
 
 
 def rk4_step(f, t, x, h, quadrature: bool = False):
@@ -81,10 +78,7 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
         h = dt
     else:
         h = RK4_AUTO / rate if rate > 0 else output_dt
-    if dense and contact is None and h > output_dt:
-        return h            # above the output period: dense output
-    h = min(h, output_dt)
-    h = output_dt / np.ceil(output_dt / h - 1e-9)
+    h = grid_step(h, output_dt, dense and contact is None)
     if contact is None or contact.method == "compliant":
         return h
     rate = constrained_rate(contact, x0)

@@ -386,7 +386,11 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     in the workers, with the same errors, frequencies and step counts, but rows that run
     side by side share the machine, so their ``wall_s_per_sim_s`` (and the Pareto flags
     drawn from it) measure a loaded machine; the default keeps one run at a time.
+    A scene with rung auto is studied about the model auto chooses for it.
     """
+    if scene.fidelity.rung == "auto":
+        from flexarm_ros.model.autofidelity import resolve
+        scene = resolve(scene)[0].with_fidelity(dt=0.0)
     if scene.walls:
         from flexarm_ros.studies.contact import run_contact_study
         rows = run_contact_study(scene, duration, quick, progress, executor=executor)

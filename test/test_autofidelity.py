@@ -1,0 +1,181 @@
+"""Rung auto (issue 14 item 3): the cheapest rung, refinement and RK4 step estimated to meet a
+tip tolerance, checked against an independent truth — a finer FEM mesh, integrated by
+DOP853 at rtol 1e-10 or by RK4 at its stable step (FEM's stiff element modes hold the
+explicit step far below the periods that move the tip, so the time error is negligible
+next to the tolerance; docs/ladder.md) — and the refusals of what auto cannot do."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from flexarm_ros.cli import main
+from flexarm_ros.model import autofidelity
+from flexarm_ros.model.chain import Chain
+from flexarm_ros.scene import load_scene, load_scene_dict
+from flexarm_ros.sim.simulate import simulate
+
+
+def _tip(res) -> np.ndarray:
+    return np.c_[res.columns["tip_x"], res.columns["tip_y"]]
+
+
+def _err(res, ref) -> float:
+    return float(np.max(np.linalg.norm(_tip(res) - _tip(ref), axis=1)))
+
+
+@pytest.mark.parametrize("name,duration,tol,truth", [
+    # seed 001 link with tip mass: auto takes 2 modes for 1 s at the default 1e-5 m
+    ("link_tipmass", 1.0, 0.0, {"rung": "fem", "refine": 8}),
+    # seed 000 two-link arm: cubic (its heavy tip bodies make the cubic shape nearly exact)
+    ("two_link_free", 1.0, 0.0, {"rung": "fem", "refine": 6}),
+    # a tighter tolerance on the flexible-joint link
+    ("link_flexjoint", 1.0, 1e-7, {"rung": "fem", "refine": 6, "integrator": "dop853",
+                                   "rtol": 1e-10, "atol": 1e-12}),
+])
+def test_auto_meets_its_tolerance_against_a_converged_reference(name, duration, tol, truth):
+    sc = load_scene(name)
+    res = simulate(sc.with_fidelity(rung="auto", tolerance=tol), duration)
+    ref = simulate(sc.with_fidelity(**truth), duration)
+    s = res.summary()
+    err = _err(res, ref)
+    assert err <= s["tolerance_m"], (s["rung"], s["refine"], err)
+    assert s["tolerance_met"] and err <= s["estimated_tip_error_m"] * 2, s
+    assert s["rung"] != "auto" and s["integrator"] == "rk4" and s["step_s"] == res.run.dt
+    # the default is no worse than the scene's own rung where that rung also meets it
+    own = simulate(sc, duration)
+    if _err(own, ref) <= s["tolerance_m"]:
+        assert res.run.rhs_evaluations <= own.run.rhs_evaluations * 1.01
+
+
+def test_the_linear_estimates_track_the_nonlinear_errors():
+    """link_tipmass, 1 s: every analysed candidate's a-priori spatial estimate lies within a
+    factor 2.5 of its measured nonlinear error against FEM 8 (at its own stable step), and the
+    chosen candidate's temporal estimate within a factor 3 of RK4's measured error against
+    the same model by DOP853."""
+    sc = load_scene("link_tipmass")
+    T = 1.0
+    choice = autofidelity.choose(sc.with_fidelity(rung="auto"), T)
+    ref = simulate(sc.with_fidelity(rung="fem", refine=8), T)
+    checked = 0
+    for c in choice.candidates:
+        if c.rung != "modal" or np.isnan(c.spatial_m) or c.refine > 4:
+            continue
+        run = simulate(sc.with_fidelity(rung=c.rung, refine=c.refine,
+                                        integrator="dop853", rtol=1e-10, atol=1e-12), T)
+        err = _err(run, ref)
+        assert err / 2.5 <= c.spatial_m <= 2.5 * err + 2e-7, (c.label, c.spatial_m, err)
+        checked += 1
+    assert checked >= 2
+    chosen = simulate(sc.with_fidelity(rung=choice.rung, refine=choice.refine,
+                                       dt=choice.step_s), T)
+    exact = simulate(sc.with_fidelity(rung=choice.rung, refine=choice.refine,
+                                      integrator="dop853", rtol=1e-12, atol=1e-14), T)
+    e_t = _err(chosen, exact)
+    assert e_t / 3 <= choice.temporal_m <= 3 * e_t, (choice.temporal_m, e_t)
+
+
+def test_simulate_json_reports_the_choice_and_the_estimate(tmp_path, capsys):
+    code = main(["simulate", "link_flexjoint", "--rung", "auto", "--duration", "0.5",
+                 "--json", "--quiet", "--out", str(tmp_path / "x.npz")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert out["rung"] in ("rigid", "cubic", "modal", "fem", "fd") and out["refine"] >= 0
+    assert out["integrator"] == "rk4" and out["step_s"] > 0
+    assert 0 < out["estimated_tip_error_m"] <= out["tolerance_m"] == 1e-5
+    assert out["estimate"].startswith("a posteriori, spatial + temporal")
+    assert out["tolerance_met"] is True
+    auto = out["auto"]
+    assert auto["tolerance_source"] == "default" and auto["check"]["status"] == "ok"
+    assert any(c["verdict"].startswith("chosen") for c in auto["candidates"])
+
+
+def test_explain_says_what_was_chosen_and_why(capsys):
+    assert main(["explain", "link_tipmass", "--rung", "auto"]) == 0
+    text = capsys.readouterr().out
+    assert "rung modal (refine 3), integrator rk4, automatic step — chosen by rung auto" in text
+    assert "rung auto: chose modal 3" in text and "tolerance of 1e-05 m (the default)" in text
+    for line in ("modal 2", "modal 3", "rigid", "cubic"):
+        assert any(row.strip().startswith(line) for row in text.splitlines()), line
+    assert "spatial estimate above 0.5 TOL" in text and "pruned" in text
+    assert "after a run: the first 0.3 s again with modal" in text
+
+
+def test_a_wall_scene_gets_a_rung_and_keeps_the_contact_steppers_step():
+    sc = load_scene("two_link_case1")
+    res = simulate(sc.with_fidelity(rung="auto"), 0.3)
+    own = simulate(sc, 0.3)
+    s = res.summary()
+    assert s["rung"] == "cubic" and res.run.dt == own.run.dt
+    assert "with a wall: free flight only" in s["estimate"]
+    assert s["auto"]["a_priori_temporal_m"] is None
+
+
+def test_every_model_built_from_an_auto_scene_is_the_chosen_one():
+    """Chain (modes, linearize, the ROS twin's nodes) and the twin's plant — which replaces
+    the drives and programs by held torques — resolve auto on the scene as given."""
+    from flexarm_ros.sim.plant import Plant
+    sc = load_scene("link_tipmass").with_fidelity(rung="auto")
+    ch = Chain(sc)
+    assert (ch.fidelity.rung, ch.fidelity.refine) == ("modal", 3) and ch.auto is not None
+    plant = Plant(sc)
+    assert (plant.chain.fidelity.rung, plant.chain.fidelity.refine) == ("modal", 3)
+
+
+def test_a_named_rung_overrides_auto_and_the_scene_refinement_does_not_leak():
+    sc = load_scene("link_tipmass")                 # modal, refine 3
+    auto = sc.with_fidelity(rung="auto")
+    assert auto.fidelity.refine == 0
+    assert auto.with_fidelity(rung="fd", refine=10).fidelity.refine == 10
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["--rung", "auto", "--refine", "3"], ("fidelity.refine", "3", "'auto'", "expected 0")),
+    (["--rung", "auto", "--integrator", "dop853"],
+     ("fidelity.integrator", "'dop853'", "expected rk4")),
+    (["--rung", "auto", "--tolerance", "1e-13"],
+     ("fidelity.tolerance", "1e-13", "expected a tolerance", "loosen")),
+    (["--rung", "auto", "--tolerance", "-1"], ("tolerance", "-1")),
+    (["--rung", "automatic"], ("--rung", "automatic", "auto")),
+])
+def test_bad_values_are_refused_in_one_line(argv, words, capsys):
+    try:
+        code = main(["simulate", "link_flexjoint", *argv, "--duration", "0.2", "--quiet"])
+    except SystemExit as exc:                   # argparse's refusal of an unknown choice
+        code = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and all(w in err[0] for w in words), err
+
+
+def test_auto_refuses_a_scene_only_its_controller_moves(capsys):
+    code = main(["simulate", "two_link_position", "--rung", "auto", "--duration", "0.1",
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "control.mode 'position'" in err and "named rung" in err
+
+
+def test_a_scene_file_with_auto_and_a_refinement_is_refused():
+    import yaml
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.scene import resolve_scene_path
+    data = yaml.safe_load(resolve_scene_path("link").read_text())
+    data["fidelity"].update(rung="auto", refine=2)
+    with pytest.raises(SceneError, match=r"fidelity\.refine: got 2 with fidelity\.rung "
+                                         r"'auto', expected 0"):
+        load_scene_dict(data)
+
+
+def test_the_block_recurrence_equals_the_step_by_step_one():
+    rng = np.random.default_rng(3)
+    ns = 5
+    P = {0.001: np.eye(ns) + 0.01 * rng.standard_normal((ns, ns)),
+         0.0005: np.eye(ns) + 0.01 * rng.standard_normal((ns, ns))}
+    keys = np.array([0.001] * 70 + [0.0005] * 3 + [0.001] * 40)
+    G = np.repeat(rng.standard_normal((3, ns)), [50, 23, 40], axis=0)
+    X = autofidelity._recur(P, keys, G, ns)
+    x = np.zeros(ns)
+    for k in range(len(keys)):
+        x = P[keys[k]] @ x + G[k]
+        np.testing.assert_allclose(X[k + 1], x, rtol=1e-12, atol=1e-12)

@@ -44,9 +44,12 @@ def test_auto_meets_its_tolerance_against_a_converged_reference(name, duration, 
     assert err <= s["tolerance_m"], (s["rung"], s["refine"], err)
     assert s["tolerance_met"] and err <= s["estimated_tip_error_m"] * 2, s
     assert s["rung"] != "auto" and s["integrator"] == "rk4" and s["step_s"] == res.run.dt
-    # the default is no worse than the scene's own rung where that rung also meets it
+    # auto is no worse than the scene's own rung where that rung also meets auto's own
+    # admission margin, TOL/2 (docs/accuracy.md). Between TOL/2 and TOL auto takes a finer
+    # model by design: two_link_free with the derived seed 000 geometry, cubic 5.8e-6 m
+    # measured against FEM 6 (auto's estimate 6.6e-6 m) at TOL = 1e-5 m, takes fem 2.
     own = simulate(sc, duration)
-    if _err(own, ref) <= s["tolerance_m"]:
+    if _err(own, ref) <= 0.5 * s["tolerance_m"]:
         assert res.run.rhs_evaluations <= own.run.rhs_evaluations * 1.01
 
 
@@ -104,11 +107,16 @@ def test_explain_says_what_was_chosen_and_why(capsys):
 
 
 def test_a_wall_scene_gets_a_rung_and_keeps_the_contact_steppers_step():
+    """The rung from the free flight (with the derived seed 000 geometry cubic's estimate,
+    6.6e-6 m, is above TOL/2: fem 2), the step the contact stepper takes for that named
+    rung."""
     sc = load_scene("two_link_case1")
     res = simulate(sc.with_fidelity(rung="auto"), 0.3)
-    own = simulate(sc, 0.3)
     s = res.summary()
-    assert s["rung"] == "cubic" and res.run.dt == own.run.dt
+    assert s["rung"] in ("cubic", "modal", "fem") and s["refine"] is not None
+    named = simulate(sc.with_fidelity(rung=s["rung"], refine=s["refine"]), 0.3)
+    assert res.run.dt == named.run.dt
+    np.testing.assert_array_equal(res.columns["tip_x"], named.columns["tip_x"])
     assert "with a wall: free flight only" in s["estimate"]
     assert s["auto"]["a_priori_temporal_m"] is None
 

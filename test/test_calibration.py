@@ -334,3 +334,19 @@ def test_a_natural_frequency_target_fits_the_stiffness(capsys, record):
     code, _, err = _cli(capsys, str(scene), "--param", f"{EI}=500:8000", "--target",
                         "mode:0=3+-0.1", "--workers", "0")
     assert code == 2 and "K >= 1" in err
+
+
+def test_a_diverging_sample_is_penalized_with_a_warning_never_a_crash(base):
+    """EI = 0.15 N·m² lets the 3 V motor bend the link past max_deflection_ratio at
+    0.38 s (a SimulationDiverged): the start's residual is the penalty (1e3 σ), the
+    warning names the status and the values, and the fit returns."""
+    from flexarm_ros.calibration.observables import FeatureTarget
+    from flexarm_ros.calibration.task import PENALTY
+    start = set_keys(base, {EI: 0.15})
+    case = Case("soft", start, DURATION, [], [FeatureTarget("value:link1_joint@0.4", 0.5,
+                                                            1e-3)])
+    out = calibrate(Problem([make_param([EI], 0.1, 8000.0, None, start)], [case]))
+    assert out["cost_before"] == pytest.approx(0.5 * PENALTY ** 2)
+    assert any("diverged" in w and "links[0].beam.EI=0.15" in w and "penalty" in w
+               for w in out["warnings"])
+    assert len(out["parameters"]) == 1 and out["evaluations"] >= 2

@@ -9,7 +9,8 @@
   ratio, and the ratio itself recovered;
 * bad input exits 2 with the key, the value and the expectation; a sample the scene
   refuses inside the bounds is a penalized residual and a warning, not a crash;
-* the same fit on the Dask runner (two worker processes) gives the same values.
+* the same fit on the Dask runner (two worker processes) gives the same values (to
+  round-off: the workers' BLAS is single-threaded).
 """
 
 import json
@@ -251,9 +252,12 @@ def test_the_dask_runner_gives_the_same_fit(base, truth_run):
     serial = calibrate(problem)
     with open_executor(2) as ex:
         dask = calibrate(problem, ex)
-    assert [p["value"] for p in dask["parameters"]] == [p["value"] for p in
-                                                       serial["parameters"]]
-    assert dask["evaluations"] == serial["evaluations"]
+    # equal to round-off, not to the bit: Dask workers run numpy's BLAS single-threaded,
+    # the serial executor with this process's threads (measured on a fresh CI clone:
+    # 3e-12 relative after the iterations; to the bit on a warm machine)
+    np.testing.assert_allclose([p["value"] for p in dask["parameters"]],
+                               [p["value"] for p in serial["parameters"]], rtol=1e-9)
+    assert abs(dask["evaluations"] - serial["evaluations"]) <= 3
 
 
 def test_spec_form_shares_parameters_between_cases(capsys, record, truth_run):
@@ -350,3 +354,28 @@ def test_a_diverging_sample_is_penalized_with_a_warning_never_a_crash(base):
     assert any("diverged" in w and "links[0].beam.EI=0.15" in w and "penalty" in w
                for w in out["warnings"])
     assert len(out["parameters"]) == 1 and out["evaluations"] >= 2
+
+
+@pytest.mark.parametrize("target, expect", [
+    ("mode:9=25+-0.1", "fewer than 9 natural frequencies"),
+    ("impact_time=2.1+-0.01", "no wall"),
+    ("value:link1_joint@9=0.5+-0.01", "inside the run"),
+    ("frequency:tip_z=25+-1", "channel 'tip_z' not in the run"),
+    ("mode1=25+-1", "mode:K"),
+])
+def test_targets_the_scene_cannot_give_exit_2_before_the_fit(capsys, record, target, expect):
+    d, scene, _ = record
+    code, _, err = _cli(capsys, str(scene), "--param", f"{EI}=500:8000", "--target", target,
+                        "--workers", "0")
+    assert code == 2 and expect in err, err
+
+
+def test_starts_that_end_in_other_valleys_raise_a_warning(base, truth_run):
+    """The tip record's cost in EI has valleys a few percent apart (a phase wrap per
+    period): from starts spread over the box some end elsewhere, and the fit says so."""
+    start = set_keys(base, {R: 1.2, EI: 1950.0})
+    out = calibrate(Problem(_params(start), [_case(start, truth_run, 7)]), starts=4, seed=0,
+                    max_evaluations=15)
+    ends = [s["value"][1] for s in out["starts"]]
+    assert max(ends) / min(ends) > 1.05, ends
+    assert any("other valleys" in w for w in out["warnings"]), out["warnings"]

@@ -169,7 +169,7 @@ def _text(out: dict) -> str:
              f"{out['cost_after']:.6g} ({out['evaluations']} simulations, "
              f"{out['wall_s']:.1f} s)"]
     for p in out["parameters"]:
-        unit = f" {p['unit']}" if p["unit"] else ""
+        unit = f" {p['unit']}" if p["unit"] and p["unit"] != "1" else ""
         if p["identifiable"]:
             lo, hi = p["ci95"]
             lines.append(f"  {p['key']} = {p['value']:.6g}{unit} ± {p['stderr']:.3g} "

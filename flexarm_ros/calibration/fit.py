@@ -194,9 +194,16 @@ def calibrate(problem: Problem, executor=None, starts: int = 1, seed: int = 0,
     J = _jacobian(ev, zb, diff_step)
     stats = analyse(J, after["r"], problem.params, zb, problem.absolute, problem.blocks())
     wall = time.perf_counter() - t0
+    for i, r in enumerate(runs):
+        if r["status"] == 0:
+            ev.warnings.append(f"start {i + 1} stopped at the evaluation limit "
+                               f"({r['nfev']}) before converging: raise --max-evaluations")
     fit = goodness_of_fit(after["r"], n, problem.absolute)
     if fit.get("warning"):
         ev.warnings.append(fit["warning"])
+    spread = disagreeing_starts(runs, best, stats["parameters"])
+    if spread:
+        ev.warnings.append(spread)
     return {"parameters": stats["parameters"],
             "cost_before": 0.5 * float(before["r"] @ before["r"]),
             "cost_after": 0.5 * float(after["r"] @ after["r"]),
@@ -213,6 +220,29 @@ def calibrate(problem: Problem, executor=None, starts: int = 1, seed: int = 0,
             "warnings": list(dict.fromkeys(ev.warnings)),
             "residual_count": problem.size,
             "_z": zb, "_z0": first[0]}
+
+
+def disagreeing_starts(runs, best, params) -> str:
+    """A warning when other starts ended outside the best one's 95 % intervals: the cost
+    has several valleys (an oscillating record's phase wraps), the best found is reported,
+    and a deeper one may exist that no start reached."""
+    if len(runs) < 2:
+        return ""
+    out = []
+    for i, r in enumerate(runs):
+        if r is best:
+            continue
+        for p, v in zip(params, r["value"]):
+            lo_hi = p["ci95"]
+            if lo_hi is None or not lo_hi[0] <= v <= lo_hi[1]:
+                out.append(f"start {i + 1}: {p['key']} = {v:.6g}, cost {r['cost']:.6g}")
+                break
+    if not out:
+        return ""
+    return (f"{len(out)} of {len(runs)} starts ended in other valleys ({'; '.join(out)}; "
+            f"best cost {best['cost']:.6g}): the cost has several minima, the best found is "
+            f"reported and its intervals describe that valley only — a deeper one may exist; "
+            f"add observables that separate them (a frequency, mode:K) or narrow the bounds")
 
 
 def goodness_of_fit(r, n: int, absolute: bool) -> dict:

@@ -102,7 +102,12 @@ def parse_feature(text: str):
         raise SceneError(f"targets: got {text!r}, expected value:CHANNEL@TIME (e.g. "
                          f"value:link1_tip_deflection@2.0)")
     from flexarm_ros.ensemble.metrics import parse_metric
-    m = parse_metric(text)
+    try:
+        m = parse_metric(text)
+    except SceneError:
+        raise SceneError(f"targets: got {text!r}, expected impact_time, bounce_height, "
+                         f"max_tip_deflection, frequency:CH[@A:B], settling_time:CH, "
+                         f"energy_drift, value:CH@T or mode:K[@locked|@free]") from None
     if m.kind in ("final_error", "wall_s_per_sim_s"):
         raise SceneError(f"targets: got {text!r}, expected a feature with a value to meet: "
                          f"impact_time, bounce_height, max_tip_deflection, "

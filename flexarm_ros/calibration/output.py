@@ -62,8 +62,10 @@ def calibrated_mapping(case, out: dict, records: str) -> dict:
         for k in p["keys"]:
             text = note(p, out, records)
             if p["key"] not in p["keys"]:         # a factor on the scene's values
-                text = (f"{k} = {p['sets'][k]:.6g}: the scene's value × the factor "
-                        f"{p['key']}. " + text)
+                f = p["sets"][k] / p["value"] if p["value"] else 0.0
+                se = (f" ± {p['stderr'] * f:.3g}" if p["stderr"] is not None else "")
+                text = (f"{k} = {p['sets'][k]:.6g}{se} (1σ): the scene's value {f:.6g} × the "
+                        f"factor {p['key']}. " + text)
             notes.append({"key": k, "note": text})
     data["assumptions"] = notes
     load_scene_dict(data)
@@ -71,8 +73,11 @@ def calibrated_mapping(case, out: dict, records: str) -> dict:
 
 
 def write_scenes(problem, out: dict, target, spec: bool) -> list[Path]:
-    records = ", ".join(sorted({c.record for c in problem.cases if c.record})) or \
-        "feature targets"
+    parts = sorted({c.record for c in problem.cases if c.record})
+    feats = [f.metric for c in problem.cases for f in c.features]
+    if feats:
+        parts.append("the targets " + ", ".join(dict.fromkeys(feats)))
+    records = " and ".join(parts)
     paths = []
     for case in problem.cases:
         data = calibrated_mapping(case, out, records)

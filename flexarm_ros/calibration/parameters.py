@@ -107,9 +107,10 @@ def make_param(keys, low, high, start=None, scene=None, where: str = "--param") 
     else:
         origin = "the start"
     if not low <= start <= high:
+        hint = (f" (or give one: {name}={low:g}:{high:g}@START)" if origin != "the start"
+                else "")
         raise SceneError(f"{where} {name}: {origin} {start:g} lies outside the bounds "
-                         f"{low:g}:{high:g}, expected bounds that contain the start (or "
-                         f"give one: {name}={low:g}:{high:g}@START)")
+                         f"{low:g}:{high:g}, expected bounds that contain the start{hint}")
     log = low > 0 and high / low >= LOG_RATIO
     return CalParam(name, keys, float(low), float(high), float(start), unit, log)
 
@@ -154,10 +155,10 @@ def parse_param(text: str, scene=None) -> CalParam:
                       None if start is None else float(start), scene)
 
 
-def check_distinct(params) -> None:
+def check_distinct(params, where: str = "--param") -> None:
     seen = {}
     for p in params:
         for k in p.keys:
             if k in seen:
-                raise SceneError(f"--param {k}: given twice, expected each key once")
+                raise SceneError(f"{where} {k}: given twice, expected each key once")
             seen[k] = p

@@ -125,7 +125,7 @@ def write_report(problem, out: dict, directory) -> Path:
          "|---|---|---|---|---|---|---|"]
     for p in out["parameters"]:
         ci = (f"{_g(p['ci95'][0])} .. {_g(p['ci95'][1])}" if p["ci95"] else "—")
-        L.append(f"| `{p['key']}` | {_g(p['value'])} {p['unit']} | {_g(p['stderr'], 3)} | "
+        L.append(f"| `{p['key']}` | {_g(p['value'])} {'' if p['unit'] == '1' else p['unit']} | {_g(p['stderr'], 3)} | "
                  f"{ci} | {_g(p['start'])} | {p['low']:g} .. {p['high']:g} "
                  f"({p['scale']}) | {'yes' if p['identifiable'] else '**no**'}"
                  f"{' (at a bound)' if p['at_bound'] else ''} |")
@@ -141,6 +141,13 @@ def write_report(problem, out: dict, directory) -> Path:
         dirs = ", ".join(f"{k.split('.')[-1]} {x:+.2f}" for k, x in v.items()
                          if abs(x) >= 0.05)
         L.append(f"| {_g(s, 4)} | {_g(h, 3)} | {dirs} |")
+    names = [p["key"] for p in out["parameters"]]
+    if len(names) > 1:
+        L += ["", "## Correlation", "", "| | " + " | ".join(f"`{n}`" for n in names) + " |",
+              "|---|" + "---|" * len(names)]
+        for n, row in zip(names, st["correlation"]):
+            L.append(f"| `{n}` | " + " | ".join("n/a" if x is None else f"{x:+.3f}"
+                                                for x in row) + " |")
     L += ["", "## Observables before and after", "",
           "| case | observable | before | after | target / σ |", "|---|---|---|---|---|"]
     for r in out["observables"]:

@@ -105,6 +105,45 @@ def parse_window(value, where="window"):
     return a, b
 
 
+def check_targets(name, scene, duration, feats) -> None:
+    """Each feature can be evaluated on this scene before anything runs: a wall for the
+    impact and the bounce, the channel of a frequency, settling time or value in the run,
+    the time of a value inside it, the mode number among the model's; SceneError else."""
+    from flexarm_ros.calibration.observables import mode_frequency
+    channels = []
+    for i, f in enumerate(feats):
+        where = f"{name}: targets[{i}] {f.metric!r}"
+        pf = parse_feature(f.metric)
+        if isinstance(pf, tuple) and pf[0] == "mode":
+            if not math.isfinite(mode_frequency(scene, pf[1], pf[2])):
+                raise SceneError(f"{where}: the model has fewer than {pf[1]} natural "
+                                 f"frequencies (flexarm modes lists them), expected K within")
+            continue
+        if isinstance(pf, tuple):
+            if not 0.0 <= pf[2] <= duration:
+                raise SceneError(f"{where}: time {pf[2]:g} s, expected one inside the run "
+                                 f"0..{duration:g} s")
+            channels.append((pf[1], where))
+            continue
+        if pf.kind in ("impact_time", "bounce_height") and not scene.walls:
+            raise SceneError(f"{where}: the scene has no wall, expected a scene with walls "
+                             f"for {pf.kind}")
+        if pf.channel:
+            channels.append((pf.channel, where))
+    if channels:
+        from flexarm_ros.ensemble.metrics import channel
+        from flexarm_ros.sim.simulate import simulate
+        dt = scene.fidelity.output_dt
+        sensor_dt = max([1.0 / s.rate_hz for s in scene.sensors], default=dt)
+        with np.errstate(all="ignore"):
+            res = simulate(scene, min(duration, 2 * max(dt, sensor_dt)))
+        for ch, where in channels:
+            try:
+                channel(res, ch)
+            except KeyError as exc:
+                raise SceneError(f"{where}: {exc.args[0]}") from None
+
+
 def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=None,
               weights=None, window=None, offset="none", duration=None, targets=(),
               probe=None) -> Case:
@@ -127,6 +166,7 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
                 raise SceneError(f"{where}.{what}: got {x!r}, expected a finite number"
                                  f"{' > 0' if pos else ''}")
         feats.append(FeatureTarget(str(t["metric"]), float(v), float(s), float(w)))
+    check_targets(name, scene, duration, feats)
     series = []
     off = parse_offset(offset)
     if record is None:
@@ -156,6 +196,11 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
                                  f"{', '.join(sorted(twin))}")
     else:
         want = [c for c in cs.names if c in twin and c not in SKIP]
+        ignored = [c for c in cs.names if c not in twin and c not in SKIP]
+        if ignored:
+            import sys
+            print(f"calibrate: {name}: record channels the twin does not produce, not "
+                  f"fitted: {', '.join(ignored)}", file=sys.stderr)
         if not want:
             raise SceneError(f"{record}: no channel the twin also produces (record: "
                              f"{', '.join(cs.names) or 'none'}; twin: "
@@ -225,7 +270,9 @@ def load_spec(path):
     try:
         data = yaml.safe_load(p.read_text())
     except yaml.YAMLError as exc:
-        raise SceneError(f"spec: {p}: not YAML ({' '.join(str(exc).split())})") from None
+        hint = ("; a key path with [i] inside [ ] is not flow YAML: write a block list "
+                "(- links[0]...) or quote it" if "flow sequence" in str(exc) else "")
+        raise SceneError(f"spec: {p}: not YAML ({' '.join(str(exc).split())}){hint}") from None
     data = _mapping(data, f"spec {p}")
     unknown = set(data) - {"parameters", "cases", "starts", "seed", "diff_step",
                            "max_evaluations"}
@@ -241,8 +288,11 @@ def load_spec(path):
         if "scene" not in c:
             raise SceneError(f"cases[{i}]: no scene, expected a scene name or path")
         from flexarm_ros.scene import load_scene
-        files.append(_scene_file(c["scene"], p.parent))
-        sc = load_scene(files[-1])
+        try:
+            files.append(_scene_file(c["scene"], p.parent))
+            sc = load_scene(files[-1])
+        except SceneError as exc:
+            raise SceneError(f"cases[{i}].scene: {exc}") from None
         fixed = _mapping(c.get("set"), f"cases[{i}].set")
         scenes.append(set_keys(sc, fixed) if fixed else sc)
     praw = data.get("parameters")
@@ -252,6 +302,10 @@ def load_spec(path):
     params = []
     for i, e in enumerate(praw):
         e = _mapping(e, f"parameters[{i}]")
+        extra = set(e) - {"key", "keys", "scale", "name", "low", "high", "start"}
+        if extra:
+            raise SceneError(f"parameters[{i}]: unknown key {sorted(extra)[0]!r}, expected "
+                             f"key (or keys, or name + scale), low, high, start")
         if "scale" in e:
             keys = e["scale"] if isinstance(e["scale"], list) else [e["scale"]]
             params.append(make_scale(e.get("name"), keys, e.get("low"), e.get("high"),
@@ -262,7 +316,7 @@ def load_spec(path):
             raise SceneError(f"parameters[{i}]: got {e!r}, expected key:, keys: or scale:")
         params.append(make_param(keys, e.get("low"), e.get("high"), e.get("start"),
                                  scenes[0], where=f"parameters[{i}]"))
-    check_distinct(params)
+    check_distinct(params, "parameters:")
     cases = []
     start = {}
     for prm in params:
@@ -277,7 +331,9 @@ def load_spec(path):
         extra = set(c) - {"name", "scene", "record", "map", "channels", "sigma", "weights",
                           "window", "offset", "duration", "set", "targets"}
         if extra:
-            raise SceneError(f"cases[{i}]: unknown key {sorted(extra)[0]!r}")
+            raise SceneError(f"cases[{i}]: unknown key {sorted(extra)[0]!r}, expected name, "
+                             f"scene, record, map, channels, sigma, weights, window, offset, "
+                             f"duration, set, targets")
         probe = None
         if rec is not None:
             from flexarm_ros.sim.simulate import simulate
@@ -289,6 +345,11 @@ def load_spec(path):
                          c.get("targets") or (), probe)
         case.scene_file = None if c.get("set") else str(files[i])
         cases.append(case)
+    names = [c.name for c in cases]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise SceneError(f"cases: name {dup[0]!r} given twice, expected one name per case "
+                         f"(each names its calibrated scene)")
     opts = {"starts": data.get("starts", 1), "seed": data.get("seed", 0),
             "diff_step": data.get("diff_step", 1e-3),
             "max_evaluations": data.get("max_evaluations")}

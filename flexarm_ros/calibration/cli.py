@@ -54,13 +54,8 @@ def add_parsers(sub) -> None:
                    help="finite-difference step as a share of each range (default 1e-3)")
     c.add_argument("--max-evaluations", type=integer, default=None,
                    help="residual evaluations per start (default 30 (n + 1))")
-    g = c.add_argument_group("where the simulations run (default: a local Dask cluster, "
-                             "one worker process per core)")
-    x = g.add_mutually_exclusive_group()
-    x.add_argument("--workers", type=integer, metavar="N",
-                   help="local worker processes (0: in this process, no Dask)")
-    x.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler")
-    g.add_argument("--timeout", type=float, default=10.0, metavar="S")
+    from flexarm_ros.ensemble.cli import executor_args
+    executor_args(c, "the simulations")
     c.add_argument("--out", type=Path, metavar="calibrated.yaml",
                    help="the calibrated scene (spec form: a directory, one scene per case)")
     c.add_argument("--report", type=Path, metavar="DIR",

@@ -130,18 +130,14 @@ def check_targets(name, scene, duration, feats) -> None:
                              f"for {pf.kind}")
         if pf.channel:
             channels.append((pf.channel, where))
-    if channels:
-        from flexarm_ros.ensemble.metrics import channel
-        from flexarm_ros.sim.simulate import simulate
-        dt = scene.fidelity.output_dt
-        sensor_dt = max([1.0 / s.rate_hz for s in scene.sensors], default=dt)
-        with np.errstate(all="ignore"):
-            res = simulate(scene, min(duration, 2 * max(dt, sensor_dt)))
+    if channels:                    # the probe of the ensemble commands (two samples)
+        from flexarm_ros.ensemble.cli import check_channels
+        from flexarm_ros.ensemble.metrics import Metric
         for ch, where in channels:
             try:
-                channel(res, ch)
-            except KeyError as exc:
-                raise SceneError(f"{where}: {exc.args[0]}") from None
+                check_channels(scene, [Metric(ch, "frequency", ch)], duration=duration)
+            except SceneError as exc:
+                raise SceneError(f"{where}: {str(exc).split(': ', 1)[1]}") from None
 
 
 def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=None,

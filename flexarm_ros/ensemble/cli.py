@@ -30,9 +30,9 @@ def _load_scene(name):
     return load_scene(name or DEFAULT_SCENE)
 
 
-def _executor_args(p):
-    g = p.add_argument_group("where the samples run (default: a local Dask cluster, one "
-                             "single-threaded worker process per core, on 127.0.0.1)")
+def executor_args(p, what: str = "the samples"):
+    g = p.add_argument_group(f"where {what} run (default: a local Dask cluster, one "
+                             f"single-threaded worker process per core, on 127.0.0.1)")
     x = g.add_mutually_exclusive_group()
     x.add_argument("--workers", type=integer, metavar="N",
                    help="local worker processes (0: in this process, no Dask)")
@@ -78,7 +78,7 @@ def add_parsers(sub) -> None:
                         "final_error:CHANNEL=TARGET, energy_drift, wall_s_per_sim_s; "
                         "repeatable (impact_time is always in a wall scene's table)")
     s.add_argument("--duration", type=number, help="simulated seconds per sample")
-    _executor_args(s)
+    executor_args(s)
     _output_args(s)
     s.set_defaults(func=cmd_sweep)
 
@@ -90,7 +90,7 @@ def add_parsers(sub) -> None:
     u.add_argument("--seed", type=integer, help="default: the spec's, else 0")
     u.add_argument("--design", choices=("random", "lhs"), default="random")
     u.add_argument("--channel", help="the envelope's channel (default: the spec's)")
-    _executor_args(u)
+    executor_args(u)
     _output_args(u, series=False)
     u.set_defaults(func=cmd_uncertainty)
 
@@ -104,7 +104,7 @@ def add_parsers(sub) -> None:
     e.add_argument("--seed", type=integer)
     e.add_argument("--markdown", type=Path, metavar="FILE.md",
                    help="write the ranked tables as Markdown")
-    _executor_args(e)
+    executor_args(e)
     _output_args(e, series=False)
     e.set_defaults(func=cmd_sensitivity)
 

@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from flexarm_ros.calibration.fit import Problem, calibrate  # noqa: E402
+from flexarm_ros.calibration.parameters import start_assignment  # noqa: E402
 from flexarm_ros.calibration.setup import load_spec  # noqa: E402
 from flexarm_ros.ensemble.keys import set_keys  # noqa: E402
 from flexarm_ros.ensemble.metrics import evaluate, parse_metric, resolve_metrics  # noqa: E402
@@ -130,21 +131,15 @@ def main(argv=None) -> int:
         fit1 = calibrate(Problem(p1, c1), ex, diff_step=o1["diff_step"],
                          max_evaluations=o1["max_evaluations"],
                          log=lambda s: print(f"case 1: {s}", file=sys.stderr))
-        sets1 = {}
-        for p in fit1["parameters"]:
-            sets1.update(p["sets"])
-        start = {}
-        for p in p1:
-            start.update(p.assignment(p.start))
+        sets1 = Problem(p1, c1).assignment(fit1["_z"])
+        start = start_assignment(p1)
         items = [(sc, a) for sc in ("two_link_case1", "two_link_case2")
                  for a in (start, sets1)]
         feats = run_tasks(Features(), items, ex)
         fit12 = calibrate(Problem(p12, c12), ex, diff_step=o12["diff_step"],
                           max_evaluations=o12["max_evaluations"],
                           log=lambda s: print(f"cases 1+2: {s}", file=sys.stderr))
-        sets12 = {}
-        for p in fit12["parameters"]:
-            sets12.update(p["sets"])
+        sets12 = Problem(p12, c12).assignment(fit12["_z"])
         feats12 = run_tasks(Features(), [(sc, sets12) for sc in ("two_link_case1",
                                                                    "two_link_case2")], ex)
     wall = time.perf_counter() - t0

@@ -89,7 +89,8 @@ def _pairs(values, flag) -> dict:
 
 def _problem(args):
     from flexarm_ros.calibration.fit import Problem
-    from flexarm_ros.calibration.parameters import check_distinct, parse_param
+    from flexarm_ros.calibration.parameters import (check_distinct, parse_param,
+                                                    start_assignment)
     from flexarm_ros.calibration.setup import load_spec, make_case
     from flexarm_ros.ensemble.keys import set_keys
     from flexarm_ros.scene import load_scene
@@ -118,9 +119,7 @@ def _problem(args):
         raise SceneError(f"RECORD: {args.record}: no such file, expected a CSV or MCAP "
                          f"record")
     channels = [n.strip() for v in args.channels or () for n in v.split(",") if n.strip()]
-    start = {}
-    for prm in params:
-        start.update(prm.assignment(prm.start))
+    start = start_assignment(params)
     probe = None
     if args.record is not None:
         from flexarm_ros.sim.simulate import simulate
@@ -250,6 +249,4 @@ def _json_default(o):
         return o.item()
     if isinstance(o, np.ndarray):
         return o.tolist()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
     return str(o)

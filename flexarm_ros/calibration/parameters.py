@@ -155,6 +155,14 @@ def parse_param(text: str, scene=None) -> CalParam:
                       None if start is None else float(start), scene)
 
 
+def start_assignment(params) -> dict:
+    """``{key: value}`` of every parameter at its start (scale factors applied)."""
+    out = {}
+    for p in params:
+        out.update(p.assignment(p.start))
+    return out
+
+
 def check_distinct(params, where: str = "--param") -> None:
     seen = {}
     for p in params:

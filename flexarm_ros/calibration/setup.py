@@ -48,7 +48,8 @@ import numpy as np
 import yaml
 
 from flexarm_ros.calibration.observables import Case, FeatureTarget, SeriesTarget, parse_feature
-from flexarm_ros.calibration.parameters import check_distinct, make_param, make_scale
+from flexarm_ros.calibration.parameters import (check_distinct, make_param, make_scale,
+                                                start_assignment)
 from flexarm_ros.errors import SceneError
 
 SKIP = {"contact", "contact_phase"}      # flags: not a residual a gradient can follow
@@ -314,9 +315,7 @@ def load_spec(path):
                                  scenes[0], where=f"parameters[{i}]"))
     check_distinct(params, "parameters:")
     cases = []
-    start = {}
-    for prm in params:
-        start.update(prm.assignment(prm.start))
+    start = start_assignment(params)
     for i, (c, sc) in enumerate(zip(cases_raw, scenes)):
         rec = c.get("record")
         if rec is not None and not Path(str(rec)).is_absolute():

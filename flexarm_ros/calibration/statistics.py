@@ -41,10 +41,6 @@ def _quantile(dof: int, absolute: bool) -> float:
     return float(stats.t.ppf(0.975, dof))
 
 
-def _short(key: str) -> str:
-    return key
-
-
 def _exponent(c: float) -> str:
     if abs(c - 1) < 0.05:
         return ""

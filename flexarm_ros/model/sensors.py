@@ -152,10 +152,11 @@ def output_period(scene) -> float:
     return ns * 1e-9 if ns >= 1000 else fid.output_dt
 
 
-def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None) -> dict:
+def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_free=None) -> dict:
     """Per sample rate: a table {'t': …, column: …} of every sensor at that rate, from the
-    run's samples (the run's grid must contain every sensor's sample times). ``qdd_fn(k, t,
-    x)`` gives q̈ at sample k when the dynamics are not the chain's alone (contact)."""
+    run's samples (the run's grid must contain every sensor's sample times). ``qdd_free``
+    (N, nf): q̈ of the free coordinates at the run's samples when the dynamics are not the
+    chain's alone (contact)."""
     t_ns = np.round(run.t * 1e9).astype(np.int64)
     by_rate: dict = {}
     for sm in sensors:
@@ -168,29 +169,29 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_fn=None
                else np.nonzero(t_ns % period_ns == 0)[0])
         table = {"t": run.t[idx]}
         acc = [sm for sm in group if sm.spec.kind == "accelerometer"]
-        acc_vals = {sm.name: np.empty(len(idx)) for sm in acc}
-        compiled = None
+        acc_vals = {}
+        if acc:
+            X = np.concatenate([run.q[idx][:, chain.free], run.qd[idx][:, chain.free],
+                                run.z[idx]], axis=1)
+            QDD = (np.ascontiguousarray(qdd_free[idx]) if qdd_free is not None
+                   else np.zeros((len(idx), len(chain.free))))
         if acc and chain.backend == "numba":     # read-out from the kernel's frames
             from flexarm_ros.model.compiled import sensors as ksensors
             _, *arrs = ksensors.pack(chain, acc)
-            ws = kchain.workspace(chain.kernel_args)
-            compiled = np.empty(len(acc))
-        for j, k in enumerate(idx if acc else ()):
-            x = np.concatenate([run.q[k, chain.free], run.qd[k, chain.free], run.z[k]])
-            qdd = (qdd_fn(k, float(run.t[k]), x) if qdd_fn is not None
-                   else chain.full_qdd(float(run.t[k]), x))
-            if compiled is not None:
-                kchain.forces(float(run.t[k]), run.q[k].copy(), run.qd[k].copy(), run.z[k],
-                              chain.kernel_args, ws)
-                ksensors.readings(run.q[k], run.qd[k], qdd, chain.kernel_args, ws,
-                                        *arrs, compiled)
-                for r, sm in enumerate(acc):
-                    acc_vals[sm.name][j] = compiled[r]
-                continue
-            kin = chain.kinematics(run.q[k], run.qd[k], frames_only=True)
-            for sm in acc:
-                acc_vals[sm.name][j] = true_value(sm, chain, run.q[k], run.qd[k], qdd,
-                                                  q_initial, kin)
+            vals = np.empty((len(idx), len(acc)))
+            ksensors.table(run.t[idx], X, QDD, qdd_free is not None, chain.kernel_args,
+                           kchain.workspace(chain.kernel_args), *arrs, vals)
+            acc_vals = {sm.name: vals[:, r] for r, sm in enumerate(acc)}
+        elif acc:
+            acc_vals = {sm.name: np.empty(len(idx)) for sm in acc}
+            for j, k in enumerate(idx):
+                qdd = chain.full_qdd(float(run.t[k]), X[j])
+                if qdd_free is not None:
+                    qdd[chain.free] = QDD[j]
+                kin = chain.kinematics(run.q[k], run.qd[k], frames_only=True)
+                for sm in acc:
+                    acc_vals[sm.name][j] = true_value(sm, chain, run.q[k], run.qd[k], qdd,
+                                                      q_initial, kin)
         tips = None
         if any(sm.spec.kind == "tip_position" for sm in group):
             # the tip frame of all samples in one pass (compiled without gravity), equal

@@ -17,6 +17,8 @@ from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
                                        ImpactRecord, WallContact, _stick_or_slip,
                                        spring_damper_rate)
+from flexarm_ros.model.compiled.chain import STAGE_EPS
+from flexarm_ros.sim.integrate import hermite
 from flexarm_ros.sim.step import RK4_AUTO, rk4_step
 
 
@@ -45,6 +47,29 @@ class ContactRun:
         return contact.free_accelerations(t, x, int(self.mode[k]), float(self.slip_sign[k]))
 
 
+class SampleBuffer:
+    """Samples the stepper writes as its steps reach their instants ``ts`` (s, rising):
+    state X (N, m), the contact quantities R (N, 10: λ_n, λ_t, gap, v_n, v_t, tool r, tool
+    ṙ, cumulative normal impulse — :mod:`kcontact`'s R_* and S_IMPULSE), q̈ of the free
+    coordinates QDD (N, nf), phase code, smooth mode and slip sign; ``k`` the next row."""
+
+    def __init__(self, ts, m: int, nf: int):
+        N = len(ts)
+        self.ts = np.ascontiguousarray(ts, float)
+        self.X = np.zeros((N, m))
+        self.R = np.zeros((N, kcontact.SAMPLE_COLUMNS))
+        self.QDD = np.zeros((N, nf))
+        self.phase = np.zeros(N, dtype=np.int64)
+        self.mode = np.zeros(N, dtype=np.int64)
+        self.sign = np.zeros(N)
+        self.k = 0
+
+    def reset(self, ts) -> None:
+        """Reuse the rows for new instants (as many or fewer)."""
+        self.ts = np.ascontiguousarray(ts, float)
+        self.k = 0
+
+
 class ContactStepper:
     """Fixed-step RK4 through the contact modes with located events (module doc), as an
     object: ``advance(t_target)`` moves the state to ``t_target`` (a batch run and the ROS
@@ -68,6 +93,7 @@ class ContactStepper:
         self.normal_impulse = 0.0       # cumulative ∫λ dt + impact impulses (N·s)
         self.h_contact = h              # step while in contact (halved on excess drift)
         self.compliant = contact.method == "compliant"
+        self._no_samples = SampleBuffer(np.empty(0), len(self.x), contact.nf)
         if self.compliant:
             contact.set_start(self.x)   # the compliant damping is fixed at the start state
         # smooth stretches of the impulse rung in compiled code (numba backend); events,
@@ -153,26 +179,95 @@ class ContactStepper:
         zeta = 0.5 * c.c_contact * math.sqrt(Gnn / k_eff)
         return min(self.h, RK4_AUTO / spring_damper_rate(math.sqrt(k_eff * Gnn), zeta))
 
+    # ------------------------------------------------------------------ samples
+    def _fill(self, buf, t, x, dt, x1, mode, s, imp0, dimp, t_target):
+        """Samples of ``buf`` that the step (t, x) → (t + dt, x1) in ``mode`` reaches: the
+        reference of the compiled :func:`kcontact.span`'s sampling (Hermite inside the
+        step with ẋ just inside both ends, the step's own state on its end)."""
+        if buf is None or buf.k >= len(buf.ts):
+            return
+        ts, k0 = buf.ts, buf.k
+        t1 = t + dt
+        seps = 1e-12 * max(1.0, t_target)
+        k = k0
+        if ts[k] < t1 - seps:
+            rhs = self.contact.rhs
+            f0 = rhs(t + STAGE_EPS * dt, x, mode, s)[0]
+            f1 = rhs(t + (1.0 - STAGE_EPS) * dt, x1, mode, s)[0]
+            self.calls += 2
+            while k < len(ts) and ts[k] < t1 - seps:
+                th = (ts[k] - t) / dt
+                self._sample_at(buf, k, ts[k], hermite(th, dt, x, f0, x1, f1), mode, s,
+                                imp0 + th * dimp)
+                k += 1
+        if k < len(ts) and ts[k] <= t1 + seps:
+            self._sample_at(buf, k, ts[k], x1, mode, s, imp0 + dimp)
+            k += 1
+        buf.k = k
+        self._stamp(buf, k0, k, mode, s)
+
+    def _sample_at(self, buf, k, tk, xk, mode, s, impulse):
+        """Row k of ``buf`` at (tk, xk) (the reference of :func:`kcontact._sample`)."""
+        c = self.contact
+        xd, ln, lt, tm = c.rhs(tk, xk, mode, s)
+        self.calls += 1
+        v = tm.v
+        buf.X[k] = xk
+        buf.R[k] = (ln, lt, c.gap(tm), c.n @ v, c.t @ v, tm.r[0], tm.r[1], v[0], v[1],
+                    impulse)
+        buf.QDD[k] = xd[c.nf:2 * c.nf]
+
+    def _stamp(self, buf, k0, k1, mode, s):
+        """Phase, mode and slip sign of the samples k0..k1-1 (taken in ``mode``); the first
+        of them is 'impact' after an impact."""
+        if k1 <= k0:
+            return
+        sl = slice(k0, k1)
+        buf.mode[sl], buf.sign[sl] = mode, s
+        if self.compliant:
+            ln = buf.R[sl, kcontact.R_LN]
+            vt = np.abs(buf.R[sl, kcontact.R_VT])
+            buf.phase[sl] = np.where(ln <= 0, FREE, np.where(
+                vt < self.contact.wall.slip_velocity, STICKING, SLIDING))
+        else:
+            buf.phase[sl] = mode
+        if self.impact_pending:
+            buf.phase[k0] = PHASE_CODE["impact"]
+            self.impact_pending = False
+
     # --------------------------------------------------------------------- public
-    def advance(self, t_target):
-        """Integrate to ``t_target`` (steps of at most h; events located and handled)."""
+    def advance(self, t_target, buf=None, max_steps=None):
+        """Integrate to ``t_target`` (steps of at most h; events located and handled);
+        with ``max_steps`` stop after about that many steps (at a step's end). The samples
+        of ``buf`` (:class:`SampleBuffer`) that the steps reach are written on the way —
+        they never change the steps."""
         chain, h = self.chain, self.h
         t, x, mode, s = self.t, self.x, self.mode, self.s
         events_here = 0
         cp = self._cp if self.compiled else None
-        while t < t_target - 1e-15:
+        steps0 = self.steps
+        limit = max_steps if max_steps is not None else 2 ** 62
+        if buf is None:
+            buf = self._no_samples
+        while t < t_target - 1e-15 and self.steps - steps0 < limit:
             if self.compiled:
                 hh = h if mode == FREE else min(h, self.h_contact)
-                code, t, x, dp, nst, calls, drift, x_bad = kcontact.span(
+                k0 = buf.k
+                code, t, x, dp, nst, calls, drift, x_bad, buf.k = kcontact.span(
                     x, float(t), float(t_target), hh, int(mode), float(s),
                     chain.fidelity.max_deflection_ratio, chain.fidelity.contact_tolerance,
-                    self.contact.kernel_args, self.contact.ws, cp, self._sc)
+                    self.contact.kernel_args, self.contact.ws, cp, self._sc,
+                    buf.ts, buf.k, buf.X, buf.R, buf.QDD, self.normal_impulse,
+                    limit - (self.steps - steps0))
+                self._stamp(buf, k0, buf.k, mode, s)
                 self.normal_impulse += dp
                 self.steps += nst
                 self.calls += calls
                 self.max_drift = max(self.max_drift, drift)
                 if code == kchain.OK:
-                    break
+                    if t >= t_target - 1e-15:
+                        break
+                    continue        # max_steps reached
                 if code in (kchain.NON_FINITE, kchain.DEFLECTION):
                     self.guard.last = x
                     self.guard.check(t + min(hh, t_target - t), x_bad)
@@ -202,6 +297,9 @@ class ContactStepper:
                         best_tau, best_j = tau, j
                 xe, dp = (self._rk4(t, x, best_tau, mode, s, want_impulse=True)
                           if best_tau > 0 else (x, 0.0))
+                if best_tau > 0:
+                    self._fill(buf, t, x, best_tau, xe, mode, s, self.normal_impulse, dp,
+                               t_target)
                 self.normal_impulse += dp
                 t += best_tau
                 self.mode, self.s = mode, s
@@ -230,10 +328,12 @@ class ContactStepper:
                     continue
                 self.max_drift = max(self.max_drift, drift)
                 x1 = x1p
+            self._fill(buf, t, x, dt, x1, mode, s, self.normal_impulse, dp, t_target)
             x, t = x1, t + dt
             self.normal_impulse += dp
             self.guard.check(t, x)
-        self.t, self.x, self.mode, self.s = t_target, x, mode, s
+        self.t = t_target if t >= t_target - 1e-15 else t
+        self.x, self.mode, self.s = x, mode, s
 
     def sample(self):
         """(phase code, λ_n, λ_t, gap, tool r, tool ṙ, q̈_free) at the current state; the
@@ -263,36 +363,49 @@ class ContactStepper:
 
 
 def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
-                      progress=None):
-    """Run a :class:`ContactStepper` over [0, t_end], sampling every ``output_dt``.
+                      progress=None, breakpoints=()):
+    """Run a :class:`ContactStepper` over [0, t_end] with samples every ``output_dt``
+    (written by the stepper as its steps reach them: the step ``h`` may exceed the output
+    period). A step ends on every input breakpoint in ``breakpoints`` (a program's jump).
 
     Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
     n_out = int(np.floor(t_end / output_dt + 1e-9))
     N = n_out + 1
-    xs = np.empty((N, len(x0)))
-    phase = np.zeros(N, dtype=np.int64)
-    fn_out, ft_out, gap = np.zeros(N), np.zeros(N), np.zeros(N)
-    tool, tvel = np.zeros((N, 2)), np.zeros((N, 2))
-    modes, signs = np.zeros(N, dtype=np.int64), np.zeros(N)
-    impulse = np.zeros(N)
-    qdd = np.zeros((N, contact.nf))
     st = ContactStepper(chain, contact, x0, h, guard)
+    buf = SampleBuffer(np.arange(N) * output_dt, len(x0), contact.nf)
+    _sample_now(st, buf)                                  # the start
     pace = Pace(chain, t_end, "contact rk4", explain=lambda t, x: _why_contact_step(st, h))
+    stops = sorted({float(b) for b in breakpoints if 0.0 < b < t_end} | {float(t_end)})
+    chunk = max(1, int(np.ceil(t_end / 100 / h)))         # steps per progress report
     last_report = time.perf_counter()
-    for k in range(N):
-        if k:
-            st.advance(k * output_dt)
-            pace.check(st.steps, k * output_dt, st.x)
-        xs[k] = st.x
-        phase[k], fn_out[k], ft_out[k], gap[k], tool[k], tvel[k], qdd[k] = st.sample()
-        modes[k], signs[k] = st.mode, st.s
-        impulse[k] = st.normal_impulse
-        now = time.perf_counter()
-        if progress is not None and now - last_report > 1.0:
-            progress(k * output_dt / t_end)
-            last_report = now
-    return xs, ContactRun(phase, fn_out, ft_out, gap, tool, tvel, st.impacts, st.max_drift,
-                          modes, signs, impulse, qdd), st.steps, st.calls
+    for t_stop in stops:
+        while st.t < t_stop - 1e-12 * max(1.0, t_end):
+            st.advance(t_stop, buf, max_steps=chunk)
+            pace.check(st.steps, st.t, st.x)
+            now = time.perf_counter()
+            if progress is not None and now - last_report > 1.0:
+                progress(st.t / t_end)
+                last_report = now
+    while buf.k < N:               # t_end on the grid but below rounding: the end state
+        _sample_now(st, buf)
+    R = buf.R
+    return buf.X, ContactRun(buf.phase, R[:, kcontact.R_LN], R[:, kcontact.R_LT],
+                             R[:, kcontact.R_GAP], R[:, kcontact.R_RX:kcontact.R_RY + 1],
+                             R[:, kcontact.R_VX:kcontact.R_VY + 1], st.impacts, st.max_drift,
+                             buf.mode, buf.sign, R[:, kcontact.S_IMPULSE], buf.QDD), \
+        st.steps, st.calls
+
+
+def _sample_now(st, buf) -> None:
+    """Row buf.k at the stepper's current state (:meth:`ContactStepper.sample`)."""
+    k = buf.k
+    ph, ln, lt, gap, r, v, qdd = st.sample()
+    c = st.contact
+    buf.X[k] = st.x
+    buf.R[k] = (ln, lt, gap, c.n @ v, c.t @ v, r[0], r[1], v[0], v[1], st.normal_impulse)
+    buf.QDD[k] = qdd
+    buf.phase[k], buf.mode[k], buf.sign[k] = ph, st.mode, st.s
+    buf.k = k + 1
 
 
 def _why_contact_step(st, h) -> str:

@@ -20,7 +20,7 @@ from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.budget import check_output, check_work
 from flexarm_ros.sim.contact_stepper import integrate_contact
 from flexarm_ros.sim.guard import DivergenceGuard
-from flexarm_ros.sim.integrate import Integration, integrate
+from flexarm_ros.sim.integrate import Integration, input_breakpoints, integrate, smooth
 from flexarm_ros.sim.step import choose_step
 
 
@@ -93,17 +93,11 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     if contact is None:
         run = integrate(chain, x0, T, fid.integrator, choice.step_s if choice else fid.dt,
                         fid.rtol, fid.atol, out_dt, fid.max_deflection_ratio, progress)
-        crun, qdd_fn = None, None
+        crun = None
     else:
         run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress)
-
-        def qdd_fn(k, t, x):
-            qdd = np.empty(chain.n)
-            qdd[chain.free] = crun.accelerations(contact, k, t, x)
-            if len(chain.presc_idx):
-                qdd[chain.presc_idx] = chain.prescribed_state(t)[2]
-            return qdd
-    tables = sensor_tables(chain, run, sensors, q_init, qdd_fn) if sensors else {}
+    tables = (sensor_tables(chain, run, sensors, q_init, crun.qdd if crun else None)
+              if sensors else {})
     every = int(round(fid.output_dt / out_dt))
     if every != 1:
         run = _decimate(run, every)
@@ -154,12 +148,14 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
                          f"{lengths}), expected "
                          f"a start on the free side (gap >= 0)")
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
-    h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact)
+    dense = smooth(chain)
+    h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact, dense=dense)
     check_work(chain, x0, h, T, "rk4", contact)
     guard = DivergenceGuard(chain, fid.max_deflection_ratio, "rk4", h)
     wall0 = time.perf_counter()
-    xs, crun, steps, calls = integrate_contact(chain, contact, x0, T, h, out_dt, guard,
-                                               progress)
+    xs, crun, steps, calls = integrate_contact(
+        chain, contact, x0, T, h, out_dt, guard, progress,
+        input_breakpoints(chain, T) if dense else ())
     wall = time.perf_counter() - wall0
     t = np.arange(len(xs)) * out_dt
     return Integration.completed(chain, t, xs, calls, steps, wall, h), crun

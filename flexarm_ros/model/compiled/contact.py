@@ -33,6 +33,7 @@ import numpy as np
 
 
 from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
 from flexarm_ros.model.compiled.layout import named
 
@@ -230,21 +231,56 @@ def _indicators(mode, s, mus, res, ind):
     return 2
 
 
+#: columns of a sample row (:func:`span`'s ``R``): the evaluation's R_* and the
+#: cumulative normal impulse
+S_IMPULSE = 9
+SAMPLE_COLUMNS = 10
+
+
+@_jit_inline
+def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out):
+    """Sample k at (tk, xk) in ``mode``: the state into X[k], the evaluation's results and
+    the cumulative normal impulse into R[k], q̈ of the free coordinates (the right-hand
+    side at the sample) into QDD[k]."""
+    nf = model.free.shape[0]
+    _eval(tk, xk, mode, s, out, model, ws, cp, sc)
+    for i in range(xk.shape[0]):
+        X[k, i] = xk[i]
+    for j in range(S_IMPULSE):
+        R[k, j] = sc.res[j]
+    R[k, S_IMPULSE] = impulse
+    for a in range(nf):
+        QDD[k, a] = out[nf + a]
+
+
 @_jit
-def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args):
+def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args,
+         ts, k, X, R, QDD, impulse0, max_steps):
     """RK4 steps of at most ``h`` in one contact mode from (t0, x0) towards ``t_target``
     (the reference's step sequence: dt = min(h, t_target − t)), projecting after each
     step in contact. Stops at the start of the first step with an event, excess drift or a
-    singular constraint.
+    singular constraint, or after ``max_steps`` accepted steps.
+
+    Samples: the instants ts[k], ts[k + 1], … that an accepted step reaches are written
+    (:func:`_sample`: state, R_* and cumulative impulse, q̈) — a sample inside a step from
+    the cubic Hermite interpolant of the step (ẋ by the right-hand side at both ends, as
+    :func:`loops.rk4_dense`; the impulse interpolated linearly within the step), one on a
+    step's end (within 1e-12 s) from the step's own state; ``impulse0`` is the cumulative
+    impulse at t0. The step never depends on the samples.
 
     Returns (code, t, x, normal impulse ∫λ dt of the accepted steps, accepted steps,
-    evaluations, largest drift, offending state) with code kchain.OK (t_target reached),
-    EVENT, DRIFT, SINGULAR, kchain.NON_FINITE or kchain.DEFLECTION (t, x the last good
-    state; the offending state last). Model, workspace and scratch come as plain tuples
-    (see :mod:`layout`).
+    evaluations, largest drift, offending state, next sample index) with code kchain.OK
+    (t_target or max_steps reached), EVENT, DRIFT, SINGULAR, kchain.NON_FINITE or
+    kchain.DEFLECTION (t, x the last good state; the offending state last). Model,
+    workspace and scratch come as plain tuples (see :mod:`layout`).
     """
     model, ws = named(model_args, ws_args)
     sc = Scratch(*sc_args)
+    n_s = ts.shape[0]
+    f0 = np.empty(x0.shape[0])
+    f1 = np.empty(x0.shape[0])
+    row = np.empty(x0.shape[0])
+    sout = np.empty(x0.shape[0])
     m = x0.shape[0]
     nf = model.free.shape[0]
     nz = model.nz
@@ -283,7 +319,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
         l4 = res[R_LN]
         calls += 4
         if not ok:
-            return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy()
+            return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
         finite = True
         for i in range(m):
             x1[i] = x[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
@@ -293,7 +329,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
             i = m - nz + a
             x1[i] = min(max(x1[i], zlo[a]), zhi[a])
         if not finite:
-            return kchain.NON_FINITE, t, x.copy(), impulse, steps, calls, drift_max, x1.copy()
+            return kchain.NON_FINITE, t, x.copy(), impulse, steps, calls, drift_max, x1.copy(), k
         if not have_ind0:
             _eval(t, x, mode, s, xdot, model, ws, cp, sc)
             calls += 1
@@ -302,10 +338,10 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
         calls += 1
         ni = _indicators(mode, s, mus, res, ind1)
         if not ok:
-            return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy()
+            return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
         for j in range(ni):
             if ind0[j] >= 0.0 and ind1[j] < 0.0:
-                return EVENT, t, x.copy(), impulse, steps, calls, drift_max, x.copy()
+                return EVENT, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
         if mode != FREE:
             # M-orthogonal projection onto g = 0, v_n = 0 (and v_t = 0 when sticking) with
             # M, j_n, j_t of the unprojected end state (the reference's `project`)
@@ -342,7 +378,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
                     x1[nf + a] -= y2[a] * an + y3[a] * at
             drift = abs(gap)
             if drift > tol:
-                return DRIFT, t, x.copy(), impulse, steps, calls, drift_max, x.copy()
+                return DRIFT, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
             drift_max = max(drift_max, drift)
             have_ind0 = False
         else:
@@ -350,10 +386,32 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
             have_ind0 = True
         if kchain._deflection_ratio(x1, model) > max_ratio:
             return kchain.DEFLECTION, t, x.copy(), impulse, steps, calls, drift_max, \
-                x1.copy()
+                x1.copy(), k
+        t1 = t + dt
+        dimp = (dt / 6.0) * (l1 + 2.0 * l2 + 2.0 * l3 + l4)
+        seps = 1e-12 * max(1.0, t_target)
+        if k < n_s and ts[k] < t1 - seps:         # samples inside the step
+            for i in range(m):
+                f0[i] = k1[i]
+            _eval(t + (1.0 - eps) * dt, x1, mode, s, f1, model, ws, cp, sc)
+            calls += 1
+            while k < n_s and ts[k] < t1 - seps:
+                th = (ts[k] - t) / dt
+                kloops.hermite(th, dt, x, f0, x1, f1, row)
+                _sample(k, ts[k], row, mode, s, X, R, QDD, impulse0 + impulse + th * dimp,
+                        model, ws, cp, sc, sout)
+                calls += 1
+                k += 1
+        if k < n_s and ts[k] <= t1 + seps:         # a sample on the step's end
+            _sample(k, ts[k], x1, mode, s, X, R, QDD, impulse0 + impulse + dimp, model, ws,
+                    cp, sc, sout)
+            calls += 1
+            k += 1
         for i in range(m):
             x[i] = x1[i]
-        t = t + dt
-        impulse += (dt / 6.0) * (l1 + 2.0 * l2 + 2.0 * l3 + l4)
+        t = t1
+        impulse += dimp
         steps += 1
-    return kchain.OK, t_target, x.copy(), impulse, steps, calls, drift_max, x.copy()
+        if steps >= max_steps:
+            return kchain.OK, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
+    return kchain.OK, t_target, x.copy(), impulse, steps, calls, drift_max, x.copy(), k

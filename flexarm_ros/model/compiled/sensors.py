@@ -64,6 +64,34 @@ def readings(q, qd, qdd, model_args, ws_args, ints, flt, phi, slope, S, out):
     the workspace (filled by a kernel evaluation at this (q, q̇)) and q̈ of every
     coordinate (model and workspace as plain tuples, see :mod:`layout`)."""
     model, ws = named(model_args, ws_args)
+    _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out)
+
+
+@_jit
+def table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out):
+    """:func:`readings` of the states X[k] = [q_free, q̇_free, z] at the instants ts[k]
+    into out[k] (one kernel evaluation per row for the frames): q̈ of the free coordinates
+    from QDD[k] when ``given`` (e.g. the contact stepper's constrained accelerations), else
+    from the chain's right-hand side there; the prescribed ones from their programs."""
+    model, ws = named(model_args, ws_args)
+    free = model.free
+    presc = model.presc
+    nf = free.shape[0]
+    m = X.shape[1]
+    xdot = np.empty(m)
+    qdd = np.empty(model.n)
+    for k in range(ts.shape[0]):
+        kchain.rhs_into(ts[k], X[k], xdot, model, ws)
+        for a in range(nf):
+            qdd[free[a]] = QDD[k, a] if given else xdot[nf + a]
+        for j in range(presc.shape[0]):
+            qdd[presc[j]] = ws.pdd[j]
+        _readings(ws.q, ws.qd, qdd, model, ws, ints, flt, phi, slope, S, out[k])
+
+
+@_jit
+def _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
+    """:func:`readings` on the named model and workspace."""
     n = model.n
     ne_all = model.ne
     fs = model.foreshortening

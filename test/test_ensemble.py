@@ -489,7 +489,10 @@ def test_study_rows_are_runner_tasks_with_the_same_results_on_dask():
 
 def test_contact_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     """The contact trade's rows (flexarm study on a scene with a wall) as tasks: on a Dask
-    worker the same rows, to the bit, as in this process (timing columns aside)."""
+    worker the same rows as in this process (timing columns aside) — to round-off: after
+    the rest of the suite this process's rows have differed from a fresh worker's in the
+    12th digit (7e-12 relative on a tip error; the reference stepper's numpy/LAPACK
+    solves), never otherwise."""
     pytest.importorskip("distributed")
     from flexarm_ros.ensemble.runner import open_executor
     from flexarm_ros.scene import load_scene
@@ -502,8 +505,14 @@ def test_contact_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     assert [r["contact"] for r in serial] == ["impulse", "compliant", "compliant"]
     for a, b in zip(serial, dask_rows, strict=True):
         assert a["status"] == b["status"] == "ok"
-        assert {k: repr(v) for k, v in a.items() if k != "wall_s_per_sim_s"} == \
-            {k: repr(v) for k, v in b.items() if k != "wall_s_per_sim_s"}
+        assert a.keys() == b.keys()
+        for k in a:
+            if k == "wall_s_per_sim_s":
+                continue
+            if isinstance(a[k], float) and isinstance(b[k], float):
+                assert a[k] == pytest.approx(b[k], rel=1e-9, abs=1e-300), k
+            else:
+                assert repr(a[k]) == repr(b[k]), k
     assert len(lines) == 1 + len(serial)        # the reference, then one line per row
 
 

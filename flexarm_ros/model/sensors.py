@@ -152,11 +152,17 @@ def output_period(scene) -> float:
     return ns * 1e-9 if ns >= 1000 else fid.output_dt
 
 
-def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_free=None) -> dict:
+def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_free=None,
+                  acc_given=None) -> dict:
     """Per sample rate: a table {'t': …, column: …} of every sensor at that rate, from the
     run's samples (the run's grid must contain every sensor's sample times). ``qdd_free``
     (N, nf): q̈ of the free coordinates at the run's samples when the dynamics are not the
-    chain's alone (contact)."""
+    chain's alone (contact); ``acc_given`` (N, n_acc): the accelerometers' readings at
+    the run's samples, in the order of ``sensors``, when the integration took them."""
+    acc_col = {}
+    if acc_given is not None:
+        acc_col = {sm.name: r for r, sm in enumerate(
+            s for s in sensors if s.spec.kind == "accelerometer")}
     t_ns = np.round(run.t * 1e9).astype(np.int64)
     by_rate: dict = {}
     for sm in sensors:
@@ -170,6 +176,9 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_free=No
         table = {"t": run.t[idx]}
         acc = [sm for sm in group if sm.spec.kind == "accelerometer"]
         acc_vals = {}
+        if acc and acc_given is not None:
+            acc_vals = {sm.name: acc_given[idx, acc_col[sm.name]] for sm in acc}
+            acc = []
         if acc:
             X = np.concatenate([run.q[idx][:, chain.free], run.qd[idx][:, chain.free],
                                 run.z[idx]], axis=1)

@@ -14,6 +14,7 @@ from flexarm_ros.sim.budget import Pace
 from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
+from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
                                        ImpactRecord, WallContact, _stick_or_slip,
                                        spring_damper_rate)
@@ -37,6 +38,7 @@ class ContactRun:
     slip_sign: np.ndarray
     normal_impulse: np.ndarray   # cumulative normal impulse from the wall (N·s)
     qdd: np.ndarray | None = None   # (N, n_free) q̈ at each sample, as the stepper read it
+    acc: np.ndarray | None = None   # (N, n_acc) accelerometer specific forces at each sample
 
     def accelerations(self, contact, k, t, x) -> np.ndarray:
         """q̈ of the free coordinates at sample k (the mode's constrained dynamics): the
@@ -51,9 +53,13 @@ class SampleBuffer:
     """Samples the stepper writes as its steps reach their instants ``ts`` (s, rising):
     state X (N, m), the contact quantities R (N, 10: λ_n, λ_t, gap, v_n, v_t, tool r, tool
     ṙ, cumulative normal impulse — :mod:`kcontact`'s R_* and S_IMPULSE), q̈ of the free
-    coordinates QDD (N, nf), phase code, smooth mode and slip sign; ``k`` the next row."""
+    coordinates QDD (N, nf), phase code, smooth mode and slip sign; ``k`` the next row.
+    With ``acc`` (:func:`ksensors.pack`'s arrays after the index; numba backend) also the
+    accelerometers' specific forces ACC (N, n_acc), read from the sample's own evaluation
+    in compiled stretches; rows the Python reference wrote are marked in ``ref_rows`` and
+    read by :meth:`complete`."""
 
-    def __init__(self, ts, m: int, nf: int):
+    def __init__(self, ts, m: int, nf: int, acc=None):
         N = len(ts)
         self.ts = np.ascontiguousarray(ts, float)
         self.X = np.zeros((N, m))
@@ -62,12 +68,28 @@ class SampleBuffer:
         self.phase = np.zeros(N, dtype=np.int64)
         self.mode = np.zeros(N, dtype=np.int64)
         self.sign = np.zeros(N)
+        self.acc = acc if acc is not None else ksensors.no_accelerometers()
+        self.ACC = np.zeros((N, len(self.acc[0])))
+        self.ref_rows = np.zeros(N, dtype=bool)
         self.k = 0
 
     def reset(self, ts) -> None:
         """Reuse the rows for new instants (as many or fewer)."""
         self.ts = np.ascontiguousarray(ts, float)
         self.k = 0
+        self.ref_rows[:] = False
+
+    def complete(self, chain, ws) -> None:
+        """ACC of the rows the Python reference wrote (one compiled call for them all)."""
+        if not self.ACC.shape[1]:
+            return
+        rows = np.nonzero(self.ref_rows[:self.k])[0]
+        if len(rows):
+            out = np.empty((len(rows), self.ACC.shape[1]))
+            ksensors.table(self.ts[rows], self.X[rows], self.QDD[rows], True,
+                           chain.kernel_args, ws, *self.acc, out)
+            self.ACC[rows] = out
+            self.ref_rows[rows] = False
 
 
 class ContactStepper:
@@ -216,6 +238,7 @@ class ContactStepper:
         buf.R[k] = (ln, lt, c.gap(tm), c.n @ v, c.t @ v, tm.r[0], tm.r[1], v[0], v[1],
                     impulse)
         buf.QDD[k] = xd[c.nf:2 * c.nf]
+        buf.ref_rows[k] = True
 
     def _stamp(self, buf, k0, k1, mode, s):
         """Phase, mode and slip sign of the samples k0..k1-1 (taken in ``mode``); the first
@@ -258,7 +281,7 @@ class ContactStepper:
                     chain.fidelity.max_deflection_ratio, chain.fidelity.contact_tolerance,
                     self.contact.kernel_args, self.contact.ws, cp, self._sc,
                     buf.ts, buf.k, buf.X, buf.R, buf.QDD, self.normal_impulse,
-                    limit - (self.steps - steps0))
+                    limit - (self.steps - steps0), buf.acc, buf.ACC)
                 self._stamp(buf, k0, buf.k, mode, s)
                 self.normal_impulse += dp
                 self.steps += nst
@@ -363,16 +386,18 @@ class ContactStepper:
 
 
 def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guard,
-                      progress=None, breakpoints=()):
+                      progress=None, breakpoints=(), accelerometers=None):
     """Run a :class:`ContactStepper` over [0, t_end] with samples every ``output_dt``
     (written by the stepper as its steps reach them: the step ``h`` may exceed the output
     period). A step ends on every input breakpoint in ``breakpoints`` (a program's jump).
+    ``accelerometers``: :func:`ksensors.pack`'s arrays after the index — their readings
+    at every sample come back as ContactRun.acc.
 
     Returns (xs (N, m), ContactRun, steps, rhs_evaluations)."""
     n_out = int(np.floor(t_end / output_dt + 1e-9))
     N = n_out + 1
     st = ContactStepper(chain, contact, x0, h, guard)
-    buf = SampleBuffer(np.arange(N) * output_dt, len(x0), contact.nf)
+    buf = SampleBuffer(np.arange(N) * output_dt, len(x0), contact.nf, accelerometers)
     _sample_now(st, buf)                                  # the start
     pace = Pace(chain, t_end, "contact rk4", explain=lambda t, x: _why_contact_step(st, h))
     stops = sorted({float(b) for b in breakpoints if 0.0 < b < t_end} | {float(t_end)})
@@ -388,11 +413,13 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
                 last_report = now
     while buf.k < N:               # t_end on the grid but below rounding: the end state
         _sample_now(st, buf)
+    buf.complete(chain, kchain.workspace(chain.kernel_args))
     R = buf.R
     return buf.X, ContactRun(buf.phase, R[:, kcontact.R_LN], R[:, kcontact.R_LT],
                              R[:, kcontact.R_GAP], R[:, kcontact.R_RX:kcontact.R_RY + 1],
                              R[:, kcontact.R_VX:kcontact.R_VY + 1], st.impacts, st.max_drift,
-                             buf.mode, buf.sign, R[:, kcontact.S_IMPULSE], buf.QDD), \
+                             buf.mode, buf.sign, R[:, kcontact.S_IMPULSE], buf.QDD,
+                             buf.ACC if accelerometers is not None else None), \
         st.steps, st.calls
 
 
@@ -405,6 +432,7 @@ def _sample_now(st, buf) -> None:
     buf.R[k] = (ln, lt, gap, c.n @ v, c.t @ v, r[0], r[1], v[0], v[1], st.normal_impulse)
     buf.QDD[k] = qdd
     buf.phase[k], buf.mode[k], buf.sign[k] = ph, st.mode, st.s
+    buf.ref_rows[k] = True
     buf.k = k + 1
 
 

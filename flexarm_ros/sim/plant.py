@@ -22,12 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
+from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.compiled.layout import Workspace
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.contact import PHASES, build_contact
-from flexarm_ros.sim.contact_stepper import ContactStepper
+from flexarm_ros.sim.contact_stepper import ContactStepper, SampleBuffer
 from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.sim.budget import check_work
 from flexarm_ros.sim.guard import DivergenceGuard
@@ -106,7 +107,12 @@ class Plant:
         self._frames_at = None                       # (t, k) of the frames in self.ws
         self.stepper = (ContactStepper(ch, self.contact, self.x, h, self.guard)
                         if self.contact is not None else None)
+        if self.stepper is not None:
+            # the stepper imports its root finder on the first event; in a twin that runs
+            # against the wall clock that import (~0.4 s) would stall the impact's tick
+            import scipy.optimize  # noqa: F401
         self.contact_sample = None
+        self._bufs: dict = {}                        # SampleBuffer per tick length
         if self.stepper is not None:
             self.contact_sample = self.stepper.sample()
 
@@ -133,6 +139,8 @@ class Plant:
             if abs(n - round(n)) > 1e-6 or round(n) < 1:
                 raise SceneError(f"step: got dt = {dt} s, expected a whole number of sensor "
                                  f"grid periods ({self.grid_ns * 1e-9:g} s)")
+            if self.stepper is not None:
+                return self._step_contact(int(round(n)))
             for _ in range(int(round(n))):
                 self.k += 1
                 self._advance(self.k * self.grid_ns * 1e-9)
@@ -140,6 +148,55 @@ class Plant:
         else:
             self._advance(self.t + dt)
         return samples
+
+    def _step_contact(self, n: int) -> list[Sample]:
+        """``n`` sensor-grid periods with a wall: one :meth:`ContactStepper.advance` to the
+        end (its steps divide the output period, never cross the end), which writes the
+        grid instants on the way (dense samples: state, contact quantities, q̈ and the
+        accelerometers from each sample's own evaluation)."""
+        g = self.grid_ns
+        ts = (self.k + np.arange(1, n + 1)) * (g * 1e-9)
+        buf = self._bufs.get(n)
+        if buf is None:
+            buf = self._bufs[n] = SampleBuffer(ts, len(self.x), len(self.chain.free),
+                                               self._acc[1:] if self._acc else None)
+        buf.reset(ts)
+        st = self.stepper
+        st.advance(float(ts[-1]), buf)
+        if not math.isfinite(float(buf.X[:n].sum())):
+            # the numpy test nothing non-finite gets past (see _advance; the last row is
+            # the stepper's state)
+            self.guard.last = self.x
+            bad = buf.X[:n][~np.all(np.isfinite(buf.X[:n]), axis=1)]
+            self.guard.check(float(ts[-1]), bad[0] if len(bad) else st.x)
+        due = [self._due((self.k + i + 1) * g) for i in range(n)]
+        acc = None
+        if self._acc is not None:
+            buf.complete(self.chain, self.ws)           # rows the reference wrote
+            acc = buf.ACC
+            self._frames_at = None                  # the workspace holds another state
+        samples: list[Sample] = []
+        numpy_acc = self._acc is None
+        for i in range(n):
+            self.k += 1
+            if numpy_acc:       # the numpy read-out takes q̈ from the current sample
+                self._set_row(buf, i)
+            if due[i][0]:
+                row = acc[i] if due[i][1] and acc is not None else None
+                samples.extend(self._sample_due(row, float(ts[i]), buf.X[i]))
+        self._set_row(buf, n - 1)
+        return samples
+
+    def _set_row(self, buf, i) -> None:
+        """The plant's state and contact sample from row i of a SampleBuffer."""
+        R = buf.R
+        self.t = float(buf.ts[i])
+        self.x = buf.X[i].copy()
+        self.contact_sample = (int(buf.phase[i]), R[i, kcontact.R_LN], R[i, kcontact.R_LT],
+                               R[i, kcontact.R_GAP],
+                               R[i, kcontact.R_RX:kcontact.R_RY + 1].copy(),
+                               R[i, kcontact.R_VX:kcontact.R_VY + 1].copy(),
+                               buf.QDD[i].copy())
 
     def _advance(self, t_end):
         dt = t_end - self.t
@@ -167,26 +224,39 @@ class Plant:
         self.t = t_end
 
     def _due(self, t_ns: int) -> tuple:
-        """(sensor indices due at grid time ``t_ns``, any accelerometer among them),
+        """(sensor indices due at grid time ``t_ns``, any accelerometer among them, all
+        of them accelerometers),
         computed once per instant of the sensors' common cycle."""
         key = t_ns % self._cycle
         due = self._due_at.get(key)
         if due is None:
             idx = tuple(j for j, every in enumerate(self._every) if t_ns % every == 0)
-            due = self._due_at[key] = (idx, any(self.sensors[j].spec.kind ==
-                                                "accelerometer" for j in idx))
+            kinds = [self.sensors[j].spec.kind for j in idx]
+            due = self._due_at[key] = (idx, "accelerometer" in kinds,
+                                       all(k == "accelerometer" for k in kinds))
         return due
 
-    def _sample_due(self) -> list[Sample]:
+    def _sample_due(self, acc_row=None, t=None, x=None) -> list[Sample]:
+        """The sensors due at grid index self.k, at (t, x) (default: now); ``acc_row``: the
+        accelerometers' readings of this instant when already computed
+        (:meth:`_step_contact`)."""
         t_ns = self.k * self.grid_ns
-        due, any_acc = self._due(t_ns)
+        due, any_acc, only_acc = self._due(t_ns)
         if not due:
             return []
+        if t is None:
+            t, x = self.t, self.x
         ch = self.chain
-        q, qd = ch.full_state(self.t, self.x)
         qdd = None
         kin = None
-        if any_acc:
+        if acc_row is not None:
+            self._acc_out[:] = acc_row
+            if only_acc:            # nothing else due: no state assembly
+                return [Sample(self.sensors[j].name, t, self._measure(
+                    self.sensors[j], float(acc_row[self._acc_row[j]])),
+                    float(acc_row[self._acc_row[j]])) for j in due]
+        q, qd = ch.full_state(t, x)
+        if acc_row is None and any_acc:
             qdd = self.accelerations()
             if self._acc is not None:       # compiled: frames from one kernel evaluation
                 if self.stepper is not None and self.stepper.frames_current:
@@ -207,17 +277,17 @@ class Plant:
                     kin = ch.kinematics(q, qd, frames_only=True)
                 val = true_value(sm, ch, q, qd, qdd, self.q_initial, kin)
             if kind == "tip_position":
-                out.append(Sample(f"{sm.name}_x", self.t, val[0], val[0]))
-                out.append(Sample(f"{sm.name}_y", self.t, val[1], val[1]))
+                out.append(Sample(f"{sm.name}_x", t, val[0], val[0]))
+                out.append(Sample(f"{sm.name}_y", t, val[1], val[1]))
                 continue
             if kind == "encoder" and abs(val) > INT32_MAX:
                 raise SimulationDiverged(
-                    f"encoder {sm.name} counts", self.t, val,
+                    f"encoder {sm.name} counts", t, val,
                     "check the drive's input and the joint's damping; the scene's encoders "
                     f"are sized for ±{ENCODER_REVOLUTIONS} output revolutions",
                     detail=f"{val:.0f} counts leave the int32 range (±{INT32_MAX}) of the "
                            f"encoder_counts message (std_msgs/Int32MultiArray)")
-            out.append(Sample(sm.name, self.t, self._measure(sm, val), val))
+            out.append(Sample(sm.name, t, self._measure(sm, val), val))
         return out
 
     def _measure(self, sm, val: float) -> float:

@@ -95,9 +95,13 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
                         fid.rtol, fid.atol, out_dt, fid.max_deflection_ratio, progress)
         crun = None
     else:
-        run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress)
-    tables = (sensor_tables(chain, run, sensors, q_init, crun.qdd if crun else None)
-              if sensors else {})
+        acc = None
+        if chain.backend == "numba" and any(s.spec.kind == "accelerometer" for s in sensors):
+            from flexarm_ros.model.compiled import sensors as ksensors
+            acc = ksensors.pack(chain, sensors)[1:]
+        run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress, acc)
+    tables = (sensor_tables(chain, run, sensors, q_init, crun.qdd if crun else None,
+                            crun.acc if crun else None) if sensors else {})
     every = int(round(fid.output_dt / out_dt))
     if every != 1:
         run = _decimate(run, every)
@@ -131,8 +135,9 @@ def _step_for_tolerance(chain, contact, x0, T, out_dt):
     return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio)
 
 
-def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
-    """Run a scene with a wall (fixed-step RK4 through the contact modes)."""
+def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, accelerometers=None):
+    """Run a scene with a wall (fixed-step RK4 through the contact modes); the readings of
+    ``accelerometers`` (:func:`ksensors.pack`'s arrays) at every sample in ContactRun.acc."""
     fid = chain.fidelity
     check_integrator(chain)
     tm = contact.terms(0.0, x0)
@@ -155,7 +160,7 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None):
     wall0 = time.perf_counter()
     xs, crun, steps, calls = integrate_contact(
         chain, contact, x0, T, h, out_dt, guard, progress,
-        input_breakpoints(chain, T) if dense else ())
+        input_breakpoints(chain, T) if dense else (), accelerometers)
     wall = time.perf_counter() - wall0
     t = np.arange(len(xs)) * out_dt
     return Integration.completed(chain, t, xs, calls, steps, wall, h), crun

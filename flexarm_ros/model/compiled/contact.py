@@ -34,6 +34,7 @@ import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
+from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
 from flexarm_ros.model.compiled.layout import named
 
@@ -238,10 +239,12 @@ SAMPLE_COLUMNS = 10
 
 
 @_jit_inline
-def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out):
+def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out, acc, ACC,
+            qdd):
     """Sample k at (tk, xk) in ``mode``: the state into X[k], the evaluation's results and
     the cumulative normal impulse into R[k], q̈ of the free coordinates (the right-hand
-    side at the sample) into QDD[k]."""
+    side at the sample) into QDD[k], and the accelerometers of ``acc``
+    (:func:`ksensors.pack`'s arrays) into ACC[k] from this evaluation's frames."""
     nf = model.free.shape[0]
     _eval(tk, xk, mode, s, out, model, ws, cp, sc)
     for i in range(xk.shape[0]):
@@ -249,20 +252,29 @@ def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out):
     for j in range(S_IMPULSE):
         R[k, j] = sc.res[j]
     R[k, S_IMPULSE] = impulse
+    free = model.free
     for a in range(nf):
         QDD[k, a] = out[nf + a]
+        qdd[free[a]] = out[nf + a]
+    if acc[0].shape[0]:
+        presc = model.presc
+        for j in range(presc.shape[0]):
+            qdd[presc[j]] = ws.pdd[j]
+        ksensors._readings(ws.q, ws.qd, qdd, model, ws, acc[0], acc[1], acc[2], acc[3],
+                           acc[4], ACC[k])
 
 
 @_jit
 def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args,
-         ts, k, X, R, QDD, impulse0, max_steps):
+         ts, k, X, R, QDD, impulse0, max_steps, acc, ACC):
     """RK4 steps of at most ``h`` in one contact mode from (t0, x0) towards ``t_target``
     (the reference's step sequence: dt = min(h, t_target − t)), projecting after each
     step in contact. Stops at the start of the first step with an event, excess drift or a
     singular constraint, or after ``max_steps`` accepted steps.
 
     Samples: the instants ts[k], ts[k + 1], … that an accepted step reaches are written
-    (:func:`_sample`: state, R_* and cumulative impulse, q̈) — a sample inside a step from
+    (:func:`_sample`: state, R_* and cumulative impulse, q̈, accelerometers ``acc`` into
+    ACC) — a sample inside a step from
     the cubic Hermite interpolant of the step (ẋ by the right-hand side at both ends, as
     :func:`loops.rk4_dense`; the impulse interpolated linearly within the step), one on a
     step's end (within 1e-12 s) from the step's own state; ``impulse0`` is the cumulative
@@ -281,6 +293,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
     f1 = np.empty(x0.shape[0])
     row = np.empty(x0.shape[0])
     sout = np.empty(x0.shape[0])
+    qdd = np.empty(model.n)
     m = x0.shape[0]
     nf = model.free.shape[0]
     nz = model.nz
@@ -399,12 +412,12 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
                 th = (ts[k] - t) / dt
                 kloops.hermite(th, dt, x, f0, x1, f1, row)
                 _sample(k, ts[k], row, mode, s, X, R, QDD, impulse0 + impulse + th * dimp,
-                        model, ws, cp, sc, sout)
+                        model, ws, cp, sc, sout, acc, ACC, qdd)
                 calls += 1
                 k += 1
         if k < n_s and ts[k] <= t1 + seps:         # a sample on the step's end
             _sample(k, ts[k], x1, mode, s, X, R, QDD, impulse0 + impulse + dimp, model, ws,
-                    cp, sc, sout)
+                    cp, sc, sout, acc, ACC, qdd)
             calls += 1
             k += 1
         for i in range(m):

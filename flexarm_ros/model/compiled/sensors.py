@@ -24,10 +24,16 @@ import numpy as np
 
 
 from flexarm_ros.model.compiled import chain as kchain
-from flexarm_ros.model.compiled import jit as _jit
+from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
 from flexarm_ros.model.compiled.layout import named
 
 HUB, TIP, BEAM = 0, 1, 2
+
+
+def no_accelerometers() -> tuple:
+    """:func:`pack`'s arrays (after the index) for no accelerometer."""
+    return (np.zeros((0, 3), dtype=np.int64), np.zeros((0, 5)), np.zeros((0, 1, 1)),
+            np.zeros((0, 1)), np.zeros((0, 1, 1, 1)))
 
 
 def pack(chain, sensors) -> tuple:
@@ -89,7 +95,7 @@ def table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out)
         _readings(ws.q, ws.qd, qdd, model, ws, ints, flt, phi, slope, S, out[k])
 
 
-@_jit
+@_jit_inline
 def _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
     """:func:`readings` on the named model and workspace."""
     n = model.n

@@ -157,6 +157,7 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, acceler
     h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact, dense=dense)
     check_work(chain, x0, h, T, "rk4", contact)
     guard = DivergenceGuard(chain, fid.max_deflection_ratio, "rk4", h)
+    import scipy.optimize  # noqa: F401  the stepper's root finder: its import outside the timing
     wall0 = time.perf_counter()
     xs, crun, steps, calls = integrate_contact(
         chain, contact, x0, T, h, out_dt, guard, progress,

@@ -8,6 +8,7 @@ floored, so negative times are legal down to the int32 limit).
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Sequence
 from typing import Any
@@ -99,7 +100,7 @@ def float64_multiarray(data: Any, labels: Sequence[str]) -> dict[str, Any]:
 
 
 def _layout(shape: tuple[int, ...], labels: tuple[str, ...]) -> dict[str, Any]:
-    dims = [{"label": label, "size": int(shape[i]), "stride": int(np.prod(shape[i:]))}
+    dims = [{"label": label, "size": int(shape[i]), "stride": int(math.prod(shape[i:]))}
             for i, label in enumerate(labels)]
     return {"dim": dims, "data_offset": 0}
 

@@ -4,9 +4,10 @@ Seed 000 rates (scene ``two_link_case1``: 1 kHz control and encoders, four accel
 at 4 kHz batched four samples per message, wall, recorder on):
 
 1. the plant alone: :class:`~flexarm_ros.twin.cosim.Lockstep` ticks per second (no ROS),
-   and the simulator node's tick split into physics (``SimulatorCore.step``), building the
-   message dicts (``outputs``), encoding them to CDR (``encode_cdr``) and publishing the
-   bytes (no subscriber) — the floor of a realtime tick before any other node runs;
+   and the simulator node's tick split into physics (``SimulatorCore.step``), its wire
+   bytes built from the values (``outputs(build=CdrBuilder())``) and publishing them (no
+   subscriber) — the floor of a realtime tick before any other node runs — with the
+   former path (message dicts, then ``encode_cdr``) timed beside it;
 2. ``lockstep`` through ROS, all nodes on one executor: ticks per second, with and
    without the recorder, with the twin's executor (``DrainExecutor``) and rclpy's
    SingleThreadedExecutor, measured in one run;
@@ -44,12 +45,16 @@ def plant_only(scene_name: str, ticks: int) -> float:
 
 
 def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
-    """Mean µs per simulator tick: physics, message dicts, CDR bytes, publish."""
+    """Mean µs per simulator tick: physics, the node's wire bytes built straight from the
+    values (``outputs(build=CdrBuilder())``, ``wire``), publish; and, for comparison in the
+    same run on a second core stepped alike, the former path: message dicts
+    (``messages``) then CDR (``encode``). ``total`` = physics + wire + publish."""
     import numpy as np
     import rclpy
     from rclpy.context import Context
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes import _common as C
+    from flexarm_ros.bag.cdr_fixed import CdrBuilder
     from flexarm_ros.bag.writer import encode_cdr
     from flexarm_ros.twin import topics as T
     from flexarm_ros.twin.cores import SimulatorCore
@@ -58,28 +63,36 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
     try:
         node = rclpy.create_node("tick_budget", context=ctx)
         core = SimulatorCore(load_scene(scene_name))
+        old = SimulatorCore(load_scene(scene_name))
+        build = CdrBuilder()
         tau = np.zeros(len(core.names))
-        core.outputs()
-        core.step(tau)                                # compile / warm up
+        for c in (core, old):
+            c.outputs()
+            c.step(tau)                               # compile / warm up
         pubs = {t: C.publisher(node, T.TYPES[t], t)
                 for t in [o[0] for o in core.outputs()] + list(core.groups)}
-        acc = dict.fromkeys(("physics", "messages", "encode", "publish"), 0.0)
+        old.outputs()
+        acc = dict.fromkeys(("physics", "wire", "publish", "messages", "encode"), 0.0)
         for _ in range(ticks):
             t0 = time.perf_counter()
             core.step(tau)
             t1 = time.perf_counter()
-            outs = core.outputs()
+            outs = core.outputs(build=build)
             t2 = time.perf_counter()
-            msgs = [(topic, encode_cdr(tp, d, validate=False)) for topic, tp, d in outs]
-            t3 = time.perf_counter()
-            for topic, m in msgs:
+            for topic, _, m in outs:
                 pubs[topic].publish(m)
+            t3 = time.perf_counter()
+            old.step(tau)
             t4 = time.perf_counter()
-            for key, dt in zip(acc, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            dicts = old.outputs()
+            t5 = time.perf_counter()
+            [encode_cdr(tp, d, validate=False) for _, tp, d in dicts]
+            t6 = time.perf_counter()
+            for key, dt in zip(acc, (t1 - t0, t2 - t1, t3 - t2, t5 - t4, t6 - t5)):
                 acc[key] += dt
         out = {k: 1e6 * v / ticks for k, v in acc.items()}
         out["messages_per_tick"] = len(outs)
-        out["total"] = sum(v for k, v in out.items() if k != "messages_per_tick")
+        out["total"] = out["physics"] + out["wire"] + out["publish"]
         node.destroy_node()
         return out
     finally:
@@ -173,8 +186,9 @@ def main(argv=None) -> int:
     print(f"scene {args.scene}")
     print(f"  plant + controller + driver cores, no ROS: {plant:.0f} ticks/s")
     print(f"  simulator tick (no subscriber): {b['total']:.0f} µs = physics {b['physics']:.0f}"
-          f" + messages {b['messages']:.0f} + encode {b['encode']:.0f} + publish "
-          f"{b['publish']:.0f} ({b['messages_per_tick']} messages)")
+          f" + wire bytes {b['wire']:.0f} + publish {b['publish']:.0f} "
+          f"({b['messages_per_tick']} messages; the former dicts + encode: "
+          f"{b['messages']:.0f} + {b['encode']:.0f})")
     for r in lockstep:
         print(f"  lockstep, {r['executor']:<6} executor, "
               f"{'recorder on ' if r['record'] else 'no recorder'}: {r['ticks_per_s']:6.0f} "

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "boolean",
     "clock",
     "float64_multiarray",
     "header",
@@ -46,6 +47,11 @@ def header(t_ns: int, frame_id: str = "") -> dict[str, Any]:
 def clock(t_ns: int) -> dict[str, Any]:
     """``rosgraph_msgs/msg/Clock`` (the ``/clock`` topic of simulated time)."""
     return {"clock": stamp(t_ns)}
+
+
+def boolean(value: Any) -> dict[str, bool]:
+    """``std_msgs/msg/Bool``."""
+    return {"data": bool(value)}
 
 
 def _floats(values: Any, what: str, length: int | None = None) -> list[float]:

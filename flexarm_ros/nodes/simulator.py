@@ -37,9 +37,10 @@ is published, ``diverged`` holds the :class:`~flexarm_ros.errors.SimulationDiver
 The final log line gives the simulated time, ticks, real-time factor and the rejected
 efforts by reason.
 
-Every message is published as serialized CDR (:func:`flexarm_ros.bag.writer.encode_cdr`,
-the encoder the bags use, on its compiled path without validation for the dicts the core
-builds): no rclpy message objects on the hot path. The analysis-only
+Every message is published as serialized CDR built straight from the core's values
+(:class:`flexarm_ros.bag.cdr_fixed.CdrBuilder`: a byte template per message shape,
+byte-identical to :func:`flexarm_ros.bag.writer.encode_cdr` of the core's message dicts):
+no rclpy message objects and no dicts on the hot path. The analysis-only
 topics ``ground_truth/tip`` and ``ground_truth/coordinates`` go out every tick in
 ``lockstep`` and ``fast``, at 100 Hz in ``realtime`` (at 1 kHz on two cores the budget
 does not allow every tick: docs/design_notes.md), or at ``ground_truth_rate_hz`` when set
@@ -67,7 +68,7 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from flexarm_ros.bag.writer import encode_cdr
+from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
@@ -118,6 +119,7 @@ class SimulatorNode(Node):
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
         self.pubs = pubs
+        self._cdr = CdrBuilder()
         sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort)
         self._effort_sub, self._effort_ws = sub, None
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
@@ -187,8 +189,8 @@ class SimulatorNode(Node):
 
     def _publish_state(self):
         gt = self.core.k % self.gt_every == 0
-        for topic, tp, data in self.core.outputs(ground_truth=gt):
-            self.pubs[topic].publish(encode_cdr(tp, data, validate=False))
+        for topic, tp, data in self.core.outputs(ground_truth=gt, build=self._cdr):
+            self.pubs[topic].publish(data)
             self.published[topic] += 1
         self.published_k = self.core.k
         self._progress_wall = time.monotonic()

@@ -67,6 +67,8 @@ class SimulatorCore:
                              f"whose period is a multiple of the sensor grid {g * 1e-9:g} s")
         ch = self.plant.chain
         self.names = [lm.name for lm in ch.links]
+        self._joint_names = [f"{n}_joint" for n in self.names]
+        self._gt_names = self._joint_names + [f"{n}_drive" for n in self.names]
         self.encoders = {sm.link: sm for sm in self.plant.sensors if sm.spec.kind == "encoder"}
         self.groups = {}
         for kind, topic in (("accelerometer", T.ACCEL_BATCH), ("strain", T.STRAIN_BATCH),
@@ -100,62 +102,64 @@ class SimulatorCore:
             ang[link] = q0[i0] + self.counts[link] / sm.gain
         return ang
 
-    def outputs(self, ground_truth: bool = True) -> list[tuple]:
+    def outputs(self, ground_truth: bool = True, build=msg) -> list[tuple]:
         """(topic, type, message) of this instant, in publication order. With
         ``ground_truth=False`` the analysis-only topics ``ground_truth/tip`` and
         ``ground_truth/coordinates`` are left out (``ground_truth/joint_states`` stays: it
         is the driver's input). The joint rate is the backward difference of the encoder
         angles since the previous call (one control period, or more when ticks were
-        stepped without publishing)."""
+        stepped without publishing). ``build``: the message constructors — the dicts of
+        :mod:`~flexarm_ros.bag.messages`, or a :class:`~flexarm_ros.bag.cdr_fixed.CdrBuilder`
+        for the same messages as CDR bytes (the simulator node's wire path)."""
         t_ns = _ns(self.t)
-        out = [(T.CLOCK, T.TYPES[T.CLOCK], msg.clock(t_ns))]
+        out = [(T.CLOCK, T.TYPES[T.CLOCK], build.clock(t_ns))]
         ang = self._encoder_angles()
         if self._prev_angle is None or self.k == 0:
             vel = np.zeros_like(ang)
         else:
             vel = (ang - self._prev_angle) / (self.period * (self.k - self._prev_k))
         self._prev_angle, self._prev_k = ang, self.k
-        names = [f"{n}_joint" for n in self.names]
+        names = self._joint_names
         out.append((T.JOINT_STATES, T.TYPES[T.JOINT_STATES],
-                    msg.joint_state(t_ns, names, ang, vel, self.plant.torques)))
+                    build.joint_state(t_ns, names, ang, vel, self.plant.torques)))
         if self.encoders:
             counts = [int(self.counts[link]) for link in sorted(self.encoders)]
             out.append((T.ENCODER_COUNTS, T.TYPES[T.ENCODER_COUNTS],
-                        msg.int32_multiarray(np.array(counts, dtype=np.int64), "joint")))
+                        build.int32_multiarray(np.array(counts, dtype=np.int64), "joint")))
         for topic, names_ in self.groups.items():
             rows = self.batch[topic]
             if rows:
                 out.append((topic, T.TYPES[topic],
-                            msg.float64_multiarray(np.array(rows), ("sample", "channel"))))
+                            build.float64_multiarray(np.array(rows), ("sample", "channel"))))
             self.batch[topic] = []
         cs = self.plant.contact_state()
         if self.plant.contact is not None:
             out.append((T.TOOL_CONTACT, T.TYPES[T.TOOL_CONTACT],
-                        {"data": cs["phase"] != "free"}))
+                        build.boolean(cs["phase"] != "free")))
             out.append((T.TOOL_WRENCH, T.TYPES[T.TOOL_WRENCH],
-                        msg.wrench_stamped(t_ns, "wall", (cs["normal_force"],
-                                                          cs["friction_force"], 0.0),
-                                           (0.0, 0.0, 0.0))))
+                        build.wrench_stamped(t_ns, "wall", (cs["normal_force"],
+                                                            cs["friction_force"], 0.0),
+                                             (0.0, 0.0, 0.0))))
         q, qd = self.plant.joint_state()
         qm, qdm = self.plant.drive_state()
-        gt_names = names + [f"{n}_drive" for n in self.names]
+        gt_names = self._gt_names
         out.append((T.GT_JOINT_STATES, T.TYPES[T.GT_JOINT_STATES],
-                    msg.joint_state(t_ns, gt_names, np.concatenate([q, qm]),
-                                    np.concatenate([qd, qdm]),
-                                    np.concatenate([self.plant.torques,
-                                                    self.plant.torques]))))
+                    build.joint_state(t_ns, gt_names, np.concatenate([q, qm]),
+                                      np.concatenate([qd, qdm]),
+                                      np.concatenate([self.plant.torques,
+                                                      self.plant.torques]))))
         if not ground_truth:
             return out
         tip = self.plant.tip_position()
         out.append((T.GT_TIP, T.TYPES[T.GT_TIP],
-                    msg.point_stamped(t_ns, "world", (tip[0], tip[1], 0.0))))
+                    build.point_stamped(t_ns, "world", (tip[0], tip[1], 0.0))))
         ch = self.plant.chain
         qf, qdf = ch.full_state(self.t, self.plant.x)
         applied = np.zeros(ch.n)          # input torque on each coordinate, 0 where none acts
         for link, j in self.plant._act.items():
             applied[ch.actuators[j].coord] = self.plant.torques[link]
         out.append((T.GT_COORDINATES, T.TYPES[T.GT_COORDINATES],
-                    msg.joint_state(t_ns, ch.names, qf, qdf, applied)))
+                    build.joint_state(t_ns, ch.names, qf, qdf, applied)))
         return out
 
     def step(self, torques) -> None:

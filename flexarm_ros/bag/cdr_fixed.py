@@ -194,31 +194,26 @@ class CdrBuilder:
 
     def wrench_stamped(self, t_ns: int, frame: str, force_xyz, torque_xyz) -> bytes:
         """geometry_msgs/msg/WrenchStamped."""
-        def make():
-            tp = _Template()
-            st = tp.header(frame)
-            at = tp.slot("d", 6)
-            return bytes(tp.buf), st, at
-
-        buf, st, at = self._template(("wrench", frame), make)
-        out = bytearray(buf)
-        _STAMP.pack_into(out, st, *_sec_nsec(t_ns))
-        _VEC6.pack_into(out, at, *(float(v) for v in force_xyz),
-                        *(float(v) for v in torque_xyz))
-        return bytes(out)
+        return self._stamped_doubles(t_ns, frame, _VEC6, (*force_xyz, *torque_xyz))
 
     def point_stamped(self, t_ns: int, frame: str, xyz) -> bytes:
         """geometry_msgs/msg/PointStamped."""
+        return self._stamped_doubles(t_ns, frame, _VEC3, xyz)
+
+    def _stamped_doubles(self, t_ns: int, frame: str, vec: struct.Struct, values) -> bytes:
+        """A header then a fixed block of doubles (the geometry_msgs *Stamped types here)."""
+        n = vec.size // 8
+
         def make():
             tp = _Template()
             st = tp.header(frame)
-            at = tp.slot("d", 3)
+            at = tp.slot("d", n)
             return bytes(tp.buf), st, at
 
-        buf, st, at = self._template(("point", frame), make)
+        buf, st, at = self._template(("stamped", frame, n), make)
         out = bytearray(buf)
         _STAMP.pack_into(out, st, *_sec_nsec(t_ns))
-        _VEC3.pack_into(out, at, *(float(v) for v in xyz))
+        vec.pack_into(out, at, *(float(v) for v in values))
         return bytes(out)
 
 

@@ -30,7 +30,7 @@ from flexarm_ros.scene import load_scene_dict
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.plant import Plant
 from flexarm_ros.sim.simulate import simulate
-from flexarm_ros.sim.step import RK4_STABILITY
+from flexarm_ros.sim.step import RK4_STABILITY, floor_sig
 
 L1, L2 = 0.7, 0.6
 
@@ -356,7 +356,8 @@ def test_the_plant_refuses_an_unstable_step_as_simulate_does(wall_x):
         Plant(unstable)
     msg = str(plant.value)
     assert msg == str(batch.value)
-    assert "stability limit" in msg and f"--dt <= {limit:.3g} s" in msg
+    assert "stability limit" in msg and f"--dt <= {floor_sig(limit):.3g} s" in msg
+    assert floor_sig(limit) <= limit          # the suggested step is itself accepted
     assert ("tool held on the wall" in msg) == (wall_x is not None)
     stable = probe.with_fidelity(dt=0.9 * limit)
     out = stable.fidelity.output_dt

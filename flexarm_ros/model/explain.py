@@ -67,7 +67,15 @@ def explain(scene) -> str:
                         f"pressure a state; valve current program)")
     if not chain.actuators:
         omitted.append("drives (no joint declares one)")
-    omitted.append("contact (no wall in this scene)")
+    if scene.walls:
+        for k, w in enumerate(scene.walls):
+            kept.append(f"wall walls[{k}] (point {list(w.point)} m, normal {list(w.normal)}): "
+                        f"{scene.fidelity.contact} contact, Coulomb friction "
+                        f"{w.friction:g}; events (impact, stick/slip, separation) located "
+                        f"inside RK4 steps of half the stable step, samples interpolated "
+                        f"within steps")
+    else:
+        omitted.append("contact (no wall in this scene)")
     if scene.sensors:
         kept.append("sensors: " + ", ".join(f"{s.name} ({s.kind}, {s.rate_hz:g} Hz)"
                                              for s in scene.sensors))

@@ -423,6 +423,24 @@ def integrate_contact(chain, contact: WallContact, x0, t_end, h, output_dt, guar
         st.steps, st.calls
 
 
+def warm_up(chain, contact: WallContact, x0, accelerometers=None) -> None:
+    """Compile (or load from numba's cache) the compiled contact functions with the
+    argument types of a run, outside its timing: the first call of each costs 0.1–40 s
+    (cache load / compilation), which a run's real-time factor must not count."""
+    if chain.backend != "numba" or contact.method == "compliant":
+        return
+    x0 = np.array(x0, float)
+    sc, cp = kcontact.scratch(contact), kcontact.parameters(contact)
+    buf = SampleBuffer(np.zeros(1), len(x0), contact.nf, accelerometers)
+    kcontact.span(x0, 0.0, 0.0, 1.0, FREE, 0.0, 1.0, 1.0, contact.kernel_args, contact.ws,
+                  cp, sc, buf.ts, 0, buf.X, buf.R, buf.QDD, 0.0, 1, buf.acc, buf.ACC)
+    kcontact.evaluate(0.0, x0, FREE, 0.0, np.empty(len(x0)), contact.kernel_args,
+                      contact.ws, cp, sc)
+    if buf.ACC.shape[1]:
+        ksensors.table(buf.ts[:0], buf.X[:0], buf.QDD[:0], True, chain.kernel_args,
+                       kchain.workspace(chain.kernel_args), *buf.acc, buf.ACC[:0])
+
+
 def _sample_now(st, buf) -> None:
     """Row buf.k at the stepper's current state (:meth:`ContactStepper.sample`)."""
     k = buf.k

@@ -98,11 +98,20 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     return h
 
 
+def floor_sig(x: float, digits: int = 3) -> float:
+    """x rounded down to ``digits`` significant digits (a suggested step that is itself
+    below the limit it is printed against)."""
+    if not (x > 0 and np.isfinite(x)):
+        return x
+    e = int(np.floor(np.log10(x))) - digits + 1
+    return float(np.floor(x / 10.0 ** e) * 10.0 ** e)
+
+
 def _refusal(dt, limit, t0, source, implicit=True) -> StepTooLarge:
     """The refusal of a fixed RK4 step above its stability limit: ``source`` names what
     sets the limit; ``implicit``: offer the implicit integrators (not with a wall, whose
     contact integrator is RK4)."""
-    fix = f"use --dt <= {limit:.3g} s (auto: --dt 0), "
+    fix = f"use --dt <= {floor_sig(limit):.3g} s (auto: --dt 0), "
     if implicit:
         fix += "an implicit integrator (--integrator trapezoid, radau or bdf), "
     return StepTooLarge(

@@ -77,6 +77,11 @@ def test_explain_names_coordinates_and_omissions(capsys):
     assert main(["explain", "link_tipmass"]) == 0
     text = capsys.readouterr().out
     assert "link1_joint" in text and "left out" in text and "gravity" in text
+    assert "contact (no wall in this scene)" in text
+    assert main(["explain", "two_link_case1"]) == 0      # a scene with a wall
+    modelled, left_out = capsys.readouterr().out.split("left out:")[:2]
+    assert "wall walls[0] (point [-0.025, 0.0] m" in modelled and "friction 0.5" in modelled
+    assert "no wall" not in left_out.splitlines()[0]
 
 
 @pytest.mark.parametrize("argv, fragment", [

@@ -108,7 +108,6 @@ class ContactStepper:
         self.last_sep = -math.inf
         self.impacts: list[ImpactRecord] = []
         self.impact_pending = False
-        self.frames_current = False          # sample() left this state's frames in ws
         self.calls = 0
         self.steps = 0
         self.max_drift = 0.0
@@ -362,14 +361,12 @@ class ContactStepper:
         """(phase code, λ_n, λ_t, gap, tool r, tool ṙ, q̈_free) at the current state; the
         phase is 'impact' once after an impact."""
         c = self.contact
-        self.frames_current = False
         if self.compiled:
             res = self._res
             if kcontact.evaluate(float(self.t), self.x, int(self.mode), float(self.s),
                                  self._xdot, c.kernel_args, c.ws, self._cp, self._sc):
                 ph = PHASE_CODE["impact"] if self.impact_pending else self.mode
                 self.impact_pending = False
-                self.frames_current = True      # contact.ws holds this state's frames
                 R = kcontact
                 return (ph, res[R.R_LN], res[R.R_LT], res[R.R_GAP],
                         np.array([res[R.R_RX], res[R.R_RY]]),

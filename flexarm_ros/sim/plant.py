@@ -259,12 +259,8 @@ class Plant:
         if acc_row is None and any_acc:
             qdd = self.accelerations()
             if self._acc is not None:       # compiled: frames from one kernel evaluation
-                if self.stepper is not None and self.stepper.frames_current:
-                    ws = self.contact.ws        # the contact sample's evaluation of this state
-                else:
-                    self._frames_now()
-                    ws = self.ws
-                ksensors.readings(q, qd, qdd, ch.kernel_args, ws, *self._acc[1:],
+                self._frames_now()
+                ksensors.readings(q, qd, qdd, ch.kernel_args, self.ws, *self._acc[1:],
                                   self._acc_out)
         out = []
         for j in due:

@@ -46,7 +46,6 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled.layout import Workspace
-from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.differentiate import jacobian
 
 FREE, SLIDING, STICKING = 0, 1, 2
@@ -175,20 +174,6 @@ class WallContact:
         A[nf + 1, :nf] = jt
         sol = _solve_kkt(A, np.concatenate([f, [-cn, -ct]]))
         return sol[:nf], sol[nf], sol[nf + 1]
-
-    def free_accelerations(self, t, x, mode, s=0.0) -> np.ndarray:
-        """q̈ of the free coordinates in a mode (compiled, :mod:`kcontact`, on the
-        numba backend for the impulse rung; else :meth:`rhs`)."""
-        nf = self.nf
-        if self.method != "compliant" and self.chain.backend == "numba":
-            if getattr(self, "_scratch", None) is None:
-                self._scratch = (kcontact.scratch(self), np.empty(len(x)))
-            sc, out = self._scratch
-            if kcontact.evaluate(float(t), np.asarray(x, float), int(mode), float(s),
-                                 out, self.kernel_args, self.ws, kcontact.parameters(self),
-                                 sc):
-                return out[nf:2 * nf].copy()
-        return self.rhs(t, x, mode, s)[0][nf:2 * nf]
 
     def compliant_force(self, tm: Terms):
         """(F_n, F_t) of the compliant rung at the tool."""

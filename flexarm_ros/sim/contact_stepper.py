@@ -40,14 +40,6 @@ class ContactRun:
     qdd: np.ndarray | None = None   # (N, n_free) q̈ at each sample, as the stepper read it
     acc: np.ndarray | None = None   # (N, n_acc) accelerometer specific forces at each sample
 
-    def accelerations(self, contact, k, t, x) -> np.ndarray:
-        """q̈ of the free coordinates at sample k (the mode's constrained dynamics): the
-        stepper's own reading at the sample (:meth:`ContactStepper.sample`, what the ROS
-        plant's accelerometers read too), else evaluated again."""
-        if self.qdd is not None:
-            return self.qdd[k]
-        return contact.free_accelerations(t, x, int(self.mode[k]), float(self.slip_sign[k]))
-
 
 class SampleBuffer:
     """Samples the stepper writes as its steps reach their instants ``ts`` (s, rising):

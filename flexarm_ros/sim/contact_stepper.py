@@ -65,6 +65,15 @@ class SampleBuffer:
         self.ref_rows = np.zeros(N, dtype=bool)
         self.k = 0
 
+    def put(self, k, x, ln, lt, gap, n, t, r, v, impulse, qdd) -> None:
+        """Row k written by the Python side: state, contact quantities (v_n = n·ṙ, v_t =
+        t·ṙ with the wall's normal and tangent), cumulative impulse, q̈; its
+        accelerometers are left to :meth:`complete`."""
+        self.X[k] = x
+        self.R[k] = (ln, lt, gap, n @ v, t @ v, r[0], r[1], v[0], v[1], impulse)
+        self.QDD[k] = qdd
+        self.ref_rows[k] = True
+
     def reset(self, ts) -> None:
         """Reuse the rows for new instants (as many or fewer)."""
         self.ts = np.ascontiguousarray(ts, float)
@@ -197,7 +206,7 @@ class ContactStepper:
         """Samples of ``buf`` that the step (t, x) → (t + dt, x1) in ``mode`` reaches: the
         reference of the compiled :func:`kcontact.span`'s sampling (Hermite inside the
         step with ẋ just inside both ends, the step's own state on its end)."""
-        if buf is None or buf.k >= len(buf.ts):
+        if buf.k >= len(buf.ts):
             return
         ts, k0 = buf.ts, buf.k
         t1 = t + dt
@@ -224,12 +233,13 @@ class ContactStepper:
         c = self.contact
         xd, ln, lt, tm = c.rhs(tk, xk, mode, s)
         self.calls += 1
-        v = tm.v
-        buf.X[k] = xk
-        buf.R[k] = (ln, lt, c.gap(tm), c.n @ v, c.t @ v, tm.r[0], tm.r[1], v[0], v[1],
-                    impulse)
-        buf.QDD[k] = xd[c.nf:2 * c.nf]
-        buf.ref_rows[k] = True
+        buf.put(k, xk, ln, lt, c.gap(tm), c.n, c.t, tm.r, tm.v, impulse, xd[c.nf:2 * c.nf])
+
+    def _compliant_phase(self, ln, vt):
+        """The compliant rung's phase from the contact force and the slip speed (scalars
+        or arrays): free without force, sticking below the wall's slip velocity."""
+        return np.where(ln <= 0, FREE, np.where(np.abs(vt) < self.contact.wall.slip_velocity,
+                                                STICKING, SLIDING))
 
     def _stamp(self, buf, k0, k1, mode, s):
         """Phase, mode and slip sign of the samples k0..k1-1 (taken in ``mode``); the first
@@ -239,10 +249,8 @@ class ContactStepper:
         sl = slice(k0, k1)
         buf.mode[sl], buf.sign[sl] = mode, s
         if self.compliant:
-            ln = buf.R[sl, kcontact.R_LN]
-            vt = np.abs(buf.R[sl, kcontact.R_VT])
-            buf.phase[sl] = np.where(ln <= 0, FREE, np.where(
-                vt < self.contact.wall.slip_velocity, STICKING, SLIDING))
+            buf.phase[sl] = self._compliant_phase(buf.R[sl, kcontact.R_LN],
+                                                  buf.R[sl, kcontact.R_VT])
         else:
             buf.phase[sl] = mode
         if self.impact_pending:
@@ -366,8 +374,7 @@ class ContactStepper:
         xd, ln, lt, tm = c.rhs(self.t, self.x, self.mode, self.s)
         ph = self.mode
         if self.compliant:
-            ph = FREE if ln <= 0 else (STICKING if abs(c.t @ tm.v) < c.wall.slip_velocity
-                                       else SLIDING)
+            ph = int(self._compliant_phase(ln, c.t @ tm.v))
         if self.impact_pending:
             ph = PHASE_CODE["impact"]
             self.impact_pending = False
@@ -434,12 +441,8 @@ def _sample_now(st, buf) -> None:
     """Row buf.k at the stepper's current state (:meth:`ContactStepper.sample`)."""
     k = buf.k
     ph, ln, lt, gap, r, v, qdd = st.sample()
-    c = st.contact
-    buf.X[k] = st.x
-    buf.R[k] = (ln, lt, gap, c.n @ v, c.t @ v, r[0], r[1], v[0], v[1], st.normal_impulse)
-    buf.QDD[k] = qdd
+    buf.put(k, st.x, ln, lt, gap, st.contact.n, st.contact.t, r, v, st.normal_impulse, qdd)
     buf.phase[k], buf.mode[k], buf.sign[k] = ph, st.mode, st.s
-    buf.ref_rows[k] = True
     buf.k = k + 1
 
 

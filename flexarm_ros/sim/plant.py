@@ -169,7 +169,6 @@ class Plant:
             self.guard.last = self.x
             bad = buf.X[:n][~np.all(np.isfinite(buf.X[:n]), axis=1)]
             self.guard.check(float(ts[-1]), bad[0] if len(bad) else st.x)
-        due = [self._due((self.k + i + 1) * g) for i in range(n)]
         acc = None
         if self._acc is not None:
             buf.complete(self.chain, self.ws)           # rows the reference wrote
@@ -181,9 +180,8 @@ class Plant:
             self.k += 1
             if numpy_acc:       # the numpy read-out takes q̈ from the current sample
                 self._set_row(buf, i)
-            if due[i][0]:
-                row = acc[i] if due[i][1] and acc is not None else None
-                samples.extend(self._sample_due(row, float(ts[i]), buf.X[i]))
+            samples.extend(self._sample_due(None if acc is None else acc[i], float(ts[i]),
+                                            buf.X[i]))
         self._set_row(buf, n - 1)
         return samples
 
@@ -249,7 +247,7 @@ class Plant:
         ch = self.chain
         qdd = None
         kin = None
-        if acc_row is not None:
+        if acc_row is not None and any_acc:
             self._acc_out[:] = acc_row
             if only_acc:            # nothing else due: no state assembly
                 return [Sample(self.sensors[j].name, t, self._measure(

@@ -82,8 +82,8 @@ def _fidelity_args(p):
     g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
     g.add_argument("--tolerance", type=number, metavar="M",
                    help="tip-position error bound, m: with --rung auto the model and step "
-                        "are chosen for it; with a named rung (rk4 without a wall) the "
-                        "step (simulate)")
+                        "are chosen for it; with a named rung (rk4) the step, also "
+                        "the contact stepper's with a wall (simulate)")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",

@@ -26,7 +26,7 @@ from flexarm_ros.model.contact import (FREE, SLIDING, STICKING, Terms, WallConta
                                        build_contact, constrained_rate)
 from flexarm_ros.errors import SceneError, StepTooLarge
 from flexarm_ros.model.linear import highest_rate
-from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.scene import load_scene, load_scene_dict
 from flexarm_ros.model.statics import initial_state, initial_x
 from flexarm_ros.sim.plant import Plant
 from flexarm_ros.sim.simulate import simulate
@@ -416,6 +416,30 @@ def test_compiled_contact_stepping_equals_the_reference(case, monkeypatch):
     np.testing.assert_allclose(fast.run.q, ref.run.q, atol=1e-11)
     np.testing.assert_allclose(fast.run.qd, ref.run.qd, atol=1e-8)
     assert fast.run.steps == ref.run.steps
+
+
+@pytest.mark.parametrize("reference_only", [False, True])
+def test_a_strike_right_after_a_bounce_is_not_missed(reference_only, monkeypatch):
+    """two_link_case2 bounces off the wall at 2.265 s and strikes it again about 1 ms
+    later. The gap after a bounce is zero to round-off (here a hair below zero): a free
+    step counted as an event only when it *started* at gap ≥ 0, so at a 4.754 ms step the
+    second strike was missed and the tool went on through the wall, 3.8 cm deep, with a
+    tip error of 0.024 m. Now any free step ending inside the wall holds an event (the
+    root after the gap was positive), in the compiled stepper and the reference alike:
+    the tool stays on the free side (to the contact tolerance) and the run follows the
+    one at a fine step. (Before the change the compiled stepper tunnelled here; the
+    reference's round-off happened to leave the gap ≥ 0 at this step.)"""
+    if reference_only:
+        _reference_only(monkeypatch)
+    sc = load_scene("two_link_case2")
+    fine = simulate(sc.with_fidelity(dt=6.25e-5), 2.5)
+    run = simulate(sc.with_fidelity(dt=0.004754), 2.5)
+    assert run.columns["gap"].min() > -sc.fidelity.contact_tolerance
+    late = [i.time for i in run.contact.impacts if i.time > 2.2]
+    assert late and abs(late[0] - 2.265) < 1e-3, late
+    tip = np.c_[run.columns["tip_x"], run.columns["tip_y"]]
+    tip_f = np.c_[fine.columns["tip_x"], fine.columns["tip_y"]]
+    assert np.max(np.linalg.norm(tip - tip_f, axis=1)) < 1e-4
 
 
 def test_contact_samples_inside_steps_are_dense_output_and_never_change_the_steps():

@@ -51,7 +51,10 @@ class SimResult:
                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
                                          if self.accuracy else None)}
         if self.accuracy:
-            out["estimate"] = "a priori: RK4 step halving (temporal only, the rung's own)"
+            how = ("the contact stepper's, pilots over the whole run" if self.contact is not None
+                   else f"{self.chain.fidelity.integrator}'s")
+            out["estimate"] = (f"a priori: step halving ({how}; temporal only, the rung's "
+                               f"own spatial error not included)")
         if self.auto is not None:
             from flexarm_ros.sim.accuracy import auto_summary
             out.update(auto_summary(self.auto, self.check))
@@ -99,7 +102,8 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
         if chain.backend == "numba" and any(s.spec.kind == "accelerometer" for s in sensors):
             from flexarm_ros.model.compiled import sensors as ksensors
             acc = ksensors.pack(chain, sensors)[1:]
-        run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress, acc)
+        run, crun = integrate_with_contact(chain, contact, x0, T, out_dt, progress, acc,
+                                           dt=choice.step_s if choice else None)
     tables = (sensor_tables(chain, run, sensors, q_init, crun.qdd if crun else None,
                             crun.acc if crun else None) if sensors else {})
     every = int(round(fid.output_dt / out_dt))
@@ -116,28 +120,28 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
 
 
 def _step_for_tolerance(chain, contact, x0, T, out_dt):
-    """fidelity.tolerance → the RK4 step (:mod:`flexarm_ros.sim.accuracy`), or a SceneError
-    where the estimate does not apply."""
+    """fidelity.tolerance → the step of RK4 or of the contact stepper
+    (:mod:`flexarm_ros.sim.accuracy`), or a SceneError where the estimate does not apply."""
     from flexarm_ros.sim.accuracy import step_for_tolerance
     fid = chain.fidelity
     tol = fid.tolerance
     if fid.integrator != "rk4":
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
                          f"{fid.integrator!r}, expected integrator rk4 (the adaptive "
-                         f"integrators take --rtol/--atol)")
+                         f"integrators take --rtol/--atol; the trapezoid rule's step-halving "
+                         f"estimate undershoots on the ladder's stiff rungs, "
+                         f"docs/accuracy.md)")
     if fid.dt > 0:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m together with fidelity.dt = "
                          f"{fid.dt:g} s, expected one of them (the tolerance chooses the step)")
-    if contact is not None:
-        raise SceneError(f"fidelity.tolerance: got {tol:g} m for a scene with a wall, "
-                         f"expected 0 (the step-halving estimate does not cover the contact "
-                         f"stepper's events yet; set --dt)")
-    return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio)
+    return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio, contact)
 
 
-def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, accelerometers=None):
+def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, accelerometers=None,
+                           dt=None):
     """Run a scene with a wall (fixed-step RK4 through the contact modes); the readings of
-    ``accelerometers`` (:func:`ksensors.pack`'s arrays) at every sample in ContactRun.acc."""
+    ``accelerometers`` (:func:`ksensors.pack`'s arrays) at every sample in ContactRun.acc.
+    The step: ``dt`` when given (the tolerance's), else fidelity.dt (0: automatic)."""
     fid = chain.fidelity
     check_integrator(chain)
     tm = contact.terms(0.0, x0)
@@ -154,7 +158,8 @@ def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, acceler
                          f"a start on the free side (gap >= 0)")
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     dense = smooth(chain)
-    h = choose_step(chain, x0, "rk4", fid.dt, out_dt, contact=contact, dense=dense)
+    h = choose_step(chain, x0, "rk4", fid.dt if dt is None else dt, out_dt, contact=contact,
+                    dense=dense)
     check_work(chain, x0, h, T, "rk4", contact)
     guard = DivergenceGuard(chain, fid.max_deflection_ratio, "rk4", h)
     import scipy.optimize  # noqa: F401  the stepper's root finder: its import outside the timing

@@ -353,7 +353,9 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
         if not ok:
             return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
         for j in range(ni):
-            if ind0[j] >= 0.0 and ind1[j] < 0.0:
+            # free flight: any step ending inside the wall holds an event, also one that
+            # starts a hair inside it after a bounce or lift-off (the reference's rule)
+            if ind1[j] < 0.0 and (ind0[j] >= 0.0 or mode == FREE):
                 return EVENT, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
         if mode != FREE:
             # M-orthogonal projection onto g = 0, v_n = 0 (and v_t = 0 when sticking) with

@@ -74,14 +74,24 @@ class RunResult:
     published: dict | None = None             # simulator: messages per topic
     recorded: dict | None = None              # the bag's message count per topic
     cpus: dict | None = None                  # --processes with pinning: node -> CPUs
+    first_command_s: float | None = None      # sim time of the first recorded command
+
+    @property
+    def ticking_s(self) -> float | None:
+        """Wall time of the ticking alone (what the real-time factor divides by); the
+        rest of ``wall_s`` is start-up (processes, imports, discovery) and the end."""
+        rtf = self.real_time_factor
+        return self.sim_s / rtf if self.sim_s is not None and rtf else None
 
     def to_json(self) -> dict:
         """The summary as JSON-ready numbers (``flexarm run --json``)."""
         p = self.pacing or {}
         return {"scene": self.scene, "mode": self.mode, "processes": self.processes,
                 "nodes": list(self.nodes), "record": str(self.record) if self.record else None,
-                "wall_time_s": self.wall_s, "sim_time_s": self.sim_s, "ticks": self.ticks,
+                "wall_time_s": self.wall_s, "ticking_wall_time_s": self.ticking_s,
+                "sim_time_s": self.sim_s, "ticks": self.ticks,
                 "real_time_factor": self.real_time_factor,
+                "first_command_s": self.first_command_s,
                 "late_ticks": p.get("late_ticks"),
                 "lateness_p50_s": p.get("lateness_p50_s"),
                 "lateness_p99_s": p.get("lateness_p99_s"),
@@ -108,13 +118,19 @@ class RunResult:
         left = [n for n in NODES if self.nodes and n not in self.nodes]
         s += f"; without {', '.join(left)})" if left else ")"
         if self.sim_s is not None:
-            s += (f", {self.sim_s:.3f} s simulated in {self.wall_s:.3g} s "
-                  f"(real-time factor {self.real_time_factor:.3g}")
+            tick = self.ticking_s
+            s += (f", {self.sim_s:.3f} s simulated in "
+                  + (f"{tick:.3g} s of ticking, {self.wall_s:.3g} s with start-up "
+                     if tick is not None else f"{self.wall_s:.3g} s ")
+                  + f"(real-time factor {self.real_time_factor:.3g}")
             p = self.pacing
             s += (f", {p['late_ticks']} of {p['ticks']} ticks late, lateness p99 "
                   f"{p['lateness_p99_s'] * 1e3:.2f} ms)" if p else ")")
         else:
             s += f", {self.wall_s:.3g} s wall"
+        if self.first_command_s is not None and self.first_command_s > 0:
+            s += (f"; the first command came at {self.first_command_s:.3f} s (the drives "
+                  f"held 0 before it)")
         if self.interrupted:
             s += ", interrupted"
         if self.diverged:
@@ -159,6 +175,27 @@ def _bag_counts(path) -> dict | None:
         return None
     by_id = summary.statistics.channel_message_counts
     return {ch.topic: int(by_id.get(cid, 0)) for cid, ch in summary.channels.items()}
+
+
+def _first_command_s(path) -> float | None:
+    """Log time (sim s) of the first message on the motor driver's command topic of a
+    finalized bag (None: no such message or no summary)."""
+    from mcap.reader import make_reader
+
+    from flexarm_ros.twin import topics as T
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:
+                return None
+            topics = [c.topic for c in summary.channels.values()
+                      if c.topic.endswith("/" + T.COMMANDS)]
+            for _, _, m in reader.iter_messages(topics=topics):
+                return m.log_time * 1e-9
+    except Exception:                         # a truncated bag: not known
+        return None
+    return None
 
 
 def _read_summary(path) -> dict | None:
@@ -515,6 +552,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             if record:
                 res.rejected = _bag_rejections(record)
                 res.recorded = _bag_counts(record)
+                res.first_command_s = _first_command_s(record)
             return res
         g = InProcessGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                            fidelity=fidelity, simulator=simulator)
@@ -538,6 +576,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             g.close()
         if record:
             res.recorded = _bag_counts(record)
+            res.first_command_s = _first_command_s(record)
         return res
     finally:
         stop.restore()

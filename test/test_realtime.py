@@ -54,6 +54,14 @@ def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_eve
     s = _run_json(capsys, "two_link_case1", "--mode", "realtime", "--duration", "0.5",
                   "--record", str(tmp_path / "rt.mcap"), *argv)
     _check_summary(s, 500, gt_every)
+    # the drives hold 0 until the controller's first command: when that came is reported
+    with open(tmp_path / "rt.mcap", "rb") as f:
+        first = next(make_reader(f).iter_messages(topics=[T.resolve(NS, T.COMMANDS)]))[2]
+    assert s["first_command_s"] == pytest.approx(first.log_time * 1e-9)
+    assert 0 <= s["first_command_s"] < 0.5
+    # the real-time factor covers the ticking; the wall time includes start-up
+    assert s["ticking_wall_time_s"] == pytest.approx(s["sim_time_s"] / s["real_time_factor"])
+    assert s["ticking_wall_time_s"] < s["wall_time_s"]
 
 
 def test_realtime_run_in_processes_reports_the_same_summary(tmp_path, capsys):

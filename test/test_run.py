@@ -129,7 +129,7 @@ def test_flexarm_run_takes_the_fidelity_overrides_and_quiet_keeps_the_summary(tm
     assert std.out.startswith("two_link_free: lockstep run (one process), 0.050 s simulated")
     assert "[INFO]" not in std.err and "t = " not in std.err, std.err
     bag = read_bag(out)
-    assert "rung rigid (refine 1)" in bag.metadata["model"]["explain"]
+    assert "rung rigid (refine 1" in bag.metadata["model"]["explain"]
     info = bag.metadata["flexarm_ros"]
     assert info["fidelity_overrides"] == '{"rung": "rigid"}'
     scene = load_scene_dict(yaml.safe_load(info["scene_yaml"]))

@@ -13,7 +13,9 @@ def explain(scene) -> str:
     chain = Chain(scene)            # rung auto: the choice over the scene's duration
     fid = chain.fidelity
     lines = [f"scene {scene.name}: {scene.description.strip()}".rstrip(": "),
-             f"rung {fid.rung} (refine {chain.links[0].beam.refine}), integrator "
+             f"rung {fid.rung} (refine {chain.links[0].beam.refine}"
+             + (", the rung's default: fidelity.refine 0" if fid.refine == 0 else "")
+             + "), integrator "
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else ", automatic step")
              + (" — chosen by rung auto" if chain.auto is not None else "")]
     if chain.auto is not None:

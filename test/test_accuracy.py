@@ -109,6 +109,8 @@ def test_simulate_json_reports_the_estimate(tmp_path, capsys):
     (["simulate", "two_link_free", "--tolerance", "1e-6", "--dt", "1e-3"],
      ("fidelity.tolerance", "fidelity.dt")),
     (["simulate", "two_link_free", "--tolerance", "-1"], ("tolerance", "-1")),
+    (["simulate", "two_link_case3_backlash", "--tolerance", "1e-6"],
+     ("fidelity.tolerance", "links[0].joint.backlash", "irregular")),
     (["run", "two_link_free", "--tolerance", "1e-6", "--no-record"], ("--tolerance",)),
 ])
 def test_a_tolerance_where_it_does_not_apply_is_one_line(tmp_path, capsys, argv, words):

@@ -23,12 +23,19 @@ The same estimate serves the contact stepper, with its own order and ceiling:
   located inside steps). Its error is not smooth in time — an impact shifts the phase
   at once — so the pilot runs cover the **whole run** (window = T, no extrapolation in
   time) at the automatic contact step and its half, and the automatic contact step is
-  the ceiling (above it two_link_case2 lands on another contact history: 0.024 m at
-  10 ms, docs/accuracy.md). Measured per halving of the step on two_link_case1/case2
-  (2.5 s, against 62.5 µs): error ratios 10–19, order 3.4–4.3; the estimate assumes
-  order **3** (E₁ = difference·8/7, E(h) = E₁·(h/h₁)³), below what was measured, so
-  that the chosen step errs on the short side. Cost: the pilots are 3 runs at the
-  automatic step, then the run at the chosen one.
+  the ceiling. Measured per halving of the step on two_link_case1/case2 (2.5 s, against
+  62.5 µs): error ratios 10–19, order 3.4–4.3. A third pilot at a quarter of the
+  automatic step shows the order over the run; the estimate uses it or **3**, whichever
+  is lower (so the chosen step errs short), on the finer pair, with the triangle
+  inequality for steps above it (:func:`_step_from_three`: extrapolating the finer pair
+  up at order 3 gave half the measured error on two_link_case2, whose pair order was
+  4.1). Cost: the pilots are 7 runs' worth at the automatic step, then the run at the
+  chosen one.
+
+Models without a wall whose right-hand side has kinks (the hydraulic orifice) take the
+same three pilots over their window. Backlash is refused: its dead zone, stepped over,
+makes the error irregular in the step (two_link_case3_backlash, 1 s, against 15.6 µs:
+1.4e-6, 3.1e-7, 4.3e-7 m at 250, 125 and 83 µs), which no step-halving estimate follows.
 
 The estimate is reported in the run summary (``estimated_tip_error_m``) and checked
 against a converged reference in ``test/test_accuracy.py`` for seed scenes at
@@ -69,12 +76,14 @@ class StepChoice:
     pilot_window_s: float
     pilot_error_m: float        # E₁: the pilot's tip error at its coarse step
     stable_step_s: float        # the ceiling: RK4_AUTO/|λ|max or the automatic contact step
+    order: float = 4.0          # the order the estimate used
 
     def explain(self) -> str:
         return (f"step {self.step_s:.4g} s for a tip tolerance of {self.tolerance_m:.3g} m "
                 f"(estimated {self.estimated_tip_error_m:.3g} m: pilot runs over "
                 f"{self.pilot_window_s:.3g} s at {self.pilot_step_s:.4g} s and about half of it "
-                f"give {self.pilot_error_m:.3g} m at the coarse step; ceiling "
+                f"give {self.pilot_error_m:.3g} m at the coarse step, order "
+                f"{self.order:.2g}; ceiling "
                 f"{self.stable_step_s:.4g} s)")
 
 
@@ -124,22 +133,58 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
         window = min(t_end, window)
     coarse, h1 = tip_history(chain, x0, window, h1, output_dt, max_ratio, contact)
     fine, h2 = tip_history(chain, x0, window, h1 / 2, output_dt, max_ratio, contact)
-    # e(h1) − e(h2) = C·(h1^p − h2^p)  →  e(h1) = difference / (1 − (h2/h1)^p)
-    e1 = float(np.max(np.linalg.norm(coarse - fine, axis=1))) / (1 - (h2 / h1) ** order)
+    d12 = float(np.max(np.linalg.norm(coarse - fine, axis=1)))
     growth = t_end / window
-    if e1 <= 0.0:
-        h = h_top
+    if contact is None and smooth(chain):
+        # e(h1) − e(h2) = C·(h1^p − h2^p)  →  e(h1) = difference / (1 − (h2/h1)^p)
+        e1 = d12 / (1 - (h2 / h1) ** order)
+        if e1 <= 0.0:
+            h = h_top
+        else:
+            # (1 − 1e-12): the estimate below then stays at or under SAFETY·tol despite
+            # the round-off of the root and power (it came out 1 ulp above)
+            h = min(h_top, h1 * (SAFETY * tol / (e1 * growth)) ** (1 / order)
+                    * (1.0 - 1e-12))
+        est = e1 * (h / h1) ** order * growth
+        base = (h1, e1)
     else:
-        # (1 − 1e-12): the estimate below then stays at or under SAFETY·tol despite the
-        # round-off of the root and power (it came out 1 ulp above)
-        h = min(h_top, h1 * (SAFETY * tol / (e1 * growth)) ** (1 / order) * (1.0 - 1e-12))
+        # events or a right-hand side with kinks (backlash, the hydraulic orifice): a
+        # third pilot shows the order, and the estimate rests on the finer pair
+        finest, h4 = tip_history(chain, x0, window, h2 / 2, output_dt, max_ratio, contact)
+        d24 = float(np.max(np.linalg.norm(fine - finest, axis=1)))
+        if d12 > 0.0 and d24 > 0.0:
+            order = min(order, max(1.0, math.log(d12 / d24) / math.log(h1 / h2)))
+        h, est, base = _step_from_three(h_top, h1, h2, h4, d12, d24, order, growth, tol)
     if h < MIN_STEP_S:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m, expected a tolerance the "
                          f"{'contact stepper' if contact is not None else 'RK4 step'} "
                          f"can reach with a step above {MIN_STEP_S:g} s (it would need "
                          f"{h:.3g} s); loosen it or use --integrator dop853 with --rtol")
-    est = e1 * (h / h1) ** order * growth
-    return StepChoice(h, est, tol, h1, window, e1, h_top)
+    return StepChoice(h, est, tol, base[0], window, base[1], h_top, order)
+
+
+def _step_from_three(h_top, h1, h2, h4, d12, d24, p, growth, tol):
+    """(step, its estimate, (base step, base error)) from pilots at h1 > h2 > h4 with the
+    tip differences d12 = |x(h1) − x(h2)|, d24 = |x(h2) − x(h4)| and the order p (the
+    assumed one or the observed one, whichever is lower).
+
+    E₂ = d24 / (1 − (h4/h2)ᵖ) (Richardson on the finer pair, conservative at the lower
+    order) and E₁ = d12 + E₂ (the triangle inequality: no order assumed). Between h2 and
+    h1 the estimate interpolates the two on log-log axes; below h2 it falls as hᵖ. (On
+    two_link_case2 the pair order was 4.1 but p = 3: extrapolating E₂ up to h1 at order
+    3 gave half the measured error, E₁ does not.)"""
+    e2 = d24 / (1 - (h4 / h2) ** p) if d24 > 0.0 else 0.0
+    e1 = d12 + e2
+    target = SAFETY * tol / growth
+    if e1 <= target:
+        h = h_top if e1 == 0.0 else h1
+        return h, e1 * growth, (h1, e1)
+    if e2 <= target:
+        q = math.log(e1 / e2) / math.log(h1 / h2) if e2 > 0.0 else p
+        h = h2 * (target / e2) ** (1 / q) * (1.0 - 1e-12) if e2 > 0.0 else h2
+        return h, (e2 * (h / h2) ** q if e2 > 0.0 else 0.0) * growth, (h2, e2)
+    h = h2 * (target / e2) ** (1 / p) * (1.0 - 1e-12)
+    return h, e2 * (h / h2) ** p * growth, (h2, e2)
 
 
 # ----------------------------------------------------------------- rung auto: the check

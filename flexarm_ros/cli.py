@@ -115,17 +115,20 @@ class _Progress:
     def __init__(self, total_s, quiet):
         self.total = total_s
         self.quiet = quiet
-
-    def __call__(self, frac):
-        print(f"\r  t = {frac * self.total:.4g} / {self.total:.4g} s ({100 * frac:5.1f} %)"
-              .ljust(self.WIDTH), end="", file=sys.stderr, flush=True)
+        self.drawn = False
 
     @property
     def callback(self):
         return None if self.quiet else self
 
+    def __call__(self, frac):
+        self.drawn = True
+        print(f"\r  t = {frac * self.total:.4g} / {self.total:.4g} s ({100 * frac:5.1f} %)"
+              .ljust(self.WIDTH), end="", file=sys.stderr, flush=True)
+
     def clear(self):
-        if not self.quiet:
+        """Blank the progress line, if one was drawn."""
+        if not self.quiet and self.drawn:
             print("\r" + " " * self.WIDTH + "\r", end="", file=sys.stderr, flush=True)
 
 
@@ -303,7 +306,9 @@ def cmd_run(args):
     if args.tolerance is not None:
         from flexarm_ros.errors import SceneError
         raise SceneError(f"--tolerance: got {args.tolerance:g} m, expected it with flexarm "
-                         f"simulate (the twin's plant steps on its sensor grid; set --dt)")
+                         f"simulate (the twin's plant steps within its control tick with "
+                         f"the held efforts, which the step-halving pilots cannot "
+                         f"replay; set --dt)")
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record

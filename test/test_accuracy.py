@@ -109,6 +109,7 @@ def test_simulate_json_reports_the_estimate(tmp_path, capsys):
     (["simulate", "two_link_free", "--tolerance", "1e-6", "--dt", "1e-3"],
      ("fidelity.tolerance", "fidelity.dt")),
     (["simulate", "two_link_free", "--tolerance", "-1"], ("tolerance", "-1")),
+    (["simulate", "two_link_free", "--tolerance", "1e-15"], ("fidelity.tolerance", "1e-10")),
     (["simulate", "two_link_case3_backlash", "--tolerance", "1e-6"],
      ("fidelity.tolerance", "links[0].joint.backlash", "irregular")),
     (["run", "two_link_free", "--tolerance", "1e-6", "--no-record"], ("--tolerance",)),

@@ -14,7 +14,7 @@ def explain(scene) -> str:
     fid = chain.fidelity
     lines = [f"scene {scene.name}: {scene.description.strip()}".rstrip(": "),
              f"rung {fid.rung} (refine {chain.links[0].beam.refine}"
-             + (", the rung's default: fidelity.refine 0" if fid.refine == 0 else "")
+             + (": the rung's default, as fidelity.refine is 0" if fid.refine == 0 else "")
              + "), integrator "
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else ", automatic step")
              + (" — chosen by rung auto" if chain.auto is not None else "")]

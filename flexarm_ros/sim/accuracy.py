@@ -64,6 +64,10 @@ SAFETY = 0.5            # the estimate aims at half the tolerance
 WINDOW_FRACTION = 0.1   # the pilot window: this share of the run ...
 WINDOW_MIN_S = 0.1      # ... but at least this long (or the whole run)
 MIN_STEP_S = 1e-7       # below this the tolerance is refused as unreachable
+#: below this the tolerance is refused: the pilots' tip histories differ by round-off at
+#: this level (two_link_case1 at 62.5 and 31.25 µs: 2e-12 m apart), so an estimate under
+#: it would be noise — a 1e-15 m tolerance ran 890 000 steps and claimed 5e-16 m
+MIN_TOLERANCE_M = 1e-10
 
 
 @dataclass(frozen=True)
@@ -113,6 +117,11 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
         raise SceneError(f"fidelity.tolerance: got {tol!r}, expected a tip-position error "
                          f"bound > 0 m")
+    if tol < MIN_TOLERANCE_M:
+        raise SceneError(f"fidelity.tolerance: got {tol:g} m, expected at least "
+                         f"{MIN_TOLERANCE_M:g} m (below it the step-halving estimate is "
+                         f"round-off; for a converged reference use --integrator dop853 "
+                         f"--rtol 1e-12)")
     from flexarm_ros.sim.integrate import input_breakpoints, smooth
     if contact is not None:
         from flexarm_ros.sim.step import choose_step

@@ -46,7 +46,9 @@ class SimResult:
                "rhs_evaluations": r.rhs_evaluations, "steps": r.steps, "dt": r.dt,
                "rung": self.chain.fidelity.rung, "coordinates": list(self.chain.names),
                "integrator": self.chain.fidelity.integrator,
-               "refine": self.chain.fidelity.refine, "step_s": r.dt,
+               # the refinement the model has (fidelity.refine 0 takes the rung's default;
+               # flexarm explain names the same number)
+               "refine": self.chain.links[0].beam.refine, "step_s": r.dt,
                "tolerance_m": self.accuracy.tolerance_m if self.accuracy else None,
                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
                                          if self.accuracy else None)}

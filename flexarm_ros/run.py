@@ -125,7 +125,7 @@ class RunResult:
                   + f"(real-time factor {self.real_time_factor:.3g}")
             p = self.pacing
             s += (f", {p['late_ticks']} of {p['ticks']} ticks late, lateness p99 "
-                  f"{p['lateness_p99_s'] * 1e3:.2f} ms)" if p else ")")
+                  f"{p['lateness_p99_s'] * 1e3:.3g} ms)" if p else ")")
         else:
             s += f", {self.wall_s:.3g} s wall"
         if self.first_command_s is not None and self.first_command_s > 0:

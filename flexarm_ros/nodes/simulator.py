@@ -433,8 +433,8 @@ class SimulatorNode(Node):
             if self.mode == "realtime":
                 st = self.pacer.summary()
                 pace = (f", {st['late_ticks']} of {st['ticks']} ticks late (lateness p50 "
-                        f"{st['lateness_p50_s'] * 1e3:.2f} ms, p99 "
-                        f"{st['lateness_p99_s'] * 1e3:.2f} ms, max "
+                        f"{st['lateness_p50_s'] * 1e3:.3g} ms, p99 "
+                        f"{st['lateness_p99_s'] * 1e3:.3g} ms, max "
                         f"{st['lateness_max_s'] * 1e3:.2f} ms)")
                 if st["skipped_ticks"] or st["slowed_s"]:
                     pace += (f"; late beyond {st['late_bound_s']:g} s {self.pacer.crossings}"

@@ -144,12 +144,17 @@ def why_step(chain, x0, h, integrator, contact=None, adaptive=False) -> str:
                    else f" = {lk.joint.initial_angle:g} rad") for k, lk in enumerate(sc.links))
             if any(sc.gravity):
                 angles += f"; gravity = {list(sc.gravity)} m/s²"
+            # the tip bodies by key and value: a tiny mass or inertia there makes the
+            # held arm's highest rate huge (fuzzing found 1e-12 kg; the message named no key)
+            tips = ", ".join(f"links[{k}].tip.mass = {lk.tip.mass:g} kg, links[{k}].tip."
+                             f"inertia = {lk.tip.inertia:g} kg·m²"
+                             for k, lk in enumerate(sc.links))
             return (f"The step is set by the arm held on the wall (walls[0]) in its start "
                     f"configuration ({angles}): its highest rate {held:.3g} 1/s "
                     f"({held / (2 * math.pi):.3g} Hz) with the tool at tool.position = "
                     f"{list(sc.tool.position)} m. To fix: check the start configuration "
                     f"(an arm pointing straight at the wall is stiff along its axis), "
-                    f"tool.position and the tip body's inertia, or fidelity.contact: "
+                    f"tool.position and the tip bodies ({tips}), or fidelity.contact: "
                     f"compliant")
     what = describe_coordinate(chain, label, kind)
     return (f"The step is set by the eigenvalue λ = {_fmt_complex(lam)} 1/s (|λ| = "

@@ -146,6 +146,19 @@ def test_chunk_and_message_indexes_point_at_their_records():
     assert footer and footer[0].summary_crc != 0
 
 
+def test_time_range_covers_the_open_chunk():
+    """The (first, last) log time BagWriter writes into the rosbag2 metadata."""
+    f = McapFile(io.BytesIO(), "ros2", "test", chunk_size=1024)
+    assert f.time_range() == (None, None)
+    f.register_channel("/a", "cdr", 0, {})
+    times = [50, 10, 99, 30] * 40          # several chunks of 1 KiB
+    for i, t in enumerate(times):
+        f.add_message(1, t + i, b"x" * 40, t + i, i)
+        assert f.time_range() == (min(v + k for k, v in enumerate(times[:i + 1])),
+                                  max(v + k for k, v in enumerate(times[:i + 1])))
+    f.finish()
+
+
 def test_an_empty_file_is_valid():
     data = _write(_ours("zstd", 1024), [("metadata", "m", {"a": "b"})])
     s = SeekingReader(io.BytesIO(data)).get_summary()

@@ -183,6 +183,13 @@ class McapFile:
         self._index = {}
         self._chunk_start = self._chunk_end = None
 
+    def time_range(self) -> tuple:
+        """(first, last) log time of the messages written so far, the chunk being filled
+        included; (None, None) before any."""
+        lo = [v for v in (self._start, self._chunk_start) if v is not None]
+        hi = [v for v in (self._end, self._chunk_end) if v is not None]
+        return (min(lo), max(hi)) if lo else (None, None)
+
     def add_metadata(self, name: str, data: dict) -> None:
         """A Metadata record, after the chunk being filled (closed first)."""
         self._close_chunk()

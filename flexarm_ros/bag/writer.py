@@ -585,8 +585,6 @@ class BagWriter:
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, msgtype)
         self._counts: dict[str, int] = {}
-        self._start_ns: int | None = None
-        self._end_ns: int | None = None
         self.rosbag2_metadata: dict[str, Any] | None = None
         """rosbag2 ``BagMetadata`` as written by :meth:`close` (``None`` before)."""
 
@@ -698,12 +696,6 @@ class BagWriter:
         n = self._counts[topic]
         self._writer.add_message(channel_id, log_time_ns, data, publish_time_ns, n % 2**32)
         self._counts[topic] = n + 1
-        if self._start_ns is None:
-            self._start_ns = self._end_ns = log_time_ns
-        elif log_time_ns < self._start_ns:
-            self._start_ns = log_time_ns
-        elif log_time_ns > self._end_ns:
-            self._end_ns = log_time_ns
         if self._sink.dirty:  # a chunk was completed: hand it to the OS now
             self._sink.flush()
 
@@ -737,7 +729,7 @@ class BagWriter:
         topics = [(topic, msgtype, "cdr", qos, msgdefs.TYPE_HASHES.get(msgtype, ""),
                    self._counts[topic]) for topic, (_, msgtype) in self._channels.items()]
         return rosbag2_bag_metadata(
-            self._rosbag2_version, topics, self._start_ns, self._end_ns,
+            self._rosbag2_version, topics, *self._writer.time_range(),
             [self.path.name] if self.path is not None else [], self._custom_data,
             os.environ.get("ROS_DISTRO", ""))
 

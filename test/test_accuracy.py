@@ -119,3 +119,11 @@ def test_a_tolerance_where_it_does_not_apply_is_one_line(tmp_path, capsys, argv,
                 (["--out", str(tmp_path / "x.npz")] if argv[0] == "simulate" else []))
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and all(w in err[0] for w in words), err
+
+
+def test_explain_says_the_tolerance_chooses_the_step(capsys):
+    assert main(["explain", "two_link_case1", "--tolerance", "1e-7"]) == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert "tip tolerance of 1e-07 m" in line and "automatic step" not in line
+    assert main(["explain", "two_link_case1"]) == 0
+    assert capsys.readouterr().out.splitlines()[1].endswith("automatic step")

@@ -16,7 +16,12 @@ def explain(scene) -> str:
              f"rung {fid.rung} (refine {chain.links[0].beam.refine}"
              + (": the rung's default, as fidelity.refine is 0" if fid.refine == 0 else "")
              + "), integrator "
-             f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else ", automatic step")
+             f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else
+                                    f", the step chosen for a tip tolerance of "
+                                    f"{fid.tolerance:g} m by step-halving pilot runs when "
+                                    f"the run starts (flexarm simulate)"
+                                    if fid.tolerance and chain.auto is None else
+                                    ", automatic step")
              + (" — chosen by rung auto" if chain.auto is not None else "")]
     if chain.auto is not None:
         lines.extend(chain.auto.explain().splitlines())

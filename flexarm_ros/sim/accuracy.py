@@ -157,8 +157,9 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
         est = e1 * (h / h1) ** order * growth
         base = (h1, e1)
     else:
-        # events or a right-hand side with kinks (backlash, the hydraulic orifice): a
-        # third pilot shows the order, and the estimate rests on the finer pair
+        # events or a right-hand side with kinks (the hydraulic orifice; backlash is
+        # refused before this): a third pilot shows the order, and the estimate rests on
+        # the finer pair
         finest, h4 = tip_history(chain, x0, window, h2 / 2, output_dt, max_ratio, contact)
         d24 = float(np.max(np.linalg.norm(fine - finest, axis=1)))
         if d12 > 0.0 and d24 > 0.0:

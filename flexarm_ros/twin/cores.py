@@ -94,9 +94,7 @@ class SimulatorCore:
         first `flexarm run` on a fresh machine reported a real-time factor of 0.01) and,
         in realtime, made the first tick late by that much. Nothing of the copy is kept."""
         import copy
-        twin = copy.deepcopy(self.__dict__)
-        shadow = object.__new__(type(self))
-        shadow.__dict__.update(twin)
+        shadow = copy.deepcopy(self)
         try:
             shadow.step(np.zeros(len(self.names)))
             shadow.outputs()

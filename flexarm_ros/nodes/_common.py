@@ -200,6 +200,38 @@ def make_executor(context, kind="drain"):
     return SingleThreadedExecutor(context=context)
 
 
+PROFILE_ENV = "FLEXARM_PROFILE_DIR"
+
+
+class profiled:
+    """With ``$FLEXARM_PROFILE_DIR`` set, profile the node's spinning (cProfile) and write
+    ``<dir>/<executable>.prof`` (``python -m pstats``): where a node process's CPU goes,
+    measured in the run itself. A thread profiles itself: the realtime simulator's pacing
+    thread writes ``simulator-pacer.prof``."""
+
+    def __init__(self, name: str):
+        import os
+        self.path = None
+        d = os.environ.get(PROFILE_ENV)
+        if d:
+            os.makedirs(d, exist_ok=True)
+            self.path = os.path.join(d, f"{name}.prof")
+        self.prof = None
+
+    def __enter__(self):
+        if self.path:
+            import cProfile
+            self.prof = cProfile.Profile()
+            self.prof.enable()
+        return self
+
+    def __exit__(self, *exc):
+        if self.prof is not None:
+            self.prof.disable()
+            self.prof.dump_stats(self.path)
+        return False
+
+
 def node_main(cls, args=None):
     """``main()`` of a node's process: ``--help``, init, spin until done or stopped, shut
     down, then end the process with the exit status (it does not return): exit handlers
@@ -255,10 +287,11 @@ def _node_main(cls, args=None) -> int:
         # wake-up takes a batch of messages instead of one (measured: the recorder's CPU
         # per tick at 1 kHz fell from 650 to 360 µs, docs/design_notes.md)
         pause = float(getattr(node, "spin_pause_s", 0.0))
-        while ctx.ok() and not stop.set and not getattr(node, "finished", False):
-            exe.spin_once(timeout_sec=0.1)
-            if pause > 0:
-                time.sleep(pause)
+        with profiled(cls.EXECUTABLE):
+            while ctx.ok() and not stop.set and not getattr(node, "finished", False):
+                exe.spin_once(timeout_sec=0.1)
+                if pause > 0:
+                    time.sleep(pause)
         if hasattr(node, "finish"):
             node.finish(exe)
         exe.shutdown()

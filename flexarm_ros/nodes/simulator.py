@@ -312,13 +312,14 @@ class SimulatorNode(Node):
         try:
             lag = int(self.p["effort_lag"])
             wait_s = self.core.scene.control.watchdog_s
-            while not self.finished:
-                ticks = self.pacer.wait()
-                if self.finished:
-                    break
-                if lag >= 0:
-                    self._await_effort(self.published_k - lag, wait_s)
-                self._step(self.torque, ticks)
+            with C.profiled("simulator-pacer"):
+                while not self.finished:
+                    ticks = self.pacer.wait()
+                    if self.finished:
+                        break
+                    if lag >= 0:
+                        self._await_effort(self.published_k - lag, wait_s)
+                    self._step(self.torque, ticks)
         except BaseException as exc:            # never die silently in a thread
             self.get_logger().error(f"realtime loop stopped: {exc!r}")
             self.halt()

@@ -244,7 +244,10 @@ def _scene_arg(scene) -> str:
 class InProcessGraph:
     """All nodes in this process on one executor and a private context.
 
-    ``executor="single"``: rclpy's SingleThreadedExecutor (default); ``"events"``: the
+    ``executor="drain"`` (default): :class:`~flexarm_ros.nodes.executor.DrainExecutor`,
+    and with ``intraprocess`` (default) the nodes exchange their messages through an
+    intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`; DDS still carries every
+    message to other processes). ``"single"``: rclpy's SingleThreadedExecutor; ``"events"``: the
     experimental EventsExecutor, whose C++ event queue spends less time per lockstep tick,
     but it still dispatches events queued for a node that was removed or destroyed (used by
     ``bench/bench_realtime.py --executor events`` only). ``progress``: the simulator's
@@ -253,7 +256,7 @@ class InProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 executor="drain", fidelity=None, simulator=None):
+                 executor="drain", fidelity=None, simulator=None, intraprocess=True):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -269,6 +272,10 @@ class InProcessGraph:
         self.executor = make_executor(self.context, executor)
         self.nodes = {}
         names = list(nodes) + (["recorder"] if record else [])
+        self.bus = None
+        if intraprocess and executor == "drain":
+            from flexarm_ros.nodes.intraprocess import install
+            self.bus = install(self.context, [(namespace, n) for n in names])
         try:
             for name in NODES:
                 if name not in names:
@@ -313,6 +320,8 @@ class InProcessGraph:
     def remove(self, name):
         """Take a node out of the graph (what a crash does), without closing the others."""
         node = self.nodes.pop(name)
+        if self.bus is not None:
+            self.bus.remove_node(node)
         self.executor.remove_node(node)
         node.destroy_node()
 

@@ -41,18 +41,39 @@ def publisher(node, msgtype: str, topic: str):
     add waitables that every executor wait has to scan (a large share of a lockstep tick,
     docs/design_notes.md)."""
     from flexarm_ros.nodes._msgconv import msg_class
-    return node.create_publisher(msg_class(msgtype), topic, QOS,
-                                 event_callbacks=PublisherEventCallbacks(
-                                     use_default_callbacks=False))
+    from flexarm_ros.nodes.intraprocess import BusPublisher, bus_of
+    pub = node.create_publisher(msg_class(msgtype), topic, QOS,
+                                event_callbacks=PublisherEventCallbacks(
+                                    use_default_callbacks=False))
+    bus = bus_of(node.context)
+    return pub if bus is None else BusPublisher(bus, node, pub)
 
 
 def subscription(node, msgtype: str, topic: str, callback, raw: bool = False):
     """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`);
-    with ``raw`` the callback gets the serialized CDR bytes (no message object built)."""
+    with ``raw`` the callback gets the serialized CDR bytes (no message object built). In a
+    process whose nodes share an intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`)
+    a topic published by a member node is delivered in-process."""
     from flexarm_ros.nodes._msgconv import msg_class
+    from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
+    events = SubscriptionEventCallbacks(use_default_callbacks=False)
+    bus = bus_of(node.context)
+    if bus is not None:
+        name = node.resolve_topic_name(topic)
+        if bus.routes(node, name):
+            return BusSubscription(bus, node, msg_class(msgtype), name, callback, raw, QOS,
+                                   events)
     return node.create_subscription(msg_class(msgtype), topic, callback, QOS,
-                                    event_callbacks=SubscriptionEventCallbacks(
-                                        use_default_callbacks=False), raw=raw)
+                                    event_callbacks=events, raw=raw)
+
+
+def subscriber_names(node, pub) -> list:
+    """(node name, namespace) of every subscriber of ``pub``'s topic: on the DDS graph and
+    on the process's intra-process bus."""
+    out = [(i.node_name, i.node_namespace)
+           for i in node.get_subscriptions_info_by_topic(pub.topic_name)]
+    local = getattr(pub, "local_subscribers", None)
+    return out + (local() if local is not None else [])
 
 
 def declare(node, params: dict) -> dict:
@@ -145,8 +166,8 @@ class Barrier:
             return f"{pub.topic_name} ({have}/{n} subscribers: {who})"
         if self.recorders:
             ns = self.node.get_namespace()
-            if not any(i.node_name == "recorder" and i.node_namespace == ns
-                       for i in self.node.get_subscriptions_info_by_topic(pub.topic_name)):
+            if not any(name == "recorder" and nns == ns
+                       for name, nns in subscriber_names(self.node, pub)):
                 return f"{pub.topic_name} (the recorder in {ns})"
         return None
 

@@ -142,10 +142,8 @@ class SimulatorNode(Node):
             if not lockstep or T.JOINT_STATES not in pubs:
                 return 0
             ns = self.get_namespace()
-            infos = self.get_subscriptions_info_by_topic(pubs[T.JOINT_STATES].topic_name)
-            return int(any(i.node_name == UNKNOWN or (i.node_name == "controller" and
-                                                       i.node_namespace == ns)
-                           for i in infos))
+            return int(any(name == UNKNOWN or (name == "controller" and nns == ns)
+                           for name, nns in C.subscriber_names(self, pubs[T.JOINT_STATES])))
         needs = {T.GT_JOINT_STATES: (1, "the motor driver" + (
                      ", which in lockstep subscribes once a controller publishes on "
                      "motor_driver/commands" if lockstep else "")),
@@ -285,6 +283,14 @@ class SimulatorNode(Node):
         this one message)."""
         from rclpy.exceptions import InvalidHandle
         sub = self._effort_sub
+        if not hasattr(sub, "handle"):
+            # intra-process (one process): the executor thread hands the efforts over
+            # through _on_effort, which notifies this condition
+            if wait_s > 0:
+                with self._answer:
+                    answered = self.answered
+                    self._answer.wait_for(lambda: self.answered != answered, wait_s)
+            return
         try:
             if wait_s > 0:
                 with sub.handle, self.context.handle:

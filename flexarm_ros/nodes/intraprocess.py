@@ -1,0 +1,247 @@
+"""Intra-process delivery between the twin's nodes when they share one process.
+
+Why (measured, ``docs/design_notes.md``, *Intra-process delivery*): on the 2-core host, a
+DDS publish with one reliable reader cost 25 µs of CPU back to back and 70–90 µs at a
+1 kHz pace (5 µs with no reader), and each reader pays again to take the message. The
+twin's tick sends ~12 messages, most to two readers (a consumer and the recorder): the
+one-process graph reached a real-time factor of 0.34 with the recorder and 0.60 without,
+where the same cores without ROS run at 1700 ticks/s. rclcpp solves this with its
+intra-process manager (a publisher hands the message to the subscriptions of its own
+process; DDS carries it only to other processes); rclpy has none, so this module is the
+twin's.
+
+Rule: a topic whose source node (:data:`flexarm_ros.twin.topics.SOURCE`) is a member of
+the process's :class:`Bus` is delivered in-process to the subscribers of that process:
+the publisher still publishes every message on DDS (a foreign ``ros2 topic echo``, a
+user's node, another process see everything, unchanged), and the in-process subscriber
+gets the same bytes with the same kind of ``MessageInfo`` (a source timestamp from the
+host's real-time clock, as DDS's, and the publisher's GID), so the nodes' source rule,
+validation and the recorder's stamping do not change. Such a subscription has no DDS
+reader while only the process's own node publishes the topic; when the graph shows
+another publisher (a stray ``ros2 topic pub``, a user's second controller), it opens its
+DDS reader — which drops the in-process publisher's copies by GID — so a foreign
+message is still taken, refused or rejected exactly as before (checked every
+:data:`GRAPH_POLL_S` of wall time; like any late-joining DDS reader it misses what the
+foreign node sent before the match).
+
+Deliveries are queued and run by :class:`~flexarm_ros.nodes.executor.DrainExecutor`
+(never inside ``publish``: a lockstep tick would otherwise recurse through the whole
+run), first in, first out across topics; a publish from another thread (the realtime
+pacing thread) wakes the executor through a guard condition.
+"""
+
+from __future__ import annotations
+
+import inspect
+import threading
+import time
+import weakref
+from collections import deque
+
+from flexarm_ros.twin import topics as T
+
+GRAPH_POLL_S = 0.1
+
+_BUSES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def install(context, members) -> "Bus":
+    """Give ``context`` a bus whose members are ``members``: (namespace, node name)."""
+    bus = Bus(context, members)
+    _BUSES[context] = bus
+    return bus
+
+
+def bus_of(context) -> "Bus | None":
+    return _BUSES.get(context)
+
+
+def _relative(ns: str, topic_abs: str) -> str:
+    prefix = "/" + ns.strip("/") + "/" if ns.strip("/") else "/"
+    return topic_abs[len(prefix):] if topic_abs.startswith(prefix) else topic_abs
+
+
+class Bus:
+    """The in-process subscriptions and publishers of one context, and the queue of
+    deliveries :meth:`deliver` runs."""
+
+    def __init__(self, context, members):
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+        self.context = context
+        self.members = {(("/" + ns.strip("/")) if ns.strip("/") else "/", name)
+                        for ns, name in members}
+        self.subs: dict = {}            # absolute topic -> [BusSubscription]
+        self.pubs: dict = {}            # absolute topic -> [BusPublisher]
+        self.queue: deque = deque()     # (subscription, bytes, info)
+        with context.handle:
+            self.guard = _rclpy.GuardCondition(context.handle)
+        self.spinning_thread = None     # set by the executor
+        self._polled = 0.0
+        self._last_ts = 0
+
+    # ------------------------------------------------------------------ routing
+    def routes(self, node, topic_abs: str) -> bool:
+        """The topic's source node is a member in ``node``'s namespace."""
+        ns = node.get_namespace()
+        rel = topic_abs if topic_abs == T.CLOCK else _relative(ns, topic_abs)
+        src = T.SOURCE.get(rel)
+        return src is not None and (ns, src) in self.members
+
+    def timestamp(self) -> int:
+        """The host's real-time clock in ns (DDS's source-timestamp clock), strictly
+        increasing: the recorder orders messages against /clock by it."""
+        ts = time.time_ns()
+        if ts <= self._last_ts:
+            ts = self._last_ts + 1
+        self._last_ts = ts
+        return ts
+
+    def post(self, topic_abs: str, data: bytes, info: dict) -> None:
+        subs = self.subs.get(topic_abs)
+        if not subs:
+            return
+        wake = not self.queue and threading.current_thread() is not self.spinning_thread
+        for s in subs:
+            self.queue.append((s, data, info))
+        if wake:
+            self.guard.trigger_guard_condition()
+
+    def deliver(self, limit: int | None = None) -> int:
+        """Run up to ``limit`` queued deliveries (all queued now: None); the number run."""
+        n = len(self.queue) if limit is None else min(limit, len(self.queue))
+        q = self.queue
+        for _ in range(n):
+            sub, data, info = q.popleft()
+            if not sub.destroyed:
+                sub.receive(data, info)
+        return n
+
+    def poll_graph(self) -> None:
+        """Open the DDS reader of a subscription whose topic got a foreign publisher."""
+        now = time.monotonic()
+        if now - self._polled < GRAPH_POLL_S:
+            return
+        self._polled = now
+        for topic, subs in list(self.subs.items()):
+            local = len(self.pubs.get(topic, ()))
+            for s in subs:
+                if s.dds is None and not s.destroyed and \
+                        s.node.count_publishers(topic) > local:
+                    s.open_dds()
+
+    def remove_node(self, node) -> None:
+        """Forget a node's endpoints (its queued deliveries are dropped)."""
+        for table in (self.subs, self.pubs):
+            for topic, items in table.items():
+                for e in [e for e in items if e.node is node]:
+                    e.destroyed = True
+                    items.remove(e)
+
+    def local_gids(self, topic_abs: str) -> set:
+        return {p.gid for p in self.pubs.get(topic_abs, ()) if p.gid is not None}
+
+
+class BusPublisher:
+    """A DDS publisher whose messages also go to the in-process subscribers of its topic."""
+
+    def __init__(self, bus: Bus, node, pub):
+        self.bus, self.node, self.pub = bus, node, pub
+        self.topic = pub.topic_name
+        self.destroyed = False
+        self._gid = None
+        bus.pubs.setdefault(self.topic, []).append(self)
+
+    @property
+    def gid(self):
+        """The DDS publisher's GID, from the graph (its own endpoint, known at once)."""
+        if self._gid is None:
+            name, ns = self.node.get_name(), self.node.get_namespace()
+            for info in self.node.get_publishers_info_by_topic(self.topic):
+                if info.node_name == name and info.node_namespace == ns:
+                    self._gid = bytes(info.endpoint_gid)
+        return self._gid
+
+    def publish(self, data) -> None:
+        self.pub.publish(data)
+        if self.bus.subs.get(self.topic):
+            if not isinstance(data, bytes):
+                from rclpy.serialization import serialize_message
+                data = serialize_message(data)
+            info = {"source_timestamp": self.bus.timestamp(),
+                    "publisher_gid": {"data": self.gid}}
+            self.bus.post(self.topic, data, info)
+
+    def local_subscribers(self) -> list:
+        """(node name, namespace) of the in-process subscribers."""
+        return [(s.node.get_name(), s.node.get_namespace())
+                for s in self.bus.subs.get(self.topic, ())]
+
+    def get_subscription_count(self) -> int:
+        return self.pub.get_subscription_count() + len(self.bus.subs.get(self.topic, ()))
+
+    @property
+    def topic_name(self) -> str:
+        return self.topic
+
+    def __getattr__(self, name):
+        return getattr(self.pub, name)
+
+
+class BusSubscription:
+    """An in-process subscription (raw bytes or message objects, like rclpy's), with a
+    DDS reader opened when a foreign publisher appears (:meth:`Bus.poll_graph`)."""
+
+    def __init__(self, bus: Bus, node, msg_type, topic_abs: str, callback, raw: bool, qos,
+                 event_callbacks):
+        self.bus, self.node, self.msg_type = bus, node, msg_type
+        self.topic = topic_abs
+        self.callback, self.raw = callback, raw
+        self.qos, self.event_callbacks = qos, event_callbacks
+        self.with_info = _takes_info(callback)
+        self.destroyed = False
+        self.dds = None
+        bus.subs.setdefault(topic_abs, []).append(self)
+
+    @property
+    def topic_name(self) -> str:
+        return self.topic
+
+    def get_publisher_count(self) -> int:
+        return self.node.count_publishers(self.topic)
+
+    def receive(self, data: bytes, info) -> None:
+        if self.raw:
+            m = data
+        else:
+            from rclpy.serialization import deserialize_message
+            m = deserialize_message(data, self.msg_type)
+        if self.with_info:
+            self.callback(m, info)
+        else:
+            self.callback(m)
+
+    def open_dds(self) -> None:
+        """A DDS reader for foreign publishers; the in-process publishers' copies (known
+        by GID) are dropped: they came by the bus."""
+        def on_dds(m, info):
+            from flexarm_ros.nodes._wire import gid_of
+            if gid_of(info) in self.bus.local_gids(self.topic):
+                return
+            if self.with_info:
+                self.callback(m, info)
+            else:
+                self.callback(m)
+        self.dds = self.node.create_subscription(
+            self.msg_type, self.topic, on_dds, self.qos,
+            event_callbacks=self.event_callbacks, raw=self.raw)
+
+
+def _takes_info(callback) -> bool:
+    """rclpy's rule: a callback with two parameters gets the MessageInfo too."""
+    try:
+        params = [p for p in inspect.signature(callback).parameters.values()
+                  if p.default is inspect.Parameter.empty and
+                  p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    except (TypeError, ValueError):
+        return False
+    return len(params) >= 2

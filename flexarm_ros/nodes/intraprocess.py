@@ -197,7 +197,7 @@ class BusSubscription:
         self.topic = topic_abs
         self.callback, self.raw = callback, raw
         self.qos, self.event_callbacks = qos, event_callbacks
-        self.with_info = _takes_info(callback)
+        self.with_info = takes_info(callback)
         self.destroyed = False
         self.dds = None
         bus.subs.setdefault(topic_abs, []).append(self)
@@ -236,7 +236,7 @@ class BusSubscription:
             event_callbacks=self.event_callbacks, raw=self.raw)
 
 
-def _takes_info(callback) -> bool:
+def takes_info(callback) -> bool:
     """rclpy's rule: a callback with two parameters gets the MessageInfo too."""
     try:
         params = [p for p in inspect.signature(callback).parameters.values()

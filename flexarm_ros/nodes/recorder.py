@@ -57,6 +57,7 @@ from rclpy.node import Node
 
 from flexarm_ros import __version__
 from flexarm_ros.bag import BagWriter
+from flexarm_ros.bag.cdr_read import CdrError, decode as decode_values
 from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.twin import topics as T
@@ -229,8 +230,11 @@ class RecorderNode(Node):
         ts = int(info.get("source_timestamp") or 0) if info else 0
         v = self.validators.get(topic)
         m = None
-        if v is not None:
-            m = _decode(tp, raw)
+        if v is not None:                      # the values only (bag/cdr_read.py)
+            try:
+                m = decode_values(tp, raw)
+            except CdrError:
+                m = None
             why = v.reason(m.data) if m is not None else "not a CDR message of its type"
         else:
             why = None
@@ -244,7 +248,7 @@ class RecorderNode(Node):
             self._reject(topic, why, _text(m, raw), ts, self._name(info))
             return
         if not src.trusted(info):             # not the twin's own node: decode and check
-            m = m if m is not None else _decode(tp, raw)
+            m = _decode(tp, raw)
             data = to_dict(m) if m is not None else None
             if data is None or not finite(data):
                 self._reject(topic, NON_FINITE if data is not None else

@@ -308,7 +308,7 @@ class SimulatorNode(Node):
                     taken = sub.handle.take_message(sub.msg_type, sub.raw)
                 if taken is None:
                     return
-                self._on_effort(*taken)
+                sub.callback(*taken)        # _on_effort behind the CDR reader
         except InvalidHandle:                       # destroyed while shutting down
             return
 

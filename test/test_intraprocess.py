@@ -1,0 +1,133 @@
+"""The intra-process bus of the one-process graph (flexarm_ros/nodes/intraprocess.py):
+the same bag as DDS delivery, byte for byte; no DDS reader between the process's own
+nodes; every message still on DDS for a foreign subscriber; bytes that are not a
+message dropped with a count, nothing changed."""
+
+import time
+
+import pytest
+from mcap.reader import make_reader
+
+pytest.importorskip("rclpy")
+
+from flexarm_ros.twin import topics as T  # noqa: E402
+
+NS = "/flexarm"
+
+
+def _graph(**kw):
+    from flexarm_ros.run import InProcessGraph
+    return InProcessGraph(namespace=NS, **kw)
+
+
+def _lockstep(path, intraprocess, duration=0.05):
+    g = _graph(scene="two_link_case1", mode="lockstep", duration=duration, record=path,
+               intraprocess=intraprocess)
+    try:
+        sim = g["simulator"]
+        assert g.spin_until(lambda: sim.finished, 120)
+        sim.finish(g.executor)
+        assert g.spin_until(g.recorded_all, 30)
+        dds_readers = {t: p.pub.get_subscription_count() if hasattr(p, "pub")
+                       else p.get_subscription_count() for t, p in sim.pubs.items()}
+    finally:
+        g.close()
+    out = {}
+    with open(path, "rb") as f:
+        for _, ch, m in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(ch.topic, []).append((m.log_time, m.data))
+    return out, dds_readers
+
+
+def test_the_bus_records_the_same_bag_as_dds_byte_for_byte(tmp_path):
+    """Lockstep two_link_case1, 50 ticks, all nodes in one process: with the bus and with
+    DDS between the nodes, every topic holds the same messages at the same log times —
+    and with the bus no DDS reader sits on the simulator's topics (the recorder, the
+    driver and the controller take them from the bus)."""
+    bus, readers_bus = _lockstep(tmp_path / "bus.mcap", True)
+    dds, readers_dds = _lockstep(tmp_path / "dds.mcap", False)
+    assert set(bus) == set(dds)
+    for topic in dds:
+        assert bus[topic] == dds[topic], topic
+    assert len(bus[T.resolve(NS, T.JOINT_STATES)]) == 51
+    assert set(readers_bus.values()) == {0}
+    assert readers_dds[T.JOINT_STATES] == 2 and readers_dds[T.GT_JOINT_STATES] == 2
+
+
+def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
+    """A node in another DDS participant (another context) subscribing to joint_states
+    receives the twin's messages while the twin's own nodes use the bus."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+    from flexarm_ros.nodes._common import QOS
+    g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05,
+               record=tmp_path / "x.mcap")
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
+    try:
+        node = Node("echo", namespace=NS, context=ctx)
+        got = []
+        node.create_subscription(JointState, T.JOINT_STATES, got.append, QOS)
+        pub = g["simulator"].pubs[T.JOINT_STATES]
+        t0 = time.monotonic()
+        while pub.pub.get_subscription_count() < 1 and time.monotonic() - t0 < 20:
+            time.sleep(0.01)
+        sim = g["simulator"]
+        assert g.spin_until(lambda: sim.finished, 120)
+        from rclpy.executors import SingleThreadedExecutor
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        t0 = time.monotonic()
+        while len(got) < 51 and time.monotonic() - t0 < 20:
+            ex.spin_once(timeout_sec=0.05)
+        ex.shutdown()
+        assert len(got) == 51
+        assert [m.header.stamp.nanosec for m in got[:3]] == [0, 1_000_000, 2_000_000]
+    finally:
+        g.close()
+        rclpy.shutdown(context=ctx)
+
+
+def test_bytes_that_are_not_a_message_change_nothing(tmp_path):
+    """Garbage published raw on effort_controller/commands by a foreign node is dropped by
+    the simulator with a count (never a crash); the lockstep bag still equals the
+    co-simulation on joint_states."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from std_msgs.msg import Float64MultiArray
+    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.scene import load_scene
+    from flexarm_ros.twin.cosim import cosimulate
+    from flexarm_ros.bag.writer import encode_cdr
+    path = tmp_path / "g.mcap"
+    g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05, record=path)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
+    try:
+        node = Node("garbage", namespace=NS, context=ctx)
+        pub = node.create_publisher(Float64MultiArray, T.EFFORTS, QOS)
+        sim = g["simulator"]
+        # the simulator's DDS reader opens once the graph shows this second publisher
+        assert g.spin_until(lambda: sim._effort_sub.dds is not None, 30)
+        t0 = time.monotonic()
+        while pub.get_subscription_count() < 1 and time.monotonic() - t0 < 20:
+            time.sleep(0.01)
+        for junk in (b"\x00\x01\x00\x00\xff\xff\xff\x7f", b"\x00\x01", b"\x00\x01\x00\x00"):
+            pub.publish(junk)
+        assert g.spin_until(lambda: getattr(sim, "undecodable", 0) >= 3, 30)
+        assert g.spin_until(lambda: sim.finished, 120)
+        sim.finish(g.executor)
+        assert g.spin_until(g.recorded_all, 30)
+    finally:
+        g.close()
+        rclpy.shutdown(context=ctx)
+    assert sim.undecodable == 3 and sim.core.k == 50
+    ref = [(m.t_ns, encode_cdr(m.msgtype, m.data))
+           for m in cosimulate(load_scene("two_link_case1"), 0.05).topic(T.JOINT_STATES)]
+    with open(path, "rb") as f:
+        got = [(m.log_time, m.data) for _, ch, m in make_reader(f).iter_messages(
+            log_time_order=False) if ch.topic == T.resolve(NS, T.JOINT_STATES)]
+    assert got == ref

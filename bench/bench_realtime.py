@@ -9,8 +9,9 @@ at 4 kHz batched four samples per message, wall, recorder on):
    subscriber) — the floor of a realtime tick before any other node runs — with the
    former path (message dicts, then ``encode_cdr``) timed beside it;
 2. ``lockstep`` through ROS, all nodes on one executor: ticks per second, with and
-   without the recorder, with the twin's executor (``DrainExecutor``) and rclpy's
-   SingleThreadedExecutor, measured in one run;
+   without the recorder, with the twin's executor (``DrainExecutor``) and the nodes'
+   messages through the intra-process bus (the default) or through DDS, and with rclpy's
+   SingleThreadedExecutor (DDS), measured in one run;
 3. ``realtime`` with the recorder for ``--seconds`` of simulated time, one process and
    ``--processes``: real-time factor, ticks late by more than half a period, lateness
    p50/p99/max, and the messages the recorder lost (published minus recorded, per topic);
@@ -100,10 +101,12 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
 
 
 def lockstep_run(scene_name: str, duration: float, record: Path | None,
-                 executor: str = "drain") -> dict:
-    """One in-process lockstep run of ``duration`` simulated s: ticks per wall second."""
+                 executor: str = "drain", intraprocess: bool = True) -> dict:
+    """One in-process lockstep run of ``duration`` simulated s: ticks per wall second
+    (``intraprocess``: the nodes' messages through the process's bus, else DDS)."""
     from flexarm_ros.run import InProcessGraph
-    g = InProcessGraph(scene_name, "lockstep", duration, record, executor=executor)
+    g = InProcessGraph(scene_name, "lockstep", duration, record, executor=executor,
+                       intraprocess=intraprocess)
     try:
         sim = g["simulator"]
         if not g.spin_until(lambda: sim.started, 60):
@@ -114,6 +117,7 @@ def lockstep_run(scene_name: str, duration: float, record: Path | None,
             g.spin_until(g.recorded_all, 30)
         wall = sim.t_wall_end - sim.t_wall0
         return {"mode": "lockstep", "executor": executor, "record": bool(record),
+                "intraprocess": intraprocess and executor == "drain",
                 "sim_s": sim.core.t, "ticks": sim.core.k, "wall_s": wall,
                 "ticks_per_s": sim.core.k / wall, "real_time_factor": sim.core.t / wall}
     finally:
@@ -167,9 +171,10 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
         budget = simulator_tick_budget(args.scene, int(args.lockstep_seconds * 1000))
-        for executor in ("drain", "single"):
+        for executor, bus in (("drain", True), ("drain", False), ("single", False)):
             for rec in (None, tmp / "lockstep.mcap"):
-                lockstep.append(lockstep_run(args.scene, args.lockstep_seconds, rec, executor))
+                lockstep.append(lockstep_run(args.scene, args.lockstep_seconds, rec, executor,
+                                             bus))
         for rate in args.rate or [None, 2000.0]:
             scene = args.scene if rate is None else scene_at_rate(args.scene, rate, tmp)
             for processes in (False, True):
@@ -191,6 +196,7 @@ def main(argv=None) -> int:
           f"{b['messages']:.0f} + {b['encode']:.0f})")
     for r in lockstep:
         print(f"  lockstep, {r['executor']:<6} executor, "
+              f"{'bus' if r['intraprocess'] else 'DDS'}, "
               f"{'recorder on ' if r['record'] else 'no recorder'}: {r['ticks_per_s']:6.0f} "
               f"ticks/s")
     for r in realtime:

@@ -49,15 +49,18 @@ def publisher(node, msgtype: str, topic: str):
     return pub if bus is None else BusPublisher(bus, node, pub)
 
 
-def subscription(node, msgtype: str, topic: str, callback, raw: bool = False):
+def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
+                 plain: bool = False):
     """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`);
-    with ``raw`` the callback gets the serialized CDR bytes (no message object built). In a
+    with ``raw`` the callback gets the serialized CDR bytes (no message object built), with
+    ``plain`` a plain object read from them by :mod:`flexarm_ros.bag.cdr_read` (the same
+    attribute paths as rclpy's message, sequences as tuples; the twin's nodes). In a
     process whose nodes share an intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`)
     a topic published by a member node is delivered in-process."""
     from flexarm_ros.nodes._msgconv import msg_class
     from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
     events = SubscriptionEventCallbacks(use_default_callbacks=False)
-    if not raw:
+    if plain and not raw:
         callback, raw = _decoded(node, msgtype, topic, callback), True
     bus = bus_of(node.context)
     if bus is not None:

@@ -56,7 +56,8 @@ class ControllerNode(Node):
         self.rejections = Rejections(self)
         for topic in self.queues:
             sub = C.subscription(self, T.TYPES[topic], topic,
-                                 lambda m, info, topic=topic: self._on(topic, m, info))
+                                 lambda m, info, topic=topic: self._on(topic, m, info),
+                                 plain=True)
             self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
         self.published = {T.COMMANDS: 0}
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier

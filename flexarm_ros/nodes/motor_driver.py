@@ -65,7 +65,7 @@ class MotorDriverNode(Node):
                                       (self.pub_ms, r, "the recorder")], r)
         self.commands, self.states = deque(), deque()
         self._cmd_sub = sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS,
-                                             self._on_command)
+                                             self._on_command, plain=True)
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         # lockstep: the states are subscribed (and so the simulator, which waits for this
         # subscriber, starts) only once a controller's command publisher is matched with
@@ -132,7 +132,7 @@ class MotorDriverNode(Node):
 
     def _subscribe_states(self):
         self._state_sub = C.subscription(self, T.TYPES[T.GT_JOINT_STATES], T.GT_JOINT_STATES,
-                                         self._on_state)
+                                         self._on_state, plain=True)
         self.state_source = Source(self, self._state_sub.topic_name,
                                    T.SOURCE[T.GT_JOINT_STATES])
 

@@ -120,7 +120,7 @@ class SimulatorNode(Node):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
         self.pubs = pubs
         self._cdr = CdrBuilder()
-        sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort)
+        sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort, plain=True)
         self._effort_sub, self._effort_ws = sub, None
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         self.rejections = Rejections(self)
@@ -165,6 +165,8 @@ class SimulatorNode(Node):
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1
         self._thread = None
+        from flexarm_ros.nodes.intraprocess import bus_of
+        self._bus = bus_of(self.context)
         # realtime: the plant waits for the effort answering a recent state, so an
         # overloaded graph slows the twin (late ticks) instead of leaving the plant to
         # run on a stale effort (measured: 100 ticks of lag make two_link_case1 diverge)
@@ -221,6 +223,8 @@ class SimulatorNode(Node):
             self.halt()
             return
         self._publish_state()
+        if self._bus is not None and threading.current_thread() is self._thread:
+            self._bus.deliver_all()              # one process: the tick's answers, here
         self.report()
 
     STALL_WARN_S = 3.0
@@ -318,6 +322,8 @@ class SimulatorNode(Node):
         try:
             lag = int(self.p["effort_lag"])
             wait_s = self.core.scene.control.watchdog_s
+            if self._bus is not None:
+                self._bus.self_delivering.add(threading.current_thread())
             with C.profiled("simulator-pacer"):
                 while not self.finished:
                     ticks = self.pacer.wait()

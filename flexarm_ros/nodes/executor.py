@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import threading
 import time
-from contextlib import ExitStack
+from contextlib import ExitStack, nullcontext
 
 from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -151,19 +151,22 @@ class DrainExecutor:
         ws.wait(timeout_ns)
         ready_subs = set(ws.get_ready_entities("subscription"))
         ready_timers = set(ws.get_ready_entities("timer"))
-        for t in live_timers:
-            if t.handle.pointer in ready_timers:
-                try:
-                    with t.handle:
-                        if not t.handle.is_timer_ready():
-                            continue
-                        t.handle.call_timer()
-                except InvalidHandle:
-                    continue
-                t.callback()
-        for s in live_subs:
-            if s.handle.pointer in ready_subs:
-                self._drain(s)
+        # with a bus, the realtime pacing thread runs node callbacks too: one thread at a
+        # time (the bus's lock), so a node's callbacks never interleave
+        with (bus.lock if bus is not None else nullcontext()):
+            for t in live_timers:
+                if t.handle.pointer in ready_timers:
+                    try:
+                        with t.handle:
+                            if not t.handle.is_timer_ready():
+                                continue
+                            t.handle.call_timer()
+                    except InvalidHandle:
+                        continue
+                    t.callback()
+            for s in live_subs:
+                if s.handle.pointer in ready_subs:
+                    self._drain(s)
         if bus is not None:
             bus.deliver()
 

@@ -76,7 +76,7 @@ class Bus:
         with context.handle:
             self.guard = _rclpy.GuardCondition(context.handle)
         self.spinning_thread = None     # set by the executor
-        self._lock = threading.Lock()
+        self.lock = threading.RLock()    # held while any node callback runs
         self.self_delivering: set = set()   # threads that run deliver_all after publishing
         self._delivering = False
         self._polled = 0.0
@@ -114,7 +114,7 @@ class Bus:
     def deliver(self, limit: int | None = None) -> int:
         """Run up to ``limit`` queued deliveries (all queued now: None); the number run.
         One thread at a time (a node's callbacks never run concurrently)."""
-        with self._lock:
+        with self.lock:
             self._delivering = True
             try:
                 n = len(self.queue) if limit is None else min(limit, len(self.queue))

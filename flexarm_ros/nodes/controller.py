@@ -23,8 +23,7 @@ from collections import deque
 
 from rclpy.node import Node
 
-from flexarm_ros.bag import messages as msg
-from flexarm_ros.bag.writer import encode_cdr
+from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import ControllerCore
 from flexarm_ros.nodes import _common as C
@@ -45,6 +44,7 @@ class ControllerNode(Node):
         self.period = 1.0 / scene.control.rate_hz
         self.sim_time = C.SimTime(scene)
         self.pub = C.publisher(self, T.TYPES[T.COMMANDS], T.COMMANDS)
+        self._cdr = CdrBuilder()                # wire bytes from a template
         self.ready = C.Barrier(self, [(self.pub, 1 + self.p["recorders"], "the motor driver")],
                                self.p["recorders"])
         self.queues = {T.JOINT_STATES: deque()}
@@ -94,9 +94,7 @@ class ControllerNode(Node):
                 continue
             cmd = self.core.update(self.sim_time(t_ns), self.period, list(js.position),
                                    contact, fn)
-            self.pub.publish(encode_cdr(T.TYPES[T.COMMANDS],
-                                        msg.float64_multiarray(cmd, ("joint",)),
-                                        validate=False))
+            self.pub.publish(self._cdr.float64_multiarray(cmd, ("joint",)))
             self.published[T.COMMANDS] += 1
 
     def finish(self, executor=None):

@@ -32,8 +32,7 @@ from collections import deque
 
 from rclpy.node import Node
 
-from flexarm_ros.bag import messages as msg
-from flexarm_ros.bag.writer import encode_cdr
+from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 from flexarm_ros.nodes import _common as C
@@ -64,6 +63,7 @@ class MotorDriverNode(Node):
         self.ready = C.Barrier(self, [(self.pub_eff, 1 + r, "the simulator"),
                                       (self.pub_ms, r, "the recorder")], r)
         self.commands, self.states = deque(), deque()
+        self._cdr = CdrBuilder()                # wire bytes from templates, as the simulator's
         self._cmd_sub = sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS,
                                              self._on_command, plain=True)
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
@@ -163,12 +163,8 @@ class MotorDriverNode(Node):
             angles = list(gt.position[self.n:2 * self.n])
             rates = list(gt.velocity[self.n:2 * self.n])
             tau = self.core.update(t, self.period, rates)
-            self.pub_eff.publish(encode_cdr(T.TYPES[T.EFFORTS],
-                                            msg.float64_multiarray(tau, ("joint",)),
-                                            validate=False))
-            self.pub_ms.publish(encode_cdr(T.TYPES[T.MOTOR_STATES],
-                                           self.core.motor_states(t_ns, angles, rates),
-                                           validate=False))
+            self.pub_eff.publish(self._cdr.float64_multiarray(tau, ("joint",)))
+            self.pub_ms.publish(self.core.motor_states(t_ns, angles, rates, build=self._cdr))
             self.published[T.EFFORTS] += 1
             self.published[T.MOTOR_STATES] += 1
 

@@ -294,9 +294,10 @@ class DriverCore:
         self.torque = tau
         return tau
 
-    def motor_states(self, t_ns: int, drive_angles, drive_rates) -> dict:
+    def motor_states(self, t_ns: int, drive_angles, drive_rates, build=msg):
         """motor_driver/motor_states: motor-shaft angle and speed (× gear ratio) and the
-        armature current (A) or load pressure (Pa) in ``effort``."""
+        armature current (A) or load pressure (Pa) in ``effort`` — a message dict, or with
+        ``build=CdrBuilder()`` its CDR bytes (:mod:`flexarm_ros.bag.cdr_fixed`)."""
         dc = (drives.DC_CURRENT, drives.DC_QUASI_STATIC)
         n = [self.par[k][drives.DC_GEAR_RATIO] if self.kind[k] in dc else 1.0
              for k in range(self.n)]
@@ -309,8 +310,8 @@ class DriverCore:
             else:
                 eff.append(self.z[k])
         names = [f"{lk.name}_motor" for lk in self.scene.links]
-        return msg.joint_state(t_ns, names, np.multiply(n, drive_angles),
-                               np.multiply(n, drive_rates), eff)
+        return build.joint_state(t_ns, names, np.multiply(n, drive_angles),
+                                 np.multiply(n, drive_rates), eff)
 
 
 # ========================================================================== controller

@@ -3,6 +3,7 @@ the same bag as DDS delivery, byte for byte; no DDS reader between the process's
 nodes; every message still on DDS for a foreign subscriber; bytes that are not a
 message dropped with a count, nothing changed."""
 
+import json
 import time
 
 import pytest
@@ -11,6 +12,7 @@ from mcap.reader import make_reader
 pytest.importorskip("rclpy")
 
 from flexarm_ros.twin import topics as T  # noqa: E402
+from flexarm_ros.twin.validation import FOREIGN  # noqa: E402
 
 NS = "/flexarm"
 
@@ -90,9 +92,11 @@ def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
         rclpy.shutdown(context=ctx)
 
 
-def test_bytes_that_are_not_a_message_change_nothing(tmp_path):
-    """Garbage published raw on effort_controller/commands by a foreign node is dropped by
-    the simulator with a count (never a crash); the lockstep bag still equals the
+def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
+    """Garbage published raw on effort_controller/commands by a foreign node: the simulator
+    refuses it as a second publisher's, counted with the other rejections (the run summary
+    shows them), never a crash; the recorder puts it in diagnostics/rejected without rmw
+    printing a deserialization error per message; the lockstep bag still equals the
     co-simulation on joint_states."""
     import rclpy
     from rclpy.context import Context
@@ -125,6 +129,11 @@ def test_bytes_that_are_not_a_message_change_nothing(tmp_path):
         g.close()
         rclpy.shutdown(context=ctx)
     assert sim.undecodable == 3 and sim.core.k == 50
+    assert dict(sim.core.validator.counts) == {FOREIGN: 3}
+    assert "exceeds remaining buffer" not in capfd.readouterr().err
+    from flexarm_ros.bag import read_bag
+    rej = [json.loads(m.data) for _, m in read_bag(path)[T.resolve(NS, T.REJECTED)]]
+    assert [(r["topic"], r["reason"]) for r in rej] == [(T.resolve(NS, T.EFFORTS), FOREIGN)] * 3
     ref = [(m.t_ns, encode_cdr(m.msgtype, m.data))
            for m in cosimulate(load_scene("two_link_case1"), 0.05).topic(T.JOINT_STATES)]
     with open(path, "rb") as f:

@@ -74,20 +74,26 @@ def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
 
 def _decoded(node, msgtype: str, topic: str, callback):
     """``callback`` fed from raw bytes by :mod:`flexarm_ros.bag.cdr_read` (rclpy's message
-    objects cost ~44 µs each on the 2-core host); bytes that are not a message of the
-    type are dropped with a throttled warning and counted in ``node.undecodable``."""
+    objects cost ~44 µs each on the 2-core host). Bytes that are not a message of the type
+    change nothing: the node's ``undecodable(topic, data, info, error)`` counts and logs
+    them as a rejection where it has one (the simulator's efforts, the driver's commands:
+    the source rule first, then reason ``not a CDR message of its type``); otherwise they
+    are dropped with a throttled warning. ``node.undecodable`` counts them either way."""
     from flexarm_ros.bag.cdr_read import READERS, CdrError
     from flexarm_ros.nodes.intraprocess import takes_info
     read = READERS[msgtype]
     with_info = takes_info(callback)
     said = [-1e9]
     node.undecodable = getattr(node, "undecodable", 0)
+    handler = getattr(node, "on_undecodable", None)
 
     def on_bytes(data, info):
         try:
             m = read(data)
         except CdrError as exc:
             node.undecodable += 1
+            if handler is not None and handler(topic, data, info, exc):
+                return
             now = time.monotonic()
             if now - said[0] >= 1.0:
                 said[0] = now

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import time
 
-from flexarm_ros.twin.validation import FOREIGN
+from flexarm_ros.twin.validation import FOREIGN, NOT_CDR
 
 RESOLVE_S = 0.5
 UNKNOWN = "_NODE_NAME_UNKNOWN_"
@@ -163,3 +163,18 @@ def show(data, limit: int = 6) -> str:
         return repr(data)[:80]
     text = ", ".join(f"{v:.6g}" if isinstance(v, float) else repr(v) for v in vals[:limit])
     return f"[{text}{', …' if len(vals) > limit else ''}] ({len(vals)} values)"
+
+
+def reject_undecodable(node, validator, source: Source, what: str, data: bytes, exc,
+                       info) -> None:
+    """Bytes on a validated input topic that are not a message of its type: from a second
+    publisher refused (``second publisher``), else rejected (``not a CDR message of its
+    type``); counted by the validator and logged (throttled) like any rejection."""
+    who = source.verdict(info, valid=False)
+    if who is not None:
+        validator.refuse(FOREIGN)
+        node.rejections.refused(source.topic, what, None, who, source.expected)
+    else:
+        validator.refuse(NOT_CDR)
+        node.rejections.add(source.topic, NOT_CDR, f"{len(data)} bytes that are not a "
+                            f"{what} ({exc}; expected {validator.expectation()})")

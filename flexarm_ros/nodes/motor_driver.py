@@ -36,7 +36,7 @@ from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._wire import Rejections, Source
+from flexarm_ros.nodes._wire import Rejections, Source, reject_undecodable
 from flexarm_ros.twin.validation import FOREIGN
 
 
@@ -86,6 +86,15 @@ class MotorDriverNode(Node):
     @property
     def rejected(self) -> int:
         return self.core.rejected
+
+    def on_undecodable(self, topic, data, info, exc) -> bool:
+        """Bytes on the command topic that are not a Float64MultiArray: refused or
+        rejected and counted like any rejected command, never taken."""
+        if topic != T.COMMANDS:
+            return False
+        reject_undecodable(self, self.core.validator, self.source, "command", data, exc,
+                           info)
+        return True
 
     def _on_command(self, m, info):
         """Validated where it enters; only an accepted command is queued (lockstep) or

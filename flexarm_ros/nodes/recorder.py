@@ -61,7 +61,7 @@ from flexarm_ros.bag.cdr_read import CdrError, decode as decode_values
 from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.twin import topics as T
-from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, Validator
+from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, NOT_CDR, Validator
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import msg_class, to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
@@ -97,8 +97,16 @@ def _stamp_ns(raw: bytes) -> int:
 
 
 def _decode(tp: str, raw: bytes):
-    """The rclpy message of ``raw``, or None when the bytes are not one of ``tp``."""
+    """The rclpy message of ``raw``, or None when the bytes are not one of ``tp`` (checked
+    first with :mod:`flexarm_ros.bag.cdr_read` where it reads ``tp``: rmw prints a line to
+    stderr for every message it fails to deserialize)."""
     from rclpy.serialization import deserialize_message
+    from flexarm_ros.bag.cdr_read import READERS
+    if tp in READERS:
+        try:
+            decode_values(tp, raw)
+        except CdrError:
+            return None
     try:
         return deserialize_message(raw, msg_class(tp))
     except Exception:                        # rmw's deserialization error
@@ -235,7 +243,7 @@ class RecorderNode(Node):
                 m = decode_values(tp, raw)
             except CdrError:
                 m = None
-            why = v.reason(m.data) if m is not None else "not a CDR message of its type"
+            why = v.reason(m.data) if m is not None else NOT_CDR
         else:
             why = None
         src = self.sources[topic]
@@ -252,7 +260,7 @@ class RecorderNode(Node):
             data = to_dict(m) if m is not None else None
             if data is None or not finite(data):
                 self._reject(topic, NON_FINITE if data is not None else
-                             "not a CDR message of its type", _text(m, raw), ts,
+                             NOT_CDR, _text(m, raw), ts,
                              self._name(info))
                 return
             raw = encode_cdr(tp, data)        # padding zeroed: reproducible bytes

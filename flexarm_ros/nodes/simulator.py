@@ -75,7 +75,7 @@ from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import REALTIME_GT_HZ, Pacer, check_settings, ground_truth_rate
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
-from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source
+from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
 
 class SimulatorNode(Node):
@@ -341,6 +341,15 @@ class SimulatorNode(Node):
     def rejected(self) -> int:
         return self.core.validator.rejected
 
+    def on_undecodable(self, topic, data, info, exc) -> bool:
+        """Bytes on the effort topic that are not a Float64MultiArray: refused (a second
+        publisher) or rejected (``not a CDR message of its type``), counted like any
+        rejected effort; never taken (:func:`flexarm_ros.nodes._common.subscription`)."""
+        if topic != T.EFFORTS:
+            return False
+        reject_undecodable(self, self.core.validator, self.source, "effort", data, exc, info)
+        return True
+
     def _on_effort(self, msg, info):
         """Validated where it enters: taken (held, and in lockstep stepped on) only when
         it comes from the source and passes the validator; else counted and logged."""
@@ -459,7 +468,8 @@ class SimulatorNode(Node):
             log = self.get_logger().warning if (self.mode == "realtime" and
                                                 self.pacer.crossings) else \
                 self.get_logger().info
-            log(f"{self.mode}: {self.core.t:.3f} s simulated, {self.core.k} ticks, real-time "
+            log(f"{self.mode}{'' if final else ' (running)'}: {self.core.t:.3f} s simulated, "
+                f"{self.core.k} ticks, real-time "
                 f"factor {self.rtf():.3g}{pace}; {T.EFFORTS}: "
                 f"{self.core.validator.summary()}" + ("; diverged" if self.diverged else ""))
 

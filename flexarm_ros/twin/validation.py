@@ -20,6 +20,7 @@ LENGTH = "wrong length"
 NON_FINITE = "non-finite"
 BEYOND = "beyond the limit"
 FOREIGN = "second publisher"
+NOT_CDR = "not a CDR message of its type"
 
 
 class Validator:

@@ -131,9 +131,8 @@ def realtime_run(scene, seconds: float, record: Path, processes: bool) -> dict:
     res = run(scene, seconds, "realtime", record=record, processes=processes,
               progress=False).to_json()
     lost = {}
-    for topic, n in (res["published"] or {}).items():
-        from flexarm_ros.twin.topics import resolve
-        got = (res["recorded"] or {}).get(resolve("/flexarm", topic), 0)
+    for topic, n in (res["published"] or {}).items():      # absolute names, as recorded
+        got = (res["recorded"] or {}).get(topic, 0)
         if got != n:
             lost[topic] = n - got
     res["lost"] = lost

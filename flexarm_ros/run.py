@@ -71,7 +71,7 @@ class RunResult:
     recovered: str | None = None            # what recover_killed_bag() did, if anything
     nodes: tuple = ()                         # the nodes that ran
     pacing: dict | None = None                # realtime: the simulator's Pacer.summary()
-    published: dict | None = None             # simulator: messages per topic
+    published: dict | None = None             # simulator: messages per absolute topic
     recorded: dict | None = None              # the bag's message count per topic
     cpus: dict | None = None                  # --processes with pinning: node -> CPUs
     first_command_s: float | None = None      # sim time of the first recorded command
@@ -554,7 +554,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             sim_summary = _read_summary(summary_file)
             summary_file.unlink(missing_ok=True)
             if sim_summary:
-                _take_summary(res, sim_summary)
+                _take_summary(res, sim_summary, namespace)
             if codes.get("simulator") == 3 and not res.stalled:
                 res.diverged = res.diverged or ("the simulator reported a divergence (its "
                                                 "message above)")
@@ -580,7 +580,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                             sim.rejected,
                             rejected=_node_rejections(g.nodes),
                             interrupted=stop.set, nodes=tuple(g.nodes))
-            _take_summary(res, sim.summary())
+            _take_summary(res, sim.summary(), namespace)
         finally:
             g.close()
         if record:
@@ -591,11 +591,13 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         stop.restore()
 
 
-def _take_summary(res: RunResult, sim: dict) -> None:
-    """Fill ``res`` from the simulator's :meth:`SimulatorNode.summary`."""
+def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:
+    """Fill ``res`` from the simulator's :meth:`SimulatorNode.summary`; ``published`` under
+    the topics' absolute names, as ``recorded``."""
+    from flexarm_ros.twin.topics import resolve
     res.sim_s, res.ticks = sim["sim_time_s"], sim["ticks"]
     res.real_time_factor = sim["real_time_factor"]
-    res.published = sim["published"]
+    res.published = {resolve(namespace, t): n for t, n in sim["published"].items()}
     res.diverged = res.diverged or sim.get("diverged")
     res.stalled = res.stalled or sim.get("stalled")
     if sim.get("mode") == "realtime":

@@ -43,7 +43,7 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
         want = ticks if topic == T.ACCEL_BATCH else ticks + 1   # no samples at t = 0
         if topic in (T.GT_TIP, T.GT_COORDINATES):
             want = ticks // gt_every + 1
-        assert pub[topic] == want and rec[T.resolve(NS, topic)] == want, topic
+        assert pub[T.resolve(NS, topic)] == want and rec[T.resolve(NS, topic)] == want, topic
     for topic in (T.COMMANDS, T.EFFORTS, T.MOTOR_STATES):
         assert rec[T.resolve(NS, topic)] in (ticks, ticks + 1), topic
     assert s["rejected_commands"] == 0

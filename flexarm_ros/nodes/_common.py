@@ -80,9 +80,9 @@ def _decoded(node, msgtype: str, topic: str, callback):
     the source rule first, then reason ``not a CDR message of its type``); otherwise they
     are dropped with a throttled warning. ``node.undecodable`` counts them either way."""
     from flexarm_ros.bag.cdr_read import READERS, CdrError
-    from flexarm_ros.nodes.intraprocess import takes_info
+    from flexarm_ros.nodes.intraprocess import with_info
     read = READERS[msgtype]
-    with_info = takes_info(callback)
+    call = with_info(callback)
     said = [-1e9]
     node.undecodable = getattr(node, "undecodable", 0)
     handler = getattr(node, "on_undecodable", None)
@@ -101,10 +101,7 @@ def _decoded(node, msgtype: str, topic: str, callback):
                     f"{topic}: dropped {len(data)} bytes that are not a {msgtype} ({exc}); "
                     f"{node.undecodable} dropped so far, nothing changed")
             return
-        if with_info:
-            callback(m, info)
-        else:
-            callback(m)
+        call(m, info)
     return on_bytes
 
 

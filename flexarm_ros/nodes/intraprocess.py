@@ -216,9 +216,8 @@ class BusSubscription:
                  event_callbacks):
         self.bus, self.node, self.msg_type = bus, node, msg_type
         self.topic = topic_abs
-        self.callback, self.raw = callback, raw
+        self.callback, self.raw = with_info(callback), raw
         self.qos, self.event_callbacks = qos, event_callbacks
-        self.with_info = takes_info(callback)
         self.destroyed = False
         self.dds = None
         bus.subs.setdefault(topic_abs, []).append(self)
@@ -236,25 +235,23 @@ class BusSubscription:
         else:
             from rclpy.serialization import deserialize_message
             m = deserialize_message(data, self.msg_type)
-        if self.with_info:
-            self.callback(m, info)
-        else:
-            self.callback(m)
+        self.callback(m, info)
 
     def open_dds(self) -> None:
         """A DDS reader for foreign publishers; the in-process publishers' copies (known
         by GID) are dropped: they came by the bus."""
         def on_dds(m, info):
             from flexarm_ros.nodes._wire import gid_of
-            if gid_of(info) in self.bus.local_gids(self.topic):
-                return
-            if self.with_info:
+            if gid_of(info) not in self.bus.local_gids(self.topic):
                 self.callback(m, info)
-            else:
-                self.callback(m)
         self.dds = self.node.create_subscription(
             self.msg_type, self.topic, on_dds, self.qos,
             event_callbacks=self.event_callbacks, raw=self.raw)
+
+
+def with_info(callback):
+    """``callback`` as a callable of (message, info), whichever rclpy form it has."""
+    return callback if takes_info(callback) else (lambda m, info: callback(m))
 
 
 def takes_info(callback) -> bool:

@@ -75,6 +75,7 @@ from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import REALTIME_GT_HZ, Pacer, check_settings, ground_truth_rate
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
+from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
 
@@ -165,7 +166,6 @@ class SimulatorNode(Node):
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1
         self._thread = None
-        from flexarm_ros.nodes.intraprocess import bus_of
         self._bus = bus_of(self.context)
         # realtime: the plant waits for the effort answering a recent state, so an
         # overloaded graph slows the twin (late ticks) instead of leaving the plant to
@@ -287,7 +287,7 @@ class SimulatorNode(Node):
         this one message)."""
         from rclpy.exceptions import InvalidHandle
         sub = self._effort_sub
-        if not hasattr(sub, "handle"):
+        if isinstance(sub, BusSubscription):
             # intra-process (one process): the executor thread hands the efforts over
             # through _on_effort, which notifies this condition
             if wait_s > 0:

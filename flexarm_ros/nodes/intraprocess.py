@@ -76,7 +76,7 @@ class Bus:
         with context.handle:
             self.guard = _rclpy.GuardCondition(context.handle)
         self.spinning_thread = None     # set by the executor
-        self.lock = threading.RLock()    # held while any node callback runs
+        self.lock = threading.RLock()    # held by deliveries and the executor's callbacks
         self.self_delivering: set = set()   # threads that run deliver_all after publishing
         self._delivering = False
         self._polled = 0.0

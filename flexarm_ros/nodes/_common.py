@@ -50,18 +50,20 @@ def publisher(node, msgtype: str, topic: str):
 
 
 def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
-                 plain: bool = False):
+                 plain: bool = False, undecodable=None):
     """A subscription with :data:`QOS` and no QoS-event handlers (see :func:`publisher`);
     with ``raw`` the callback gets the serialized CDR bytes (no message object built), with
     ``plain`` a plain object read from them by :mod:`flexarm_ros.bag.cdr_read` (the same
-    attribute paths as rclpy's message, sequences as tuples; the twin's nodes). In a
+    attribute paths as rclpy's message, sequences as tuples; the twin's nodes) and bytes
+    that are not a message of the type go to ``undecodable(data, info, error)`` (see
+    :func:`_decoded`). In a
     process whose nodes share an intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`)
     a topic published by a member node is delivered in-process."""
     from flexarm_ros.nodes._msgconv import msg_class
     from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
     events = SubscriptionEventCallbacks(use_default_callbacks=False)
     if plain and not raw:
-        callback, raw = _decoded(node, msgtype, topic, callback), True
+        callback, raw = _decoded(node, msgtype, topic, callback, undecodable), True
     bus = bus_of(node.context)
     if bus is not None:
         name = node.resolve_topic_name(topic)
@@ -72,27 +74,27 @@ def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
                                     event_callbacks=events, raw=raw)
 
 
-def _decoded(node, msgtype: str, topic: str, callback):
+def _decoded(node, msgtype: str, topic: str, callback, undecodable=None):
     """``callback`` fed from raw bytes by :mod:`flexarm_ros.bag.cdr_read` (rclpy's message
     objects cost ~44 µs each on the 2-core host). Bytes that are not a message of the type
-    change nothing: the node's ``undecodable(topic, data, info, error)`` counts and logs
-    them as a rejection where it has one (the simulator's efforts, the driver's commands:
-    the source rule first, then reason ``not a CDR message of its type``); otherwise they
-    are dropped with a throttled warning. ``node.undecodable`` counts them either way."""
+    change nothing: ``undecodable(data, info, error)`` counts and logs them as a rejection
+    where the subscription has one (the simulator's efforts, the driver's commands:
+    :func:`~flexarm_ros.nodes._wire.reject_undecodable`); otherwise they are dropped with a
+    throttled warning. ``node.undecodable`` counts them either way."""
     from flexarm_ros.bag.cdr_read import READERS, CdrError
     from flexarm_ros.nodes.intraprocess import with_info
     read = READERS[msgtype]
     call = with_info(callback)
     said = [-1e9]
     node.undecodable = getattr(node, "undecodable", 0)
-    handler = getattr(node, "on_undecodable", None)
 
     def on_bytes(data, info):
         try:
             m = read(data)
         except CdrError as exc:
             node.undecodable += 1
-            if handler is not None and handler(topic, data, info, exc):
+            if undecodable is not None:
+                undecodable(data, info, exc)
                 return
             now = time.monotonic()
             if now - said[0] >= 1.0:

@@ -129,10 +129,11 @@ class Bus:
 
     def deliver_all(self, slice_s: float = 0.05) -> None:
         """Rounds of :meth:`deliver` until nothing is queued (or ``slice_s`` of wall time
-        passed): the realtime simulator's pacing thread runs its tick's consequences —
-        the controller's command, the driver's effort, the recorder's writes — itself,
-        in order, as ros2_control's update loop does, instead of handing them to the
-        executor thread (one GIL hand-over and one wake-up less per message)."""
+        passed). The executor's first step; and the realtime simulator's pacing thread
+        runs its tick's consequences — the controller's command, the driver's effort, the
+        recorder's writes — with it, in order, as ros2_control's update loop does, instead
+        of handing them to the executor thread (one GIL hand-over and one wake-up less per
+        message)."""
         end = time.monotonic() + slice_s
         while self.queue and time.monotonic() < end:
             self.deliver()

@@ -65,7 +65,8 @@ class MotorDriverNode(Node):
         self.commands, self.states = deque(), deque()
         self._cdr = CdrBuilder()                # wire bytes from templates, as the simulator's
         self._cmd_sub = sub = C.subscription(self, T.TYPES[T.COMMANDS], T.COMMANDS,
-                                             self._on_command, plain=True)
+                                             self._on_command, plain=True,
+                                             undecodable=self._undecodable_command)
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         # lockstep: the states are subscribed (and so the simulator, which waits for this
         # subscriber, starts) only once a controller's command publisher is matched with
@@ -87,14 +88,11 @@ class MotorDriverNode(Node):
     def rejected(self) -> int:
         return self.core.rejected
 
-    def on_undecodable(self, topic, data, info, exc) -> bool:
+    def _undecodable_command(self, data, info, exc) -> None:
         """Bytes on the command topic that are not a Float64MultiArray: refused or
         rejected and counted like any rejected command, never taken."""
-        if topic != T.COMMANDS:
-            return False
         reject_undecodable(self, self.core.validator, self.source, "command", data, exc,
                            info)
-        return True
 
     def _on_command(self, m, info):
         """Validated where it enters; only an accepted command is queued (lockstep) or

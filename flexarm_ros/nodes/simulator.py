@@ -121,7 +121,10 @@ class SimulatorNode(Node):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
         self.pubs = pubs
         self._cdr = CdrBuilder()
-        sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort, plain=True)
+        sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort, plain=True,
+                             undecodable=lambda data, info, exc: reject_undecodable(
+                                 self, self.core.validator, self.source, "effort", data, exc,
+                                 info))
         self._effort_sub, self._effort_ws = sub, None
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         self.rejections = Rejections(self)
@@ -340,15 +343,6 @@ class SimulatorNode(Node):
     @property
     def rejected(self) -> int:
         return self.core.validator.rejected
-
-    def on_undecodable(self, topic, data, info, exc) -> bool:
-        """Bytes on the effort topic that are not a Float64MultiArray: refused (a second
-        publisher) or rejected (``not a CDR message of its type``), counted like any
-        rejected effort; never taken (:func:`flexarm_ros.nodes._common.subscription`)."""
-        if topic != T.EFFORTS:
-            return False
-        reject_undecodable(self, self.core.validator, self.source, "effort", data, exc, info)
-        return True
 
     def _on_effort(self, msg, info):
         """Validated where it enters: taken (held, and in lockstep stepped on) only when

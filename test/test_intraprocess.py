@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 pytest.importorskip("rclpy")
 
 from flexarm_ros.twin import topics as T  # noqa: E402
-from flexarm_ros.twin.validation import FOREIGN  # noqa: E402
+from flexarm_ros.twin.validation import FOREIGN, NOT_CDR  # noqa: E402
 
 NS = "/flexarm"
 
@@ -73,9 +73,7 @@ def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
         got = []
         node.create_subscription(JointState, T.JOINT_STATES, got.append, QOS)
         pub = g["simulator"].pubs[T.JOINT_STATES]
-        t0 = time.monotonic()
-        while pub.pub.get_subscription_count() < 1 and time.monotonic() - t0 < 20:
-            time.sleep(0.01)
+        assert g.spin_until(lambda: pub.pub.get_subscription_count() >= 1, 20)
         sim = g["simulator"]
         assert g.spin_until(lambda: sim.finished, 120)
         from rclpy.executors import SingleThreadedExecutor
@@ -116,9 +114,7 @@ def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
         sim = g["simulator"]
         # the simulator's DDS reader opens once the graph shows this second publisher
         assert g.spin_until(lambda: sim._effort_sub.dds is not None, 30)
-        t0 = time.monotonic()
-        while pub.get_subscription_count() < 1 and time.monotonic() - t0 < 20:
-            time.sleep(0.01)
+        assert g.spin_until(lambda: pub.get_subscription_count() >= 1, 20)
         for junk in (b"\x00\x01\x00\x00\xff\xff\xff\x7f", b"\x00\x01", b"\x00\x01\x00\x00"):
             pub.publish(junk)
         assert g.spin_until(lambda: getattr(sim, "undecodable", 0) >= 3, 30)
@@ -140,3 +136,33 @@ def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
         got = [(m.log_time, m.data) for _, ch, m in make_reader(f).iter_messages(
             log_time_order=False) if ch.topic == T.resolve(NS, T.JOINT_STATES)]
     assert got == ref
+
+
+def test_bytes_that_are_not_a_command_from_the_only_publisher_are_rejected(tmp_path):
+    """Without the twin's controller, a node that sends only bytes that are not a
+    Float64MultiArray on motor_driver/commands: the driver rejects each (``not a CDR
+    message of its type``, counted with the other rejections; the junk never makes its
+    publisher the topic's owner) and nothing steps — lockstep stays at tick 0."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from std_msgs.msg import Float64MultiArray
+    from flexarm_ros.nodes._common import QOS
+    g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05, record=None,
+               nodes=("simulator", "motor_driver"))
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
+    try:
+        node = Node("junk_controller", namespace=NS, context=ctx)
+        pub = node.create_publisher(Float64MultiArray, T.COMMANDS, QOS)
+        assert g.spin_until(lambda: pub.get_subscription_count() >= 1, 30)
+        for junk in (b"\x00\x01\x00\x00\xff\xff\xff\x7f", b"\x00\x01", b"\x00\x01\x00\x00"):
+            pub.publish(junk)
+        drv, sim = g["motor_driver"], g["simulator"]
+        assert g.spin_until(lambda: getattr(drv, "undecodable", 0) >= 3, 30)
+        assert not g.spin_until(lambda: sim.core.k > 0, 1.0)
+    finally:
+        g.close()
+        rclpy.shutdown(context=ctx)
+    assert dict(drv.core.validator.counts) == {NOT_CDR: 3}
+    assert drv.source.owner == set() and sim.core.k == 0

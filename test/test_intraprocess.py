@@ -166,3 +166,23 @@ def test_bytes_that_are_not_a_command_from_the_only_publisher_are_rejected(tmp_p
         rclpy.shutdown(context=ctx)
     assert dict(drv.core.validator.counts) == {NOT_CDR: 3}
     assert drv.source.owner == set() and sim.core.k == 0
+
+
+def test_an_unusable_profile_dir_is_named_and_does_not_stop_the_node(tmp_path, monkeypatch,
+                                                                     capsys):
+    """FLEXARM_PROFILE_DIR pointing at a file: a message naming the variable, the value and
+    the expectation; the spinning runs unprofiled. A usable one gets the profile."""
+    from flexarm_ros.nodes._common import PROFILE_ENV, profiled
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv(PROFILE_ENV, str(blocker / "prof"))
+    with profiled("simulator") as p:
+        sum(range(10))
+    err = capsys.readouterr().err
+    assert PROFILE_ENV in err and str(blocker / "prof") in err and "writable directory" in err
+    assert p.path is None and p.prof is None
+    monkeypatch.setenv(PROFILE_ENV, str(tmp_path / "prof"))
+    with profiled("simulator"):
+        sum(range(10))
+    import pstats
+    assert pstats.Stats(str(tmp_path / "prof" / "simulator.prof")).total_calls > 0

@@ -275,8 +275,12 @@ class profiled:
         self.path = None
         d = os.environ.get(PROFILE_ENV)
         if d:
-            os.makedirs(d, exist_ok=True)
-            self.path = os.path.join(d, f"{name}.prof")
+            try:
+                os.makedirs(d, exist_ok=True)
+                self.path = os.path.join(d, f"{name}.prof")
+            except OSError as exc:        # a profiling aid never stops a node
+                print(f"{name}: {PROFILE_ENV}={d!r}: {exc.strerror or exc}; expected a "
+                      f"writable directory (not profiling)", file=sys.stderr)
         self.prof = None
 
     def __enter__(self):

@@ -248,8 +248,17 @@ class ContactStepper:
     def _sample_at(self, buf, k, tk, xk, mode, s, impulse):
         """Row k of ``buf`` at (tk, xk) (the reference of :func:`kcontact._sample`)."""
         c = self.contact
-        xd, ln, lt, tm = c.rhs(tk, xk, mode, s)
         self.calls += 1
+        if self.compiled:           # as _rhs: the compiled evaluation where there is one
+            out = np.empty(len(xk))
+            if kcontact.evaluate(float(tk), xk, int(mode), float(s), out, c.kernel_args,
+                                 c.ws, self._cp, self._sc):
+                r, R = self._res, kcontact
+                buf.put(k, xk, r[R.R_LN], r[R.R_LT], r[R.R_GAP], c.n, c.t,
+                        (r[R.R_RX], r[R.R_RY]), np.array([r[R.R_VX], r[R.R_VY]]), impulse,
+                        out[c.nf:2 * c.nf])
+                return
+        xd, ln, lt, tm = c.rhs(tk, xk, mode, s)
         buf.put(k, xk, ln, lt, c.gap(tm), c.n, c.t, tm.r, tm.v, impulse, xd[c.nf:2 * c.nf])
 
     def _compliant_phase(self, ln, vt):

@@ -116,8 +116,9 @@ def beam_point(q, qd, s0, ext, phi, S, k, p, fs, x0, c, s, Seta):
     return c * sx - s * w, s * sx + c * w, c * ud - s * wd, s * ud + c * wd, acc_ax
 
 
-@_jit_inline
-def beam_invariants(q, qd, s0, nk, k, model, ws, c, s, cox, coy, psid, g, has_g):
+@_jit_raw
+def beam_invariants(q, qd, s0, nk, k, fs, m0, m1, m2, G, H, Jo, Jpsi, M, h, Qg, V, E, c, s,
+                    cox, coy, psid, g, has_g):
     """Add link k's beam mass points to ws' M, h, Qg through its inertia invariants
     (``model.inv_*``, :func:`chain._invariants`) instead of point by point: the same sums
     as :func:`chain_terms`' loop, gathered by the powers of η they carry.
@@ -139,20 +140,13 @@ def beam_invariants(q, qd, s0, nk, k, model, ws, c, s, cox, coy, psid, g, has_g)
     + (Σm φφᵀη)_a (= ½∂I/∂η_a), f_a = Σm x₀φ_a − ½G_abc η_bη_c + G_bac η_bη_c,
     Σm d_a·ṡ^⊥ = (G_bac − G_abc) η_c η̇_b. Cost O(ne⁴) with foreshortening, O(ne²) without,
     against O(P·n²) for the P points; ``test_kernel`` holds both to the numpy reference.
+
+    Arguments: the model's inv_* arrays (m0 … H) and foreshortening flag, the workspace's
+    Jo, Jψ, M, h, Q_g and its scratch V = ws.inv_vec (rows: ΣmSη, Σm x₀Sη, Σm φφᵀη,
+    ½∂I/∂η, f, h_a), E = ws.inv_E. Not inlined: each of the kernel's entry points inlines
+    :func:`chain_terms`, and a copy of this function in each took ~50 s more to compile on
+    a fresh machine; called with these arrays alone the call costs ~0.1 µs.
     """
-    fs = model.foreshortening
-    m0 = model.inv_mass
-    m1 = model.inv_phi
-    m2 = model.inv_mat
-    G = model.inv_G
-    H = model.inv_H
-    Jo = ws.Jo
-    Jpsi = ws.Jpsi
-    M = ws.M
-    h = ws.h
-    Qg = ws.Qg
-    V = ws.inv_vec          # rows: Sη·Σm, Σm x₀Sη, Σm φφᵀη, ½∂I/∂η, f, h_a
-    E = ws.inv_E
     m = m0[k, 0]
     # quadratic and lower terms
     phe = 0.0               # Σm φᵀη
@@ -358,7 +352,9 @@ def chain_terms(q, qd, model, ws):
         tcy = 0.0
         psid2 = psid * psid
         if model.invariant[k]:
-            beam_invariants(q, qd, s0, nk, k, model, ws, c, s, cox, coy, psid, g, has_g)
+            beam_invariants(q, qd, s0, nk, k, fs, model.inv_mass, model.inv_phi,
+                            model.inv_mat, model.inv_G, model.inv_H, Jo, Jpsi, M, h, Qg,
+                            ws.inv_vec, ws.inv_E, c, s, cox, coy, psid, g, has_g)
         for p in range(P if model.invariant[k] else 0, P + 1):
             ext = EXT[k, p]
             Asx, Asy, Adx, Ady, ax_acc = beam_point(q, qd, s0, ext, PHI, SS, k, p, fs,

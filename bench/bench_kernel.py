@@ -9,7 +9,8 @@ Per case, µs per right-hand side evaluation inside the compiled RK4 loop
   process with its own numba cache, since numba's cache does not key on that option);
 - ``points``: the same sums without reference counting (``jit_raw``);
 - ``invariants``: beams whose invariants are cheaper than their points summed through them
-  (``chain.by_invariants``; the default).
+  (``chain.by_invariants`` with ``FLEXARM_BEAM_SUMS=invariants``; opt-in, the default sums
+  over points — docs/design_notes.md says why).
 
     python bench/bench_kernel.py [--json]
 
@@ -50,13 +51,15 @@ def _per_rhs(scene_name, over, sums) -> float:
     from flexarm_ros.model.statics import initial_state
     from flexarm_ros.scene import load_scene
 
-    auto = chain_mod.by_invariants
+    auto, default = chain_mod.by_invariants, chain_mod.BEAM_SUMS
     if sums == "points":
         chain_mod.by_invariants = lambda ne, points, fs: False
+    else:
+        chain_mod.BEAM_SUMS = "invariants"          # opt-in (FLEXARM_BEAM_SUMS)
     try:
         ch = chain_mod.Chain(load_scene(scene_name).with_fidelity(**over))
     finally:
-        chain_mod.by_invariants = auto
+        chain_mod.by_invariants, chain_mod.BEAM_SUMS = auto, default
     q0, qd0, z0 = initial_state(ch)
     x0 = np.concatenate([q0[ch.free], qd0[ch.free], z0])
     ws = kchain.workspace(ch.kernel_args)

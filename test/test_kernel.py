@@ -77,7 +77,9 @@ def test_beam_sums_by_points_and_by_invariants_match_numpy(rung, foreshortening,
         assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
 
 
-def test_the_cost_rule_takes_invariants_for_modal_and_cubic_not_fine_meshes():
+def test_the_cost_rule_takes_invariants_for_modal_and_cubic_not_fine_meshes(monkeypatch):
+    import flexarm_ros.model.chain as chain_mod
+    monkeypatch.setattr(chain_mod, "BEAM_SUMS", "invariants")   # opt-in (FLEXARM_BEAM_SUMS)
     chain_of = {r: Chain(_scene(r, **({"refine": 8} if r == "fem" else {})), backend="numba")
                 for r in ("cubic", "modal", "fem")}
     assert chain_of["cubic"].model.invariant.all()

@@ -32,6 +32,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import os
+
 import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
@@ -653,13 +655,22 @@ class Chain:
         return [lm.i_motor if lm.i_motor >= 0 else lm.i_joint for lm in self.links]
 
 
+#: how the compiled kernel sums the beams: "points" (default) or "invariants" where they
+#: are cheaper (``FLEXARM_BEAM_SUMS=invariants``). Not the default: with invariants a run
+#: differed in its last bits between a process that compiled the kernel and one that loaded
+#: it from numba's cache (two_link_free's step 0.009973769318963346 vs ...970293 s), which
+#: breaks the ensembles' bit-equal tables across workers; the cause is not found
+#: (docs/design_notes.md, "The kernel without reference counting")
+BEAM_SUMS = os.environ.get("FLEXARM_BEAM_SUMS", "points")
+
+
 def by_invariants(ne: int, points: int, foreshortening: bool) -> bool:
     """True when the compiled kernel sums a beam's inertia through its invariants
     (:func:`compiled.chain.beam_invariants`, O(ne⁴) per evaluation with foreshortening,
     O(ne²) without) rather than over its mass points (O(P·n²)): the modal rungs and the
     single cubic, not the finite elements and differences, whose many coordinates make the
     fourth-order tensor dearer than their points (and sparse S per point cheap)."""
-    return ne > 0 and (not foreshortening or ne * ne <= points)
+    return BEAM_SUMS == "invariants" and ne > 0 and (not foreshortening or ne * ne <= points)
 
 
 def _invariants(beams, use, nemax: int, foreshortening: bool):
@@ -678,9 +689,13 @@ def _invariants(beams, use, nemax: int, foreshortening: bool):
         if not use[k]:
             continue
         m, x0, phi, e = b.mass, b.hub_radius + b.x, b.phi, b.n
-        m0[k] = m.sum(), m @ x0, m @ (x0 * x0)
-        m1[k, 0, :e], m1[k, 1, :e] = m @ phi, (m * x0) @ phi
-        m2[k, 0, :e, :e] = phi.T @ (m[:, None] * phi)
+        # einsum's own loops, not BLAS: the same bits in every process (BLAS's small
+        # products came out differently between processes, so a run differed in its last
+        # bits between a process that compiled the kernel and one that loaded it)
+        m0[k] = m.sum(), np.einsum("p,p->", m, x0), np.einsum("p,p,p->", m, x0, x0)
+        m1[k, 0, :e] = np.einsum("p,pa->a", m, phi)
+        m1[k, 1, :e] = np.einsum("p,p,pa->a", m, x0, phi)
+        m2[k, 0, :e, :e] = np.einsum("p,pa,pb->ab", m, phi, phi)
         if foreshortening:
             S = b.S
             m2[k, 1, :e, :e] = np.einsum("p,pab->ab", m, S)

@@ -42,10 +42,11 @@ def test_simulate_json_summary(capsys):
                 "rhs_evaluations", "steps"):
         assert key in summ
     assert summ["status"] == 0 and np.isclose(summ["sim_time_s"], 0.05)
-    # RK4: four stages per step, and one ẋ at the end of each step with an output sample
-    # inside it (the dense output's cubic Hermite; the 9.94 ms automatic step > 1 ms)
+    # RK4: four stages per step; the ẋ at the end of a step with an output sample inside
+    # it (the dense output's cubic Hermite; the 9.94 ms automatic step > 1 ms) is the
+    # next step's first stage, so at most the last one is extra (one compiled call)
     assert summ["step_s"] > 1e-3
-    assert 4 * summ["steps"] < summ["rhs_evaluations"] <= 5 * summ["steps"]
+    assert 4 * summ["steps"] <= summ["rhs_evaluations"] <= 4 * summ["steps"] + 1
 
 
 def test_fidelity_overrides_reach_the_model(capsys):

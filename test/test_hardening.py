@@ -93,18 +93,21 @@ def test_budget_is_a_parameter(capsys):
     """The same run passes under a budget of its own step count and is refused one below
     (the count: duration / automatic step)."""
     from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.linear import smooth_rhs
     from flexarm_ros.model.statics import initial_x
     from flexarm_ros.sim.integrate import choose_step
     sc = load_scene("link").with_fidelity(rung="cubic")
     ch = Chain(sc)
-    h = choose_step(ch, initial_x(ch), "rk4", 0.0, sc.fidelity.output_dt)
-    steps = round(0.05 / h)
+    h = choose_step(ch, initial_x(ch), "rk4", 0.0, sc.fidelity.output_dt,
+                    dense=smooth_rhs(ch))
+    need = 0.05 / h                 # the dense output's step need not divide the run
+    steps = math.ceil(need - 1e-9)
     base = ["simulate", "link", "--rung", "cubic", "--duration", "0.05", "--quiet"]
     assert main(base + ["--max-steps", str(steps)]) == 0
     capsys.readouterr()
     code = main(base + ["--max-steps", str(steps - 1)])
     msg = one_error_line(capsys, code)
-    assert f"needs {steps:.3g} rk4 steps" in msg and f"at most {steps - 1:.3g}" in msg
+    assert f"needs {need:.3g} rk4 steps" in msg and f"at most {steps - 1:.3g}" in msg
 
 
 @pytest.mark.parametrize("path, value, coordinate, key", [
@@ -483,10 +486,11 @@ def test_progress_shows_simulated_time_over_total(scene, monkeypatch, capsys):
     import flexarm_ros.sim.integrate as integ
     monkeypatch.setattr(integ, "time", _Clock())
     monkeypatch.setattr(cs, "time", _Clock())
-    assert main(["simulate", scene, "--duration", "0.05", "--rung", "cubic"]) == 0
+    # 0.5 s: enough steps for more than one compiled call (integrate.MIN_CALL_STEPS each)
+    assert main(["simulate", scene, "--duration", "0.5", "--rung", "cubic"]) == 0
     err = capsys.readouterr().err
     shown = [s for s in err.split("\r") if s.strip()]
-    assert any(s.strip().startswith("t = ") and "/ 0.05 s (" in s for s in shown), err
-    assert main(["simulate", scene, "--duration", "0.05", "--rung", "cubic",
+    assert any(s.strip().startswith("t = ") and "/ 0.5 s (" in s for s in shown), err
+    assert main(["simulate", scene, "--duration", "0.5", "--rung", "cubic",
                  "--quiet"]) == 0
     assert capsys.readouterr().err == ""

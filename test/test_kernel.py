@@ -54,13 +54,76 @@ def test_rhs_matches_numpy_reference(rung, foreshortening):
         assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
 
 
+@pytest.mark.parametrize("rung", ["rigid", "cubic", "modal", "fem", "fd"])
+@pytest.mark.parametrize("foreshortening", [True, False])
+@pytest.mark.parametrize("sums", ["points", "invariants"])
+def test_beam_sums_by_points_and_by_invariants_match_numpy(rung, foreshortening, sums,
+                                                          monkeypatch):
+    """Either way of summing a beam's inertia in the compiled kernel (forced here on every
+    rung, also where the cost rule would not choose it) against the numpy reference, which
+    sums over the points."""
+    import flexarm_ros.model.chain as chain_mod
+    monkeypatch.setattr(chain_mod, "by_invariants", lambda ne, points, fs: sums == "invariants")
+    chain = Chain(_scene(rung, foreshortening=foreshortening), backend="numba")
+    assert chain.model.invariant.all() == (sums == "invariants")
+    rng = np.random.default_rng(7)
+    # large deflections, where the quartic terms count (the meshes' 16-20 coordinates at
+    # that size make M ill-conditioned: there as in the test above)
+    scale = 0.05 if rung in ("fem", "fd") else 0.2
+    for t in (0.0, 0.37, 1.4):
+        x = rng.normal(size=2 * len(chain.free)) * scale
+        ref = chain.rhs_numpy(t, x)
+        got = chain.rhs(t, x)
+        assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+def test_the_cost_rule_takes_invariants_for_modal_and_cubic_not_fine_meshes(monkeypatch):
+    import flexarm_ros.model.chain as chain_mod
+    monkeypatch.setattr(chain_mod, "BEAM_SUMS", "invariants")   # the default, whatever the env says
+    chain_of = {r: Chain(_scene(r, **({"refine": 8} if r == "fem" else {})), backend="numba")
+                for r in ("cubic", "modal", "fem")}
+    assert chain_of["cubic"].model.invariant.all()
+    assert chain_of["modal"].model.invariant.all()
+    assert not chain_of["fem"].model.invariant.any()
+
+
 @pytest.mark.parametrize("rung", ["cubic", "modal"])
 def test_compiled_run_matches_numpy_run(rung):
-    a = simulate(_scene(rung, output_dt=0.005), chain=Chain(_scene(rung, output_dt=0.005),
-                                                            backend="numba"))
-    b = simulate(_scene(rung, output_dt=0.005), chain=Chain(_scene(rung, output_dt=0.005),
-                                                            backend="numpy"))
-    assert a.run.dt == b.run.dt
+    # the numba run's automatic step for both (each backend's stability estimate differs at
+    # round-off, and the dense output keeps a step as it is)
+    h = simulate(_scene(rung, output_dt=0.005), 0.005).run.dt
+    sc = _scene(rung, output_dt=0.005, dt=h)
+    a = simulate(sc, chain=Chain(sc, backend="numba"))
+    b = simulate(sc, chain=Chain(sc, backend="numpy"))
+    assert a.run.dt == b.run.dt == h
+    assert a.run.rhs_evaluations == b.run.rhs_evaluations
     for key in ("tip_x", "tip_y", "energy", "l1_joint", "l2_joint_rate"):
         assert np.allclose(a.columns[key], b.columns[key], rtol=1e-9, atol=1e-11), key
 
+
+
+_BITS = """
+from flexarm_ros.scene import load_scene
+from flexarm_ros.sim.simulate import simulate
+r = simulate(load_scene("two_link_free"), 0.3)
+print(repr(r.run.dt), r.run.rhs_evaluations, r.columns["tip_x"].tobytes().hex())
+"""
+
+
+@pytest.mark.slow
+def test_a_fresh_compile_and_a_cache_load_give_the_same_bits(tmp_path):
+    """A process that compiles the kernel and one that loads it from numba's cache run the
+    same bits (with fast-math's 'reassoc' they did not: docs/design_notes.md, "Why not
+    'reassoc'"); the ensembles' Dask workers depend on it. Two subprocesses, one empty
+    cache directory; the first compiles (about a minute)."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    env.pop("FLEXARM_BEAM_SUMS", None)
+    runs = [subprocess.run([sys.executable, "-c", _BITS], env=env, capture_output=True,
+                           text=True, timeout=900) for _ in range(2)]
+    for r in runs:
+        assert r.returncode == 0, r.stderr[-2000:]
+    assert any((tmp_path / "numba").rglob("*.nbi")), "the first run wrote no cache"
+    assert runs[0].stdout == runs[1].stdout

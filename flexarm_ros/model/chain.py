@@ -32,6 +32,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import os
+
 import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
@@ -283,12 +285,16 @@ class Chain:
                 idx = np.nonzero(nz[p])[0]
                 EXT[k, p] = idx[-1] + 1 if len(idx) else 0
             EXT[k, len(lm.beam.x)] = lm.beam.n
+        inv = np.array([by_invariants(lm.beam.n, len(lm.beam.x), self.foreshortening)
+                        for lm in self.links], dtype=np.bool_)
+        sums = _invariants([lm.beam for lm in self.links], inv, nemax, self.foreshortening)
         mcode = np.array([e[0] for e in self._motion_enc], dtype=np.int64)
         mpar = np.array([e[1] for e in self._motion_enc]).reshape(-1, 8)
         return Model(
             n=self.n, nl=nl, nz=self.nz, i_joint=ij, e0=e0, ne=ne, bodies=bodies,
             joint_offset=joff, hub_radius=rh, slope_tip=SLOPE, npt=npt, abscissa=X,
-            point_mass=MP, phi=PHI, S=SS, ext=EXT, gravity=self.gravity,
+            point_mass=MP, phi=PHI, S=SS, ext=EXT, invariant=inv, inv_mass=sums[0],
+            inv_phi=sums[1], inv_mat=sums[2], inv_G=sums[3], inv_H=sums[4], gravity=self.gravity,
             foreshortening=self.foreshortening, base_angle=float(self.scene.base_angle),
             M_drive=self.M_drive, K=self.K, D=self.D, free=self.free.astype(np.int64),
             presc=self.presc_idx.astype(np.int64), motion_code=mcode, motion_par=mpar,
@@ -647,6 +653,55 @@ class Chain:
 
     def drive_index(self) -> list[int]:
         return [lm.i_motor if lm.i_motor >= 0 else lm.i_joint for lm in self.links]
+
+
+#: how the compiled kernel sums the beams: "invariants" where they are cheaper (default)
+#: or "points" everywhere (``FLEXARM_BEAM_SUMS=points``; bench/bench_kernel.py compares them)
+BEAM_SUMS = os.environ.get("FLEXARM_BEAM_SUMS", "invariants")
+if BEAM_SUMS not in ("invariants", "points"):
+    raise ValueError(f"environment variable FLEXARM_BEAM_SUMS: got {BEAM_SUMS!r}, expected "
+                     f"'invariants' (the default) or 'points'")
+
+
+def by_invariants(ne: int, points: int, foreshortening: bool) -> bool:
+    """True when the compiled kernel sums a beam's inertia through its invariants
+    (:func:`compiled.chain.beam_invariants`, O(ne⁴) per evaluation with foreshortening,
+    O(ne²) without) rather than over its mass points (O(P·n²)): the modal rungs and the
+    single cubic, not the finite elements and differences, whose many coordinates make the
+    fourth-order tensor dearer than their points (and sparse S per point cheap)."""
+    return BEAM_SUMS == "invariants" and ne > 0 and (not foreshortening or ne * ne <= points)
+
+
+def _invariants(beams, use, nemax: int, foreshortening: bool):
+    """(Σm, Σm x₀, Σm x₀²), (Σm φ, Σm x₀ φ), (Σm φφᵀ, Σm S, Σm x₀ S), Σm φ_a S_bc and
+    Σm S_ab S_cd of each beam's mass points (x₀ = r_h + x), for the links ``use`` marks
+    (:class:`compiled.layout.Model`'s inv_* fields; the tensors are 1-wide when no link
+    uses them). Without foreshortening the S terms stay zero."""
+    nl = len(beams)
+    n = nemax if any(use) else 1
+    m0 = np.zeros((nl, 3))
+    m1 = np.zeros((nl, 2, n))
+    m2 = np.zeros((nl, 3, n, n))
+    G = np.zeros((nl, n, n, n))
+    H = np.zeros((nl, n, n, n, n))
+    for k, b in enumerate(beams):
+        if not use[k]:
+            continue
+        m, x0, phi, e = b.mass, b.hub_radius + b.x, b.phi, b.n
+        # einsum's own loops, not BLAS: the same bits in every process (BLAS's small
+        # products came out differently between processes, so a run differed in its last
+        # bits between a process that compiled the kernel and one that loaded it)
+        m0[k] = m.sum(), np.einsum("p,p->", m, x0), np.einsum("p,p,p->", m, x0, x0)
+        m1[k, 0, :e] = np.einsum("p,pa->a", m, phi)
+        m1[k, 1, :e] = np.einsum("p,p,pa->a", m, x0, phi)
+        m2[k, 0, :e, :e] = np.einsum("p,pa,pb->ab", m, phi, phi)
+        if foreshortening:
+            S = b.S
+            m2[k, 1, :e, :e] = np.einsum("p,pab->ab", m, S)
+            m2[k, 2, :e, :e] = np.einsum("p,pab->ab", m * x0, S)
+            G[k, :e, :e, :e] = np.einsum("p,pa,pbc->abc", m, phi, S)
+            H[k, :e, :e, :e, :e] = np.einsum("p,pab,pcd->abcd", m, S, S)
+    return m0, m1, m2, G, H
 
 
 def _resolve_auto(scene, fidelity):

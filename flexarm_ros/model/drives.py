@@ -120,6 +120,17 @@ def actuator_torque(kind, par, u, w, z):
 
 
 @jit
+def drive_columns(kind, par, u, w, z, current, torque):
+    """current[k], torque[k] = :func:`motor_current` (0 for an ideal or hydraulic drive),
+    :func:`actuator_torque` at the k-th sample (u, w, z): a run's drive columns in one compiled call (one Python call per
+    sample and column cost ~20 ms on a 2.5 s run at 4 kHz)."""
+    dc = kind != IDEAL and kind != HYDRAULIC
+    for k in range(u.shape[0]):
+        current[k] = motor_current(kind, par, u[k], w[k], z[k]) if dc else 0.0
+        torque[k] = actuator_torque(kind, par, u[k], w[k], z[k])
+
+
+@jit
 def valve_flow(par, i, p_load):
     """Servovalve flow Q = K_v i √(P_s − sgn(i) P_L) (m³/s), zero when the pressure
     difference across the open orifice vanishes."""

@@ -126,15 +126,23 @@ def smooth_rhs(chain) -> bool:
     step, taken from the linearization at the start, holds over the run and RK4 may step
     past the output period (dense output). Not so with backlash (the dead zone's kinks)
     or a hydraulic actuator (the orifice flow ∝ √(P_S − p) stiffens without bound as the
-    pressure nears the supply): their automatic step stays capped by the output period."""
+    pressure nears the supply), nor with an actuator state held at a bound (a DC motor's
+    current limit: the steps clamp it, an interpolant between them would not — measured,
+    the limited torque between step ends fell below the limit): their automatic step stays
+    capped by the output period, the outputs on step ends."""
     from flexarm_ros.model import drives
-    return not chain.backlash and all(a.kind != drives.HYDRAULIC for a in chain.actuators)
+    bounded = any(np.isfinite(drives.state_bounds(a.kind, a.par)).any()
+                  for a in chain.actuators if a.state >= 0)
+    return (not chain.backlash and not bounded
+            and all(a.kind != drives.HYDRAULIC for a in chain.actuators))
 
 
 def grid_step(h, output_dt, dense=False):
-    """The step RK4 takes when asked for h: above the output period only with ``dense``
-    output (kept as is), else shortened to the largest whole fraction of the period."""
-    if dense and h > output_dt:
-        return h            # above the output period: dense output
+    """The step RK4 takes when asked for h: with ``dense`` output kept as is (outputs inside
+    steps come from the step's interpolant; the ẋ it needs at the step's end is the next
+    step's first stage, so they cost no evaluation), else shortened to the largest whole
+    fraction of the output period."""
+    if dense:
+        return h
     h = min(h, output_dt)
     return output_dt / np.ceil(output_dt / h - 1e-9)

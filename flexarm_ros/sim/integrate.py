@@ -33,6 +33,9 @@ from flexarm_ros.sim.budget import Pace, check_work
 SOLVE_IVP = {"rk45": "RK45", "dop853": "DOP853", "radau": "Radau", "bdf": "BDF",
              "lsoda": "LSODA"}
 
+#: fewest RK4 steps per call of a compiled loop between progress reports
+MIN_CALL_STEPS = 250
+
 
 def solve_ivp_method(integrator: str):
     """scipy's OdeSolver class of ``integrator`` (rk45, dop853, radau, bdf, lsoda),
@@ -120,7 +123,10 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     if dense and chain.backend == "numba":
         ws = kchain.workspace(chain.kernel_args)
         x, t, k_next, steps = np.array(x0, float), 0.0, 1, 0
-        chunk = h * max(1, int(np.ceil(t_end / 100 / h)))    # whole steps per progress report
+        # whole steps per compiled call: ~1 % of the run for progress, at least
+        # MIN_CALL_STEPS (a call's dispatch costs tens of µs: 100 calls of one step each
+        # were most of a 1 s two_link_free run)
+        chunk = h * max(MIN_CALL_STEPS, int(np.ceil(t_end / 100 / h)))
         bps = input_breakpoints(chain, t_end)
         while t < t_end - 1e-12 * max(1.0, t_end):
             t_stop = min(t + chunk, next(b for b in bps if b > t + 1e-12 * max(1.0, t_end)))
@@ -142,7 +148,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         per = int(round(output_dt / h))
         ws = kchain.workspace(chain.kernel_args)
         x, steps = np.array(x0, float), 0
-        for k0, k1 in _chunks(n_out):
+        for k0, k1 in _chunks(n_out, per=per):
             code, t_fail, st, x_last, x_bad = kloops.rk4_loop(
                 x, h, per, k0, k1, output_dt, max_deflection_ratio, xs, chain.kernel_args, ws)
             steps += st
@@ -239,26 +245,33 @@ def hermite(theta, h, x0, f0, x1, f1):
 def _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard, bps) -> int:
     """RK4 with steps of h independent of the output grid (numpy backend): outputs inside
     a step from :func:`hermite`, ẋ from the right-hand side at both ends; a step ends on
-    every input breakpoint in ``bps``."""
+    every input breakpoint in ``bps``. As the compiled :func:`kloops.rk4_dense`, the ẋ at
+    a step's end is the next step's first stage unless an input breakpoint lies between."""
     x, t, k, steps = np.array(x0, float), 0.0, 1, 0
     eps = 1e-12 * max(1.0, t_end)
     n_out = len(t_out) - 1
+    f1 = None
     while t < t_end - eps:
-        hh = min(h, next(b for b in bps if b > t + eps) - t)
-        x1 = chain.clamp_states(rk4_step(f, t, x, hh))
+        bp = next(b for b in bps if b > t + eps)
+        hh = min(h, bp - t)
+        f0 = f1 if f1 is not None else f(t + STAGE_EPS * hh, x)
+        x1 = chain.clamp_states(rk4_step(f, t, x, hh, k1=f0))
+        f1 = None
         steps += 1
         guard.check(t + hh, x1)
         t1 = t + hh
         if k <= n_out and t_out[k] < t1 - eps:
             # ẋ just inside the step (as RK4's first and last stages): the limits on this
             # side of an input jump on either end
-            f0, f1 = f(t + STAGE_EPS * hh, x), f(t + (1.0 - STAGE_EPS) * hh, x1)
+            f1 = f(t + (1.0 - STAGE_EPS) * hh, x1)
             while k <= n_out and t_out[k] < t1 - eps:
                 xs[k] = hermite((t_out[k] - t) / hh, hh, x, f0, x1, f1)
                 k += 1
         if k <= n_out and abs(t_out[k] - t1) <= eps:
             xs[k] = x1
             k += 1
+        if abs(t1 - bp) <= eps:
+            f1 = None           # an input jump: the next step's first stage is its own
         x, t = x1, t1
     xs[k:] = x
     return steps
@@ -327,9 +340,10 @@ def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progres
         Sinv = iteration_matrix(chain, k * output_dt, x, h)
 
 
-def _chunks(n_out, parts=100):
-    """Split output intervals into ~``parts`` compiled calls (progress between them)."""
-    step = max(1, n_out // parts)
+def _chunks(n_out, parts=100, per=1):
+    """Split output intervals into ~``parts`` compiled calls (progress between them), each
+    of at least MIN_CALL_STEPS steps when an interval takes ``per``."""
+    step = max(1, n_out // parts, -(-MIN_CALL_STEPS // per))
     return [(k, min(n_out, k + step)) for k in range(0, n_out, step)]
 
 

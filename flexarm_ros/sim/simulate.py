@@ -234,7 +234,10 @@ def actuator_columns(chain: Chain, run: Integration) -> dict:
         name = chain.links[a.link].name
         w = run.qd[:, a.coord]
         z = run.z[:, a.state] if a.state >= 0 else np.zeros(len(run.t))
-        uj = u[:, j]
+        uj = np.ascontiguousarray(u[:, j])
+        current, torque = np.empty(len(uj)), np.empty(len(uj))
+        drives.drive_columns(a.kind, a.par, uj, np.ascontiguousarray(w, float),
+                             np.ascontiguousarray(z, float), current, torque)
         if a.kind == drives.IDEAL:
             cols[f"{name}_torque_cmd"] = uj
         elif a.kind == drives.HYDRAULIC:
@@ -243,8 +246,6 @@ def actuator_columns(chain: Chain, run: Integration) -> dict:
         else:
             v_max = a.par[drives.DC_SUPPLY_VOLTAGE]
             cols[f"{name}_voltage"] = np.clip(uj, -v_max, v_max)
-            cols[f"{name}_current"] = np.array(
-                [drives.motor_current(a.kind, a.par, ui, wi, zi) for ui, wi, zi in zip(uj, w, z)])
-        cols[f"{name}_drive_torque"] = np.array(
-            [drives.actuator_torque(a.kind, a.par, ui, wi, zi) for ui, wi, zi in zip(uj, w, z)])
+            cols[f"{name}_current"] = current
+        cols[f"{name}_drive_torque"] = torque
     return cols

@@ -28,7 +28,7 @@ __all__ = ["CONTACT_STEP_FRACTION", "RK4_AUTO", "RK4_STABILITY", "choose_step", 
            "rk4_step"]
 
 
-def rk4_step(f, t, x, h, quadrature: bool = False):
+def rk4_step(f, t, x, h, quadrature: bool = False, k1=None):
     """One RK4 step of ẋ = f(t, x) from (t, x) over h (actuator-state bounds are the
     caller's):
 
@@ -41,11 +41,12 @@ def rk4_step(f, t, x, h, quadrature: bool = False):
 
     With ``quadrature``, ``f`` returns (ẋ, g) and the step returns (x₁, ∫g dt), the integral
     by the same stages and weights, h/6·(g₁ + 2g₂ + 2g₃ + g₄) (e.g. the normal impulse from
-    the stage contact forces)."""
+    the stage contact forces). ``k1``: the first stage, already known (first same as last:
+    the previous step's ẋ at its end, no input jump between; not with ``quadrature``)."""
     def stage(ts, xs):
         return f(ts, xs) if quadrature else (f(ts, xs), 0.0)
 
-    k1, g1 = stage(t + STAGE_EPS * h, x)
+    k1, g1 = stage(t + STAGE_EPS * h, x) if k1 is None or quadrature else (k1, 0.0)
     k2, g2 = stage(t + 0.5 * h, x + 0.5 * h * k1)
     k3, g3 = stage(t + 0.5 * h, x + 0.5 * h * k2)
     k4, g4 = stage(t + (1.0 - STAGE_EPS) * h, x + h * k3)
@@ -60,8 +61,9 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     RK4: a requested step above the stability limit RK4_STABILITY/|λ|max is refused
     (:class:`StepTooLarge` naming the limit and the alternatives); the automatic step is
     RK4_AUTO/|λ|max; either is shortened to divide the output period, except with
-    ``dense`` (batch integration, with or without a wall), where a step above the output
-    period is kept: the outputs then come from the dense output inside steps
+    ``dense`` (batch integration, with or without a wall), where the step is kept as it
+    is, above or below the output period: the outputs then come from the dense output
+    inside steps
     (:func:`~flexarm_ros.sim.integrate.integrate`, :class:`ContactStepper`'s samples), so
     the step is set by stability and accuracy, never by the output grid. With a wall
     ``contact`` of the impulse rung, |λ|max is also taken with the tool held on the wall

@@ -17,7 +17,8 @@ import numpy as np
 
 from flexarm_ros.model.programs import eval_motion, eval_torque
 
-from flexarm_ros.model.compiled import HAVE_NUMBA, jit as _jit, jit_inline as _jit_inline  # noqa: F401
+from flexarm_ros.model.compiled import (  # noqa: F401
+    HAVE_NUMBA, jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw)
 from flexarm_ros.model.compiled.layout import named, workspace  # noqa: F401  (kchain.workspace)
 from flexarm_ros.model.drives import actuator_rate, actuator_torque, backlash_torque
 
@@ -36,7 +37,7 @@ STAGE_EPS = 1e-9
 OK, NON_FINITE, DEFLECTION, NEWTON = 0, 1, 2, 3
 
 
-@_jit
+@_jit_raw
 def _add_body(M, h, Qg, m, inertia, cgx, cgy, ox, oy, Jo, cox, coy, psi, Jpsi, psid, g,
               nact, Jx, Jy):
     if m == 0.0 and inertia == 0.0:
@@ -113,6 +114,152 @@ def beam_point(q, qd, s0, ext, phi, S, k, p, fs, x0, c, s, Seta):
             acc_ax -= 2.0 * accd * va
     sx = x0 + uf
     return c * sx - s * w, s * sx + c * w, c * ud - s * wd, s * ud + c * wd, acc_ax
+
+
+@_jit_raw
+def beam_invariants(q, qd, s0, nk, k, fs, m0, m1, m2, G, H, Jo, Jpsi, M, h, Qg, V, E, c, s,
+                    cox, coy, psid, g, has_g):
+    """Add link k's beam mass points to ws' M, h, Qg through its inertia invariants
+    (``model.inv_*``, :func:`chain._invariants`) instead of point by point: the same sums
+    as :func:`chain_terms`' loop, gathered by the powers of η they carry.
+
+    With the hub frame (o, A = R(ψ), ψ̇, c_o = ö at q̈ = 0) and Jacobians Jo, Jψ of the
+    coordinates i < s0, and a point's s = (x₀ − ½ηᵀSη, φᵀη), d_a = ∂s/∂η_a = (−(Sη)_a, φ_a),
+    its acceleration at q̈ = 0 is c_o + A w, w = −ψ̇²s + 2ψ̇ṡ^⊥ − (η̇ᵀSη̇) ê₁ (v^⊥ = (−v_y, v_x)),
+    and Σ_p m_p over the points of
+
+        M_ij  = m Jo_i·Jo_j + (Jψ_j Jo_i + Jψ_i Jo_j)·(Ac)^⊥ + Jψ_i Jψ_j I      (i, j < s0)
+        M_ia  = Jo_i·A e_a + Jψ_i f_a,     M_ab = Σ m d_a·d_b
+        h_i   = Jo_i·(m c_o + A Σm w) + Jψ_i ((Ac)^⊥·c_o + 2ψ̇ Σm s·ṡ + Σm φᵀη η̇ᵀSη̇)
+        h_a   = A e_a·c_o − ψ̇² Σm d_a·s + 2ψ̇ Σm d_a·ṡ^⊥ + Σm (Sη)_a η̇ᵀSη̇
+        Qg_i  = m Jo_i·g + Jψ_i (Ac)^⊥·g,  Qg_a = A e_a·g
+
+    with c = Σm s, I = Σm|s|², e_a = Σm d_a, f_a = Σm s^⊥·d_a, all polynomials in η with
+    the invariants as coefficients (G_abc = Σm φ_a S_bc, H_abcd = Σm S_ab S_cd):
+    Σm d_a·d_b = Σm φ_aφ_b + H_acbd η_cη_d, Σm d_a·s = −(Σm x₀S η)_a + ½H_abcd η_bη_cη_d
+    + (Σm φφᵀη)_a (= ½∂I/∂η_a), f_a = Σm x₀φ_a − ½G_abc η_bη_c + G_bac η_bη_c,
+    Σm d_a·ṡ^⊥ = (G_bac − G_abc) η_c η̇_b. Cost O(ne⁴) with foreshortening, O(ne²) without,
+    against O(P·n²) for the P points; ``test_kernel`` holds both to the numpy reference.
+
+    Arguments: the model's inv_* arrays (m0 … H) and foreshortening flag, the workspace's
+    Jo, Jψ, M, h, Q_g and its scratch V = ws.inv_vec (rows: ΣmSη, Σm x₀Sη, Σm φφᵀη,
+    ½∂I/∂η, f, h_a), E = ws.inv_E. Not inlined: each of the kernel's entry points inlines
+    :func:`chain_terms`, and a copy of this function in each took ~50 s more to compile on
+    a fresh machine; called with these arrays alone the call costs ~0.1 µs.
+    """
+    m = m0[k, 0]
+    # quadratic and lower terms
+    phe = 0.0               # Σm φᵀη
+    phed = 0.0              # Σm φᵀη̇
+    ese = 0.0               # ηᵀ(ΣmS)η
+    esed = 0.0              # ηᵀ(ΣmS)η̇
+    edsed = 0.0             # η̇ᵀ(ΣmS)η̇
+    exse = 0.0              # ηᵀ(Σm x₀S)η
+    epe = 0.0               # ηᵀ(Σm φφᵀ)η
+    for a in range(nk):
+        ea = q[s0 + a]
+        eda = qd[s0 + a]
+        phe += m1[k, 0, a] * ea
+        phed += m1[k, 0, a] * eda
+        u = 0.0
+        ux = 0.0
+        up = 0.0
+        ud = 0.0
+        for b in range(nk):
+            eb = q[s0 + b]
+            up += m2[k, 0, a, b] * eb
+            if fs:
+                u += m2[k, 1, a, b] * eb
+                ux += m2[k, 2, a, b] * eb
+                ud += m2[k, 1, a, b] * qd[s0 + b]
+        V[0, a] = u
+        V[1, a] = ux
+        V[2, a] = up
+        ese += u * ea
+        esed += u * eda
+        edsed += ud * eda
+        exse += ux * ea
+        epe += up * ea
+    # quartic and cubic terms (foreshortening): ½∂I/∂η, f, the last three terms of h_a,
+    # Σm φᵀη η̇ᵀSη̇ and the elastic block E
+    q4 = 0.0
+    ggd = 0.0
+    for a in range(nk):
+        t1 = 0.0            # H_abcd η_bη_cη_d
+        tz = 0.0            # H_abcd η_b η̇_cη̇_d
+        gf = 0.0            # −½G_abc η_bη_c + G_bac η_bη_c
+        gs = 0.0            # (G_bac − G_abc) η_c η̇_b
+        if fs:
+            for b in range(nk):
+                eb = q[s0 + b]
+                edb = qd[s0 + b]
+                for cc in range(nk):
+                    ec = q[s0 + cc]
+                    edc = qd[s0 + cc]
+                    gf += (G[k, b, a, cc] - 0.5 * G[k, a, b, cc]) * eb * ec
+                    gs += (G[k, b, a, cc] - G[k, a, b, cc]) * ec * edb
+                    ggd += G[k, a, b, cc] * q[s0 + a] * edb * edc
+                    hy = 0.0
+                    hz = 0.0
+                    for d in range(nk):
+                        hy += H[k, a, b, cc, d] * q[s0 + d]
+                        hz += H[k, a, b, cc, d] * qd[s0 + d]
+                    t1 += hy * eb * ec
+                    tz += hz * eb * edc
+        V[3, a] = -V[1, a] + 0.5 * t1 + V[2, a]
+        V[4, a] = m1[k, 1, a] + gf
+        V[5, a] = -psid * psid * V[3, a] + 2.0 * psid * gs + tz
+        q4 += t1 * q[s0 + a]
+        for b in range(a, nk):
+            e = m2[k, 0, a, b]
+            if fs:
+                for cc in range(nk):
+                    acc = 0.0
+                    for d in range(nk):
+                        acc += H[k, a, cc, b, d] * q[s0 + d]
+                    e += acc * q[s0 + cc]
+            E[a, b] = e
+    # Σm s (local, then world), I, 2ψ̇ Σm s·ṡ
+    clx = m0[k, 1] - 0.5 * ese
+    cly = phe
+    acx = c * clx - s * cly
+    acy = s * clx + c * cly
+    inertia = m0[k, 2] - exse + 0.25 * q4 + epe
+    ssd = 0.0
+    for a in range(nk):
+        ssd += V[3, a] * qd[s0 + a]
+    # Σm w: −ψ̇² c + 2ψ̇ (Σm ṡ)^⊥ − η̇ᵀ(ΣmS)η̇ ê₁, Σm ṡ = (−ηᵀ(ΣmS)η̇, Σm φᵀη̇)
+    wx = -psid * psid * clx - 2.0 * psid * phed - edsed
+    wy = -psid * psid * cly - 2.0 * psid * esed
+    cmx = m * cox + c * wx - s * wy
+    cmy = m * coy + s * wx + c * wy
+    rot_h = -acy * cox + acx * coy + 2.0 * psid * ssd + ggd
+    rot_g = -acy * g[0] + acx * g[1]
+    for i in range(s0):
+        oxi = Jo[0, i]
+        oyi = Jo[1, i]
+        pi = Jpsi[i]
+        h[i] += oxi * cmx + oyi * cmy + pi * rot_h
+        if has_g:
+            Qg[i] += m * (oxi * g[0] + oyi * g[1]) + pi * rot_g
+        ai = -oxi * acy + oyi * acx
+        for j in range(i, s0):
+            aj = -Jo[0, j] * acy + Jo[1, j] * acx
+            M[i, j] += (m * (oxi * Jo[0, j] + oyi * Jo[1, j]) + Jpsi[j] * ai + pi * aj
+                        + pi * Jpsi[j] * inertia)
+    for a in range(nk):
+        ia = s0 + a
+        exl = -V[0, a]
+        eyl = m1[k, 0, a]
+        aex = c * exl - s * eyl
+        aey = s * exl + c * eyl
+        for i in range(s0):
+            M[i, ia] += Jo[0, i] * aex + Jo[1, i] * aey + Jpsi[i] * V[4, a]
+        for b in range(a, nk):
+            M[ia, s0 + b] += E[a, b]
+        h[ia] += aex * cox + aey * coy + V[5, a]
+        if has_g:
+            Qg[ia] += aex * g[0] + aey * g[1]
 
 
 @_jit_inline
@@ -204,7 +351,11 @@ def chain_terms(q, qd, model, ws):
         tcx = 0.0
         tcy = 0.0
         psid2 = psid * psid
-        for p in range(P + 1):
+        if model.invariant[k]:
+            beam_invariants(q, qd, s0, nk, k, fs, model.inv_mass, model.inv_phi,
+                            model.inv_mat, model.inv_G, model.inv_H, Jo, Jpsi, M, h, Qg,
+                            ws.inv_vec, ws.inv_E, c, s, cox, coy, psid, g, has_g)
+        for p in range(P if model.invariant[k] else 0, P + 1):
             ext = EXT[k, p]
             Asx, Asy, Adx, Ady, ax_acc = beam_point(q, qd, s0, ext, PHI, SS, k, p, fs,
                                                     rh[k] + X[k, p], c, s, Seta)
@@ -269,7 +420,7 @@ def chain_terms(q, qd, model, ws):
     tip[5] = psid
 
 
-@_jit
+@_jit_raw
 def _cholesky_solve(A, b, nf, L, y, x):
     """Solve A x = b for symmetric positive-definite A (nf × nf); False if A is not SPD."""
     for j in range(nf):
@@ -357,7 +508,7 @@ def _forces(t, q, qd, z, model, ws):
             f[i] -= M[i, presc[j]] * pdd[j]
 
 
-@_jit
+@_jit_raw
 def rhs_into(t, x, out, model, ws):
     """out = ẋ for x = [q_free, q̇_free, z] (chain.Chain.rhs, compiled, no allocation)."""
     free = model.free
@@ -409,7 +560,7 @@ def rhs(t, x, model_args, ws_args):
     return out
 
 
-@_jit
+@_jit_raw
 def _deflection_ratio(x, model):
     """max over beams of |w(L)|/L (elastic coordinates are never prescribed)."""
     nl = model.nl
@@ -432,7 +583,7 @@ def _deflection_ratio(x, model):
     return worst
 
 
-@_jit
+@_jit_raw
 def energies(Q, QD, model_args, ws_args, energy, tip):
     """Per sample k: energy[k] = ½q̇ᵀM(q)q̇ + ½qᵀKq + Σ ½k_b·max(|Δ| − b, 0)² (kinetic,
     beam/joint elastic, engaged backlash; chain.Chain.energy without gravity) and

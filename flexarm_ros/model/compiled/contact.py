@@ -35,7 +35,7 @@ import numpy as np
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled import sensors as ksensors
-from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
+from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
 from flexarm_ros.model.compiled.layout import named
 
 FREE, SLIDING, STICKING = 0, 1, 2
@@ -85,7 +85,7 @@ def scratch(contact) -> tuple:
                          tmp=e(m), x1=e(m), xdot=e(m), x=e(m)))
 
 
-@_jit
+@_jit_raw
 def _eval(t, x, mode, s, out, model, ws, cp, sc):
     """ẋ of mode (``s`` the slip direction when sliding) into ``out``; the contact forces,
     gap and tool state into ``sc.res`` (R_*). Returns False at a singular constraint."""
@@ -286,14 +286,32 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
     kchain.DEFLECTION (t, x the last good state; the offending state last). Model,
     workspace and scratch come as plain tuples (see :mod:`layout`).
     """
+    m = x0.shape[0]
+    loc = np.empty((4, m))
+    model, _ = named(model_args, ws_args)
+    qdd = np.empty(model.n)
+    ind = np.empty((2, 2))
+    code, t, impulse, steps, calls, drift_max, bad, k = _span(
+        x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args, ts, k,
+        X, R, QDD, impulse0, max_steps, acc, ACC, loc, qdd, ind)
+    sc = Scratch(*sc_args)
+    return (code, t, sc.x.copy(), impulse, steps, calls, drift_max,
+            (sc.x1 if bad else sc.x).copy(), k)
+
+
+@_jit_raw
+def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args,
+          ts, k, X, R, QDD, impulse0, max_steps, acc, ACC, loc, qdd, ind):
+    """:func:`span`'s loop without reference counting: returns (code, t, impulse, steps,
+    evaluations, largest drift, offending state is sc.x1 (else sc.x), next sample); ``loc``
+    (4, m), ``qdd`` (n,) and ``ind`` (2, 2) its scratch."""
     model, ws = named(model_args, ws_args)
     sc = Scratch(*sc_args)
     n_s = ts.shape[0]
-    f0 = np.empty(x0.shape[0])
-    f1 = np.empty(x0.shape[0])
-    row = np.empty(x0.shape[0])
-    sout = np.empty(x0.shape[0])
-    qdd = np.empty(model.n)
+    f0 = loc[0]
+    f1 = loc[1]
+    row = loc[2]
+    sout = loc[3]
     m = x0.shape[0]
     nf = model.free.shape[0]
     nz = model.nz
@@ -302,8 +320,8 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
     res = sc.res
     k1, k2, k3, k4, tmp, x1, xdot, x = sc.k1, sc.k2, sc.k3, sc.k4, sc.tmp, sc.x1, sc.xdot, \
         sc.x
-    ind0 = np.empty(2)
-    ind1 = np.empty(2)
+    ind0 = ind[0]
+    ind1 = ind[1]
     for i in range(m):
         x[i] = x0[i]
     t = t0
@@ -332,7 +350,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
         l4 = res[R_LN]
         calls += 4
         if not ok:
-            return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
+            return SINGULAR, t, impulse, steps, calls, drift_max, False, k
         finite = True
         for i in range(m):
             x1[i] = x[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
@@ -342,7 +360,7 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
             i = m - nz + a
             x1[i] = min(max(x1[i], zlo[a]), zhi[a])
         if not finite:
-            return kchain.NON_FINITE, t, x.copy(), impulse, steps, calls, drift_max, x1.copy(), k
+            return kchain.NON_FINITE, t, impulse, steps, calls, drift_max, True, k
         if not have_ind0:
             _eval(t, x, mode, s, xdot, model, ws, cp, sc)
             calls += 1
@@ -351,12 +369,12 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
         calls += 1
         ni = _indicators(mode, s, mus, res, ind1)
         if not ok:
-            return SINGULAR, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
+            return SINGULAR, t, impulse, steps, calls, drift_max, False, k
         for j in range(ni):
             # free flight: any step ending inside the wall holds an event, also one that
             # starts a hair inside it after a bounce or lift-off (the reference's rule)
             if ind1[j] < 0.0 and (ind0[j] >= 0.0 or mode == FREE):
-                return EVENT, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
+                return EVENT, t, impulse, steps, calls, drift_max, False, k
         if mode != FREE:
             # M-orthogonal projection onto g = 0, v_n = 0 (and v_t = 0 when sticking) with
             # M, j_n, j_t of the unprojected end state (the reference's `project`)
@@ -393,15 +411,14 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
                     x1[nf + a] -= y2[a] * an + y3[a] * at
             drift = abs(gap)
             if drift > tol:
-                return DRIFT, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
+                return DRIFT, t, impulse, steps, calls, drift_max, False, k
             drift_max = max(drift_max, drift)
             have_ind0 = False
         else:
             ind0[0] = ind1[0]           # free flight: the end state is the next start
             have_ind0 = True
         if kchain._deflection_ratio(x1, model) > max_ratio:
-            return kchain.DEFLECTION, t, x.copy(), impulse, steps, calls, drift_max, \
-                x1.copy(), k
+            return kchain.DEFLECTION, t, impulse, steps, calls, drift_max, True, k
         t1 = t + dt
         dimp = (dt / 6.0) * (l1 + 2.0 * l2 + 2.0 * l3 + l4)
         seps = 1e-12 * max(1.0, t_target)
@@ -428,5 +445,5 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
         impulse += dimp
         steps += 1
         if steps >= max_steps:
-            return kchain.OK, t, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
-    return kchain.OK, t_target, x.copy(), impulse, steps, calls, drift_max, x.copy(), k
+            return kchain.OK, t, impulse, steps, calls, drift_max, False, k
+    return kchain.OK, t_target, impulse, steps, calls, drift_max, False, k

@@ -49,6 +49,14 @@ class Model(NamedTuple):
     phi: np.ndarray             # (nl, P+1, ne): φ(x_p)
     S: np.ndarray               # (nl, P+1, ne, ne): foreshortening S(x_p)
     ext: np.ndarray             # (nl, P+1) int: leading η that can be non-zero in φ, S
+    # per link k whose mass points are summed once (inertia invariants, chain.beam_invariants):
+    # ne_i = ne where any link uses them, else 1
+    invariant: np.ndarray       # (nl,) bool: link k's beam by its invariants, not its points
+    inv_mass: np.ndarray        # (nl, 3): Σm, Σm x₀, Σm x₀² (x₀ = r_h + x)
+    inv_phi: np.ndarray         # (nl, 2, ne_i): Σm φ, Σm x₀ φ
+    inv_mat: np.ndarray         # (nl, 3, ne_i, ne_i): Σm φφᵀ, Σm S, Σm x₀ S
+    inv_G: np.ndarray           # (nl, ne_i, ne_i, ne_i): Σm φ_a S_bc
+    inv_H: np.ndarray           # (nl, ne_i, ne_i, ne_i, ne_i): Σm S_ab S_cd
     # environment and constant matrices
     gravity: np.ndarray         # (2,) m/s²
     foreshortening: bool
@@ -89,6 +97,8 @@ class Workspace(NamedTuple):
     Jo: np.ndarray              # (2, n) running frame origin Jacobian (last tip frame's)
     Jpsi: np.ndarray            # (n,) running frame angle Jacobian
     Seta: np.ndarray            # (ne,) S(x) η of one point
+    inv_vec: np.ndarray         # (6, ne) vectors of one link's invariant terms
+    inv_E: np.ndarray           # (ne, ne) its elastic mass block
     Jx: np.ndarray              # (n,) one point's Jacobian rows
     Jy: np.ndarray
     Jtx: np.ndarray             # (n,) the beam tip's Jacobian rows
@@ -118,6 +128,7 @@ def workspace(model) -> tuple:
     e = np.empty
     return tuple(Workspace(
         q=e(n), qd=e(n), M=e((n, n)), h=e(n), Qg=e(n), Jo=e((2, n)), Jpsi=e(n), Seta=e(ne),
+        inv_vec=e((6, ne)), inv_E=e((ne, ne)),
         Jx=e(n), Jy=e(n), Jtx=e(n), Jty=e(n), Mff=e((nf, nf)), ff=e(nf), L=e((nf, nf)),
         y=e(nf), acc=e(nf), pdd=e(max(npr, 1)), f=e(n), xdot=e(2 * nf + nz),
         zd=e(max(nz, 1)), tip=e(6), frames=e((nl, 2, 6)), frame_jac=e((nl, 2, 3, n))))

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
+from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
 from flexarm_ros.model.compiled.layout import Model
 from flexarm_ros.model.compiled.chain import (
     DEFLECTION, NEWTON, NON_FINITE, OK, STAGE_EPS, _deflection_ratio, _forces, eval_torque_c,
@@ -15,14 +15,16 @@ from flexarm_ros.model.compiled.chain import (
 
 
 @_jit_inline
-def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws, k1_given=False):
     """One RK4 step x → xn from time t; actuator states clamped to their bounds. Returns
-    False when xn is not finite."""
+    False when xn is not finite. With ``k1_given`` the first stage is already in k1 (the
+    previous step's ẋ at its end, :func:`_rk4_dense`)."""
     m = x.shape[0]
     nz = model.nz
     zlo = model.z_lo
     zhi = model.z_hi
-    rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
+    if not k1_given:
+        rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
     for i in range(m):
         tmp[i] = x[i] + 0.5 * h * k1[i]
     rhs_into(t + 0.5 * h, tmp, k2, model, ws)
@@ -64,13 +66,21 @@ def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4):
 def rk4_span(x0, t0, h, nsteps, max_ratio, model_args, ws_args):
     """``nsteps`` fixed RK4 steps of size h from (t0, x0): the co-simulation plant's
     advance. Returns (status, time, last good state, offending state)."""
-    model, ws = named(model_args, ws_args)
     m = x0.shape[0]
     x = x0.copy()
-    xn = np.empty(m)
-    status, _, t = _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, np.empty(m),
-                            np.empty(m), np.empty(m), np.empty(m), np.empty(m))
-    return status, t, x, (x if status == OK else xn)
+    sc = np.empty((6, m))
+    status, t = _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args)
+    return status, t, x, (x if status == OK else sc[0].copy())
+
+
+@_jit_raw
+def _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args):
+    """:func:`rk4_span`'s loop without reference counting (x advanced in place, sc[0] the
+    offending state on failure, sc[1:] the stages)."""
+    model, ws = named(model_args, ws_args)
+    status, _, t = _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, sc[0], sc[1], sc[2],
+                            sc[3], sc[4], sc[5])
+    return status, t
 
 
 @_jit
@@ -81,25 +91,29 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
     Returns (status, time, steps, last good state, offending state): status OK,
     NON_FINITE or DEFLECTION.
     """
-    model, ws = named(model_args, ws_args)
     m = x0.shape[0]
     x = x0.copy()
-    xn = np.empty(m)
-    tmp = np.empty(m)
-    k1 = np.empty(m)
-    k2 = np.empty(m)
-    k3 = np.empty(m)
-    k4 = np.empty(m)
+    sc = np.empty((6, m))
+    status, t, steps = _rk4_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, model_args,
+                                 ws_args)
+    return status, t, steps, x, (x if status == OK else sc[0].copy())
+
+
+@_jit_raw
+def _rk4_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
+    """:func:`rk4_loop`'s loop without reference counting (as :func:`_rk4_span`)."""
+    model, ws = named(model_args, ws_args)
+    m = x.shape[0]
     steps = 0
     for k in range(k0, n_out):
-        status, done, t = _rk4_run(x, k * out_dt, h, per, max_ratio, model, ws, xn, tmp, k1,
-                                   k2, k3, k4)
+        status, done, t = _rk4_run(x, k * out_dt, h, per, max_ratio, model, ws, sc[0], sc[1],
+                                   sc[2], sc[3], sc[4], sc[5])
         steps += done
         if status != OK:
-            return status, t, steps, x, xn
+            return status, t, steps
         for i in range(m):
             xs[k + 1, i] = x[i]
-    return OK, n_out * out_dt, steps, x, x
+    return OK, n_out * out_dt, steps
 
 
 @_jit_inline
@@ -127,38 +141,55 @@ def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_a
 
     Returns (status, time, steps, rhs evaluations, next output index, last good state,
     offending state)."""
-    model, ws = named(model_args, ws_args)
     m = x0.shape[0]
     x = x0.copy()
-    xn = np.empty(m)
-    tmp = np.empty(m)
-    k1 = np.empty(m)
-    k2 = np.empty(m)
-    k3 = np.empty(m)
-    k4 = np.empty(m)
-    f0 = np.empty(m)
-    f1 = np.empty(m)
-    row = np.empty(m)
+    sc = np.empty((9, m))
+    status, t, steps, calls, k = _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio,
+                                            xs, model_args, ws_args)
+    return status, t, steps, calls, k, x, (x if status == OK else sc[0].copy())
+
+
+@_jit_raw
+def _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args):
+    """:func:`rk4_dense`'s loop without reference counting (x advanced in place, sc[0] the
+    offending state on failure)."""
+    model, ws = named(model_args, ws_args)
+    m = x.shape[0]
+    xn = sc[0]
+    tmp = sc[1]
+    k1 = sc[2]
+    k2 = sc[3]
+    k3 = sc[4]
+    k4 = sc[5]
+    f0 = sc[6]
+    f1 = sc[7]
+    row = sc[8]
     n_out = xs.shape[0] - 1
     k = k_next
     t = t0
     steps = 0
     calls = 0
     eps = 1e-12 * max(1.0, t_stop)
+    have_f1 = False
     while t < t_stop - eps:
         hh = min(h, t_stop - t)
-        if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws):
-            return NON_FINITE, t + hh, steps, calls, k, x, xn
+        if have_f1:     # first same as last: ẋ at the previous step's end (no input jump
+            for i in range(m):      # inside a call: the caller splits at them)
+                k1[i] = f1[i]
+        if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws, have_f1):
+            return NON_FINITE, t + hh, steps, calls, k
         steps += 1
-        calls += 4
+        calls += 3 if have_f1 else 4
+        have_f1 = False
         if _deflection_ratio(xn, model) > max_ratio:
-            return DEFLECTION, t + hh, steps, calls, k, x, xn
+            return DEFLECTION, t + hh, steps, calls, k
         t1 = t + hh
         if k <= n_out and k * out_dt < t1 - eps:
             for i in range(m):                  # an output inside the step: ẋ at both ends
                 f0[i] = k1[i]
             rhs_into(t + (1.0 - STAGE_EPS) * hh, xn, f1, model, ws)   # left limit at a jump
             calls += 1
+            have_f1 = True
             while k <= n_out and k * out_dt < t1 - eps:
                 hermite((k * out_dt - t) / hh, hh, x, f0, xn, f1, row)
                 for i in range(m):
@@ -171,7 +202,7 @@ def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_a
         for i in range(m):
             x[i] = xn[i]
         t = t1
-    return OK, t, steps, calls, k, x, x
+    return OK, t, steps, calls, k
 
 
 @_jit

@@ -24,7 +24,7 @@ import numpy as np
 
 
 from flexarm_ros.model.compiled import chain as kchain
-from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline
+from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
 from flexarm_ros.model.compiled.layout import named
 
 HUB, TIP, BEAM = 0, 1, 2
@@ -79,13 +79,18 @@ def table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out)
     into out[k] (one kernel evaluation per row for the frames): q̈ of the free coordinates
     from QDD[k] when ``given`` (e.g. the contact stepper's constrained accelerations), else
     from the chain's right-hand side there; the prescribed ones from their programs."""
+    model, _ = named(model_args, ws_args)
+    _table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out,
+           np.empty(X.shape[1]), np.empty(model.n))
+
+
+@_jit_raw
+def _table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out, xdot, qdd):
+    """:func:`table` without reference counting (``xdot``, ``qdd`` its scratch)."""
     model, ws = named(model_args, ws_args)
     free = model.free
     presc = model.presc
     nf = free.shape[0]
-    m = X.shape[1]
-    xdot = np.empty(m)
-    qdd = np.empty(model.n)
     for k in range(ts.shape[0]):
         kchain.rhs_into(ts[k], X[k], xdot, model, ws)
         for a in range(nf):

@@ -182,3 +182,26 @@ def test_die_with_parent_arms_sigterm_and_refuses_an_orphan(monkeypatch):
     r = subprocess.run([sys.executable, "-c", "import time; time.sleep(30)"],
                        preexec_fn=orphan, timeout=60)
     assert r.returncode == 1 and time.monotonic() - t0 < 20
+
+
+_HUNG = """
+import time, types
+from flexarm_ros.nodes._common import ShutdownGuard
+ShutdownGuard("motor_driver", types.SimpleNamespace(diverged={diverged!r}), limit_s=0.3)
+time.sleep(30)          # a teardown that hangs
+"""
+
+
+@pytest.mark.parametrize("diverged, code", [(None, 0), ("tip deflection", 3)])
+def test_a_node_whose_teardown_hangs_ends_with_the_status_it_earned(diverged, code):
+    """Once a node's work is done, a hang in what follows (DDS teardown) ends the process
+    after the guard's limit — saying so, with every thread's stack — with 0, or 3 after a
+    divergence; not after the parent's SIGKILL 15 s later."""
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", _HUNG.format(diverged=diverged)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == code, r.stderr
+    assert time.monotonic() - t0 < 20
+    assert "motor_driver: its work is done but the process has not exited 0.3 s later" \
+        in r.stderr
+    assert "time.sleep(30)" in r.stderr or "line 5" in r.stderr, r.stderr

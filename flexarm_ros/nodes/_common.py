@@ -223,6 +223,39 @@ class Barrier:
         return self.ok
 
 
+class ShutdownGuard:
+    """Bounds a node process's exit once its work is done (its loop ended; the recorder:
+    its bag finalized). Should the rest — the final log line, the executor's and the DDS
+    participant's teardown, exit handlers — hang for ``limit_s`` (seen once under a full
+    test suite's load: a motor driver that a Ctrl-C had stopped was still alive 15 s
+    later, and ``flexarm run --processes`` had to SIGKILL it), the guard prints every
+    thread's stack to stderr, saying so, and ends the process with the status the node
+    earned (3 after a divergence or a stall, else 0), before the parent's own 15 s."""
+
+    LIMIT_S = 8.0
+
+    def __init__(self, name: str, node, limit_s: float | None = None):
+        self.name, self.node = name, node
+        self.limit_s = self.LIMIT_S if limit_s is None else limit_s
+        t = threading.Timer(self.limit_s, self._fire)
+        t.daemon = True
+        t.start()
+
+    def _fire(self):
+        import faulthandler
+        import os
+        limit = self.limit_s
+        try:
+            print(f"{self.name}: its work is done but the process has not exited {limit:g} "
+                  f"s later (DDS or executor teardown hung); ending it. Where each thread "
+                  f"was:", file=sys.stderr, flush=True)
+            faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+            sys.stderr.flush()
+        finally:
+            bad = getattr(self.node, "diverged", None) or getattr(self.node, "stalled", None)
+            os._exit(3 if bad else 0)
+
+
 class StopFlag:
     """SIGINT / SIGTERM set the flag (the spin loop then shuts down cleanly) instead of
     raising inside a callback; the previous handlers come back with ``restore()``."""
@@ -357,6 +390,10 @@ def _node_main(cls, args=None) -> int:
                 exe.spin_once(timeout_sec=0.1)
                 if pause > 0:
                     time.sleep(pause)
+        # the node's work is done: from here its exit is bounded (the recorder's from
+        # when its bag is finalized, below)
+        if not hasattr(node, "close"):
+            ShutdownGuard(cls.EXECUTABLE, node)
         if hasattr(node, "finish"):
             node.finish(exe)
         exe.shutdown()
@@ -382,6 +419,7 @@ def _node_main(cls, args=None) -> int:
         if node is not None:
             if hasattr(node, "close"):
                 node.close()
+                ShutdownGuard(cls.EXECUTABLE, node)
             node.destroy_node()
         if ctx.ok():
             rclpy.shutdown(context=ctx)

@@ -256,7 +256,8 @@ class InProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 executor="drain", fidelity=None, simulator=None, intraprocess=True):
+                 executor="drain", fidelity=None, simulator=None, intraprocess=True,
+                 writer_process=True):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -282,6 +283,9 @@ class InProcessGraph:
                     continue
                 p = _params(scene, mode, duration, record, name, progress, fidelity,
                             simulator)
+                if name == "recorder":
+                    # the bag's stamping and writing on the other core (bag/writer_process.py)
+                    p["writer_process"] = bool(writer_process)
                 node = node_classes()[name](
                     context=self.context, namespace=namespace,
                     parameter_overrides=[Parameter(k, value=v) for k, v in p.items()])

@@ -110,3 +110,36 @@ def test_bytes_that_are_not_a_message_raise_cdr_error_never_anything_else(tp):
     for data in cases:
         with pytest.raises(CdrError):
             decode(tp, data)
+
+
+def test_repeated_layouts_and_names_decode_as_fresh_ones():
+    """The readers recognise a Float64MultiArray layout or a JointState's names they parsed
+    before by their bytes: messages that share them, or share only their start (a label
+    one character longer, one more joint), still decode as rclpy serialized them."""
+    from std_msgs.msg import MultiArrayDimension
+    from builtin_interfaces.msg import Time
+    F = msg_class("std_msgs/msg/Float64MultiArray")
+    J = msg_class("sensor_msgs/msg/JointState")
+    rng = random.Random(7)
+    for k in range(200):
+        f = F()
+        f.layout.dim = [MultiArrayDimension(label=["joint", "joints", "j"][k % 3],
+                                            size=k % 2 + 1, stride=1)]
+        f.layout.data_offset = k % 4 // 2
+        f.data = _arrays(rng)
+        got = decode("std_msgs/msg/Float64MultiArray", serialize_message(f))
+        assert got.data == tuple(f.data)
+        assert [(d.label, d.size, d.stride) for d in got.layout.dim] == \
+            [(d.label, d.size, d.stride) for d in f.layout.dim]
+        assert got.layout.data_offset == f.layout.data_offset
+        j = J()
+        j.header.stamp = Time(sec=k, nanosec=rng.randint(0, 999999999))
+        j.header.frame_id = ["", "world"][k % 2]
+        j.name = ["l1_joint", "l2_joint", "l3_joint"][:1 + k % 3]
+        j.position, j.velocity, j.effort = _arrays(rng), _arrays(rng), _arrays(rng)
+        got = decode("sensor_msgs/msg/JointState", serialize_message(j))
+        assert (got.header.stamp.sec, got.header.stamp.nanosec, got.header.frame_id) == \
+            (k, j.header.stamp.nanosec, j.header.frame_id)
+        assert got.name == list(j.name)
+        assert (got.position, got.velocity, got.effort) == \
+            (tuple(j.position), tuple(j.velocity), tuple(j.effort))

@@ -92,7 +92,22 @@ class _Reader:
         return SimpleNamespace(stamp=stamp, frame_id=self.string())
 
 
+# The parts of a message that a publisher repeats unchanged (a Float64MultiArray's layout,
+# a JointState's frame_id and joint names) are parsed once per distinct byte string and
+# then recognised by comparing bytes: a prefix equal to one parsed before decodes to the
+# same values and ends at the same offset. (cProfile of the one-process realtime graph:
+# the layout's u32 and string reads were ~5 % of the tick, for 4 arrays per tick.)
+_SEEN_MAX = 32
+_LAYOUTS: dict = {}     # layout bytes (from offset 4) -> (layout, offset after it)
+_NAMES: dict = {}       # bytes after the stamp through the names -> (frame_id, names, end)
+
+
 def _float64_multiarray(data: bytes):
+    for raw, (layout, p) in _LAYOUTS.items():
+        if data.startswith(raw, 4):
+            r = _Reader(data)
+            r.p = p
+            return SimpleNamespace(layout=layout, data=r.double_seq())
     r = _Reader(data)
     dims = []
     for _ in range(r.u32()):
@@ -100,14 +115,29 @@ def _float64_multiarray(data: bytes):
         size, stride = r.u32(), r.u32()
         dims.append(SimpleNamespace(label=label, size=size, stride=stride))
     layout = SimpleNamespace(dim=dims, data_offset=r.u32())
+    _remember(_LAYOUTS, bytes(data[4:r.p]), (layout, r.p))
     return SimpleNamespace(layout=layout, data=r.double_seq())
+
+
+def _remember(seen: dict, key: bytes, value) -> None:
+    if len(seen) >= _SEEN_MAX:
+        seen.clear()
+    seen[key] = value
 
 
 def _joint_state(data: bytes):
     r = _Reader(data)
-    header = r.header()
-    names = [r.string() for _ in range(r.u32())]
-    return SimpleNamespace(header=header, name=names, position=r.double_seq(),
+    stamp = r.stamp()
+    for raw, (frame_id, names, p) in _NAMES.items():
+        if data.startswith(raw, 12):
+            r.p = p
+            break
+    else:
+        frame_id = r.string()
+        names = [r.string() for _ in range(r.u32())]
+        _remember(_NAMES, bytes(data[12:r.p]), (frame_id, names, r.p))
+    return SimpleNamespace(header=SimpleNamespace(stamp=stamp, frame_id=frame_id),
+                           name=list(names), position=r.double_seq(),
                            velocity=r.double_seq(), effort=r.double_seq())
 
 

@@ -43,7 +43,6 @@ finalizes the file.
 
 from __future__ import annotations
 
-import bisect
 import json
 import math
 import struct
@@ -57,6 +56,8 @@ from rclpy.node import Node
 
 from flexarm_ros import __version__
 from flexarm_ros.bag import BagWriter
+from flexarm_ros.bag.stamping import SimTimeStamper
+from flexarm_ros.bag.writer_process import WriterProcess
 from flexarm_ros.bag.cdr_read import CdrError, decode as decode_values
 from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.scene import resolve_scene_path
@@ -66,8 +67,6 @@ from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes._msgconv import msg_class, to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
 from flexarm_ros.nodes._wire import Rejections, Source, gid_of, show
-
-_HISTORY = 20_000           # /clock values kept for stamping late messages (20 s at 1 kHz)
 
 
 def finite(obj) -> bool:
@@ -130,6 +129,8 @@ class RecorderNode(Node):
     PARAMS = {"output": ("run.mcap", "MCAP file to write"),
               "flush_period": (1.0, "s of wall time between chunk flushes (bounds the loss "
                                     "of a SIGKILL)"),
+              "writer_process": (False, "stamp and write the bag in a child process (on "
+                                        "another core; flexarm run sets it in one process)"),
               "batch_s": (0.005, "s of wall time the recorder's own process pauses between "
                                  "draining its queues (one wake-up per batch; below "
                                  f"{C.DEPTH} messages per topic nothing is lost; 0: none)")}
@@ -154,84 +155,41 @@ class RecorderNode(Node):
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],
                 "namespace": ns, "control_mode": scene.control.mode,
                 "fidelity_overrides": json.dumps(over, sort_keys=True)}
-        self.writer = BagWriter(self.p["output"], metadata=info, qos_depth=C.DEPTH)
-        self.writer.add_metadata("model", {"explain": explain(scene)})
+        self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
+        extra = {"model": {"explain": explain(scene)}}
+        if self.p["writer_process"]:
+            self.sink = WriterProcess(self.p["output"], info, C.DEPTH, extra, self.abs,
+                                      self.p["flush_period"])
+        else:
+            writer = BagWriter(self.p["output"], metadata=info, qos_depth=C.DEPTH)
+            for name, data in extra.items():
+                writer.add_metadata(name, data)
+            self.sink = SimTimeStamper(writer, self.abs, self.p["flush_period"])
         self.validators = {T.COMMANDS: Validator(scene, "command"),
                            T.EFFORTS: Validator(scene, "effort")}
         self.rejections = Rejections(self, period_s=float("inf"))   # the nodes log them
-        self.clock_ts: list = []          # source timestamps of the simulator's /clock
-        self.clock_ns: list = []          # their values
-        self.pending: list = []           # (source ts, topic, type, data, header ns)
+        self.last_clock_ns = None         # the simulator's latest /clock taken
         self.received = {}
         self.last_rx = time.monotonic()
-        self._flushed = time.monotonic()
         self.sources = {}
         for topic in sorted(T.TYPES, key=lambda t: t == T.CLOCK):
             tp = T.TYPES[topic]
             sub = C.subscription(self, tp, topic, lambda m, info, topic=topic, tp=tp:
                                  self._on(topic, tp, m, info), raw=True)
             self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
-        self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
-
-    def _write(self, topic, tp, data, t_ns):
-        """``data``: CDR bytes (the fast path) or a message dict."""
-        if isinstance(data, bytes):
-            self.writer.write_raw(self.abs[topic], tp, data, t_ns)
-        else:
-            self.writer.write(self.abs[topic], tp, data, t_ns)
-        now = time.monotonic()
-        if now - self._flushed > self.p["flush_period"]:
-            self.writer.flush()
-            self._flushed = now
-
-    # ----------------------------------------------------------------- time stamps
-    def _sim_ns(self, ts: int) -> int:
-        """The simulator's latest /clock value published at or before source time ts."""
-        i = bisect.bisect_right(self.clock_ts, ts)
-        return self.clock_ns[i - 1] if i else (self.clock_ns[0] if self.clock_ns else 0)
-
-    def _emit(self, ts, topic, tp, data, header_ns=None):
-        """Write now when the simulator's time at ``ts`` is known (a later /clock has
-        arrived), else hold the message until it is."""
-        if not ts or (self.clock_ts and ts < self.clock_ts[-1]):
-            self._stamp_write(ts, topic, tp, data, header_ns)
-        else:
-            self.pending.append((ts, topic, tp, data, header_ns))
-
-    def _stamp_write(self, ts, topic, tp, data, header_ns):
-        t_ns = self._sim_ns(ts) if ts else (self.clock_ns[-1] if self.clock_ns else 0)
-        if header_ns is not None and 0 <= header_ns <= t_ns:
-            t_ns = header_ns
-        self._write(topic, tp, data, t_ns)
-
-    def _release(self, upto=None):
-        """Write the held messages sent before source time ``upto`` (all: None)."""
-        keep = []
-        for item in self.pending:
-            if upto is None or (item[0] and item[0] < upto):
-                self._stamp_write(*item)
-            else:
-                keep.append(item)
-        self.pending = keep
 
     def _on_clock(self, ts, data, t_ns):
-        if self.clock_ns and t_ns < self.clock_ns[-1]:
+        if self.last_clock_ns is not None and t_ns < self.last_clock_ns:
             self._reject(T.CLOCK, "time went backwards", str(t_ns), ts, "the source")
             return
-        if not ts and self.clock_ts:
-            ts = self.clock_ts[-1] + 1
-        self.clock_ts.append(ts)
-        self.clock_ns.append(t_ns)
-        if len(self.clock_ts) > 2 * _HISTORY:
-            del self.clock_ts[:_HISTORY], self.clock_ns[:_HISTORY]
-        self._write(T.CLOCK, T.TYPES[T.CLOCK], data, t_ns)
-        self._release(ts)
+        self.last_clock_ns = t_ns
+        self.sink.clock(ts, T.CLOCK, T.TYPES[T.CLOCK], data, t_ns)
 
     # ------------------------------------------------------------------- receiving
     def _reject(self, topic, reason, text, ts, who):
         self.rejections.add(self.abs[topic], reason, "")
         entry = {"topic": self.abs[topic], "reason": reason, "publisher": who, "data": text}
-        self._emit(ts, T.REJECTED, "std_msgs/msg/String", {"data": json.dumps(entry)})
+        self.sink.emit(ts, T.REJECTED, "std_msgs/msg/String", {"data": json.dumps(entry)})
 
     def _on(self, topic, tp, raw: bytes, info=None):
         self.last_rx = time.monotonic()
@@ -268,7 +226,7 @@ class RecorderNode(Node):
         if topic == T.CLOCK:
             self._on_clock(ts, raw, _stamp_ns(raw))
         else:
-            self._emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
+            self.sink.emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
 
     def _name(self, info) -> str:
         gid = gid_of(info)
@@ -283,13 +241,11 @@ class RecorderNode(Node):
 
     def close(self):
         """Write what is held, the rejection counts, and finalize the file (idempotent)."""
-        if not self.writer.closed:
-            self._release()
+        if not self.sink.closed:
             counts = self.rejections.counts
-            self.writer.add_metadata("rejected_messages", {
+            self.sink.close({"rejected_messages": {
                 "total": str(self.rejections.total()),
-                "by_topic": json.dumps(counts, sort_keys=True)})
-        self.writer.close()
+                "by_topic": json.dumps(counts, sort_keys=True)}})
 
     @property
     def path(self) -> Path:

@@ -12,8 +12,9 @@ at 4 kHz batched four samples per message, wall, recorder on):
    without the recorder, with the twin's executor (``DrainExecutor``) and the nodes'
    messages through the intra-process bus (the default) or through DDS, and with rclpy's
    SingleThreadedExecutor (DDS), measured in one run;
-3. ``realtime`` with the recorder for ``--seconds`` of simulated time, one process and
-   ``--processes``: real-time factor, ticks late by more than half a period, lateness
+3. ``realtime`` with the recorder for ``--seconds`` of simulated time in each layout
+   (``--layout split``: the simulator in a process of its own, the default; ``one``;
+   ``processes``): real-time factor, ticks late by more than half a period, lateness
    p50/p99/max, and the messages the recorder lost (published minus recorded, per topic);
    ``--rate 2000`` repeats it at 2 kHz control.
 
@@ -124,11 +125,11 @@ def lockstep_run(scene_name: str, duration: float, record: Path | None,
         g.close()
 
 
-def realtime_run(scene, seconds: float, record: Path, processes: bool) -> dict:
-    """``flexarm run SCENE --mode realtime`` for ``seconds`` of simulated time: the run
-    summary plus the recorder's losses per topic (published − recorded)."""
+def realtime_run(scene, seconds: float, record: Path, layout: str) -> dict:
+    """``flexarm run SCENE --mode realtime --layout LAYOUT`` for ``seconds`` of simulated
+    time: the run summary plus the recorder's losses per topic (published − recorded)."""
     from flexarm_ros.run import run
-    res = run(scene, seconds, "realtime", record=record, processes=processes,
+    res = run(scene, seconds, "realtime", record=record, layout=layout,
               progress=False).to_json()
     lost = {}
     for topic, n in (res["published"] or {}).items():      # absolute names, as recorded
@@ -161,6 +162,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rate", type=float, action="append", default=None,
                     help="control rates (Hz) of the realtime runs (default: the scene's, "
                          "then 2000)")
+    ap.add_argument("--layout", action="append", choices=("one", "split", "processes"),
+                    help="the realtime runs' layouts (default: split, one, processes)")
+    ap.add_argument("--no-lockstep", action="store_true", help="realtime runs only")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     from flexarm_ros.nodes import environment
@@ -170,14 +174,15 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
         budget = simulator_tick_budget(args.scene, int(args.lockstep_seconds * 1000))
-        for executor, bus in (("drain", True), ("drain", False), ("single", False)):
+        for executor, bus in (() if args.no_lockstep else
+                              (("drain", True), ("drain", False), ("single", False))):
             for rec in (None, tmp / "lockstep.mcap"):
                 lockstep.append(lockstep_run(args.scene, args.lockstep_seconds, rec, executor,
                                              bus))
         for rate in args.rate or [None, 2000.0]:
             scene = args.scene if rate is None else scene_at_rate(args.scene, rate, tmp)
-            for processes in (False, True):
-                r = realtime_run(scene, args.seconds, tmp / "realtime.mcap", processes)
+            for layout in args.layout or ["split", "one", "processes"]:
+                r = realtime_run(scene, args.seconds, tmp / "realtime.mcap", layout)
                 r["rate_hz"] = rate or "scene"
                 realtime.append(r)
     out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"],
@@ -199,7 +204,7 @@ def main(argv=None) -> int:
               f"{'recorder on ' if r['record'] else 'no recorder'}: {r['ticks_per_s']:6.0f} "
               f"ticks/s")
     for r in realtime:
-        how = "--processes" if r["processes"] else "one process"
+        how = r["layout"]
         lost = sum(r["lost"].values())
         print(f"  realtime {r['rate_hz']} Hz, {how:<12}: RTF {r['real_time_factor']:.3f}, "
               f"{r['late_ticks']} of {r['ticks']} ticks late "

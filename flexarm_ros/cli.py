@@ -324,7 +324,11 @@ def cmd_run(args):
         raise SceneError(f"{'--nodes' if args.nodes else '--without'}: {exc}") from None
     if "recorder" not in nodes:
         record = None
+    if args.processes and args.layout not in (None, "processes"):
+        from flexarm_ros.errors import SceneError
+        raise SceneError(f"--processes and --layout {args.layout}: choose one layout")
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes, pin=args.pin,
+              layout="processes" if args.processes else args.layout,
               nodes=tuple(n for n in nodes if n != "recorder"),
               namespace=namespace, progress=not args.quiet,
               fidelity={k: v for k, v in _overrides(args).items() if k != "tolerance"},
@@ -349,7 +353,7 @@ def cmd_run(args):
         else:
             print(res.summary())
     if res.diverged or res.stalled:           # like simulate: the message once, status 3
-        if not res.processes:
+        if not res.processes and res.layout != "split":     # else the node said it
             print(f"flexarm: {res.diverged or res.stalled}", file=sys.stderr)
         return 3
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
@@ -465,10 +469,16 @@ def build_parser():
                         "finalized on Ctrl-C too (default: run.mcap)")
     r.add_argument("--no-record", action="store_true", help="run without the recorder")
     r.add_argument("--processes", action="store_true",
-                   help="one process per node (default: all nodes on one executor)")
+                   help="one process per node (--layout processes)")
+    r.add_argument("--layout", choices=("one", "split", "processes"), default=None,
+                   help="one: every node in this process; split: the simulator in a "
+                        "process of its own, the other nodes in this one, joined by a "
+                        "socket (the plant's tick on one core, the rest on the other); "
+                        "processes: one per node (default: one)")
     r.add_argument("--pin", action=argparse.BooleanOptionalAction, default=None,
-                   help="with --processes: the simulator alone on the last CPU, the other "
-                        "nodes on the rest (default: on in realtime, off otherwise)")
+                   help="with --processes or --layout split: the simulator alone on the "
+                        "last CPU, the other nodes on the rest (default: on in realtime, off "
+                        "otherwise)")
     r.add_argument("--namespace", default="/flexarm", help="node namespace (default /flexarm)")
     r.add_argument("--quiet", action="store_true",
                    help="no progress and no node info log on stderr (the summary is still "

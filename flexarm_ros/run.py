@@ -75,6 +75,7 @@ class RunResult:
     recorded: dict | None = None              # the bag's message count per topic
     cpus: dict | None = None                  # --processes with pinning: node -> CPUs
     first_command_s: float | None = None      # sim time of the first recorded command
+    layout: str = ""                          # "one", "split" or "processes"
 
     @property
     def ticking_s(self) -> float | None:
@@ -87,6 +88,7 @@ class RunResult:
         """The summary as JSON-ready numbers (``flexarm run --json``)."""
         p = self.pacing or {}
         return {"scene": self.scene, "mode": self.mode, "processes": self.processes,
+                "layout": self.layout or ("processes" if self.processes else "one"),
                 "nodes": list(self.nodes), "record": str(self.record) if self.record else None,
                 "wall_time_s": self.wall_s, "ticking_wall_time_s": self.ticking_s,
                 "sim_time_s": self.sim_s, "ticks": self.ticks,
@@ -113,7 +115,9 @@ class RunResult:
                          else None)}
 
     def summary(self) -> str:
-        how = "one process per node" if self.processes else "one process"
+        how = ("one process per node" if self.processes else
+               "the simulator in a process of its own" if self.layout == "split" else
+               "one process")
         s = f"{self.scene}: {self.mode} run ({how}"
         left = [n for n in NODES if self.nodes and n not in self.nodes]
         s += f"; without {', '.join(left)})" if left else ")"
@@ -257,7 +261,7 @@ class InProcessGraph:
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
                  executor="drain", fidelity=None, simulator=None, intraprocess=True,
-                 writer_process=True):
+                 writer_process=True, remote=()):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -276,7 +280,8 @@ class InProcessGraph:
         self.bus = None
         if intraprocess and executor == "drain":
             from flexarm_ros.nodes.intraprocess import install
-            self.bus = install(self.context, [(namespace, n) for n in names])
+            # ``remote``: members in another process, joined by SplitGraph's bridge
+            self.bus = install(self.context, [(namespace, n) for n in names + list(remote)])
         try:
             for name in NODES:
                 if name not in names:
@@ -422,9 +427,10 @@ class ProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 stderr=None, fidelity=None, simulator=None, pin=False):
-        env = environment.child_environment()
-        names = list(nodes) + (["recorder"] if record else [])
+                 stderr=None, fidelity=None, simulator=None, pin=False, extra_env=None,
+                 pass_fds=(), start_recorder=True, controllers=None):
+        env = {**environment.child_environment(), **(extra_env or {})}
+        names = list(nodes) + (["recorder"] if record and start_recorder else [])
         self.placement = cpu_placement(names) if pin else {}
         self.procs = {}
         try:
@@ -433,7 +439,8 @@ class ProcessGraph:
                     continue
                 # the simulator's first state waits for the controller this graph starts
                 # (in realtime it would not wait for a controller of its own accord)
-                sim = {**(simulator or {}), "controllers": 1 if "controller" in names else -1}
+                sim = {**(simulator or {}), "controllers": (
+                    1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
                             progress, fidelity, sim)
                 cmd = [sys.executable, "-m", f"flexarm_ros.nodes.{name}", "--ros-args",
@@ -443,7 +450,7 @@ class ProcessGraph:
                 for k, v in p.items():
                     cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
                 self.procs[name] = subprocess.Popen(
-                    cmd, env=env, stderr=stderr,
+                    cmd, env=env, stderr=stderr, pass_fds=tuple(pass_fds),
                     preexec_fn=_preexec(die_with_parent(), self.placement.get(name)))
         except BaseException:
             self.stop(timeout=5.0)
@@ -476,6 +483,77 @@ class ProcessGraph:
         return {name: p.returncode for name, p in self.procs.items()}
 
 
+class SplitGraph:
+    """The simulator in a child process of its own, the other nodes in this one
+    (:class:`InProcessGraph`), their buses joined over a Unix socket
+    (:mod:`~flexarm_ros.nodes.bridge`): the plant's tick on one core, the driver,
+    controller and recorder on the other, messages between them as bytes written once
+    per tick (docs/design_notes.md, *The simulator in a process of its own*). With
+    ``pin`` the simulator's process runs alone on the last CPU."""
+
+    def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
+                 namespace=DEFAULT_NAMESPACE, progress=False, nodes=GRAPH_NODES,
+                 fidelity=None, simulator=None, pin=False):
+        from flexarm_ros.nodes import bridge
+        local = tuple(n for n in nodes if n != "simulator")
+        self.graph = InProcessGraph(scene, mode, duration, record, namespace, progress,
+                                    nodes=local, fidelity=fidelity, remote=("simulator",))
+        self.procs = None
+        self._affinity = None
+        try:
+            mine, theirs = bridge.socket_pair()
+            members = [(namespace, n) for n in list(nodes) + (["recorder"] if record else [])]
+            self.graph.bus.attach(mine)
+            self.procs = ProcessGraph(
+                scene, mode, duration, record, namespace, progress, nodes=("simulator",),
+                fidelity=fidelity, simulator=simulator, start_recorder=False,
+                controllers=1 if "controller" in nodes else -1,
+                extra_env=bridge.child_environment(theirs, members),
+                pass_fds=(theirs.fileno(),))
+            self._affinity = None
+            if pin:
+                place = cpu_placement(["simulator", "rest"])
+                if place:
+                    os.sched_setaffinity(self.procs.procs["simulator"].pid, place["simulator"])
+                    # this thread (the executor's) on the rest until close() (a pytest
+                    # process calling run() gets its CPUs back); the bag writer floats
+                    self._affinity = os.sched_getaffinity(0)
+                    os.sched_setaffinity(0, place["rest"])
+                    self.procs.placement = {"simulator": place["simulator"],
+                                            "others": place["rest"]}
+            theirs.close()
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def simulator(self):
+        return self.procs.procs["simulator"]
+
+    def recorded_all(self, sim_published: dict) -> bool:
+        """Every message of this process's nodes and the simulator's ``sim_published``
+        (its summary's counts) has reached the recorder."""
+        rec = self.graph.nodes.get("recorder")
+        if rec is None:
+            return True
+        sent = dict(sim_published or {})
+        for node in self.graph.nodes.values():
+            for topic, n in getattr(node, "published", {}).items():
+                sent[topic] = sent.get(topic, 0) + n
+        return all(rec.received.get(t, 0) >= n for t, n in sent.items())
+
+    def close(self):
+        if self.procs is not None:
+            self.procs.stop(timeout=15.0)
+        bus = self.graph.bus
+        self.graph.close()
+        if bus is not None and bus.bridge is not None:
+            bus.bridge.close()
+        if getattr(self, "_affinity", None):
+            os.sched_setaffinity(0, self._affinity)
+            self._affinity = None
+
+
 def recover_killed_bag(path: Path, returncode) -> str | None:
     """After the recorder process died without finalizing its bag (killed, crashed), make
     ``path`` a complete bag again: the unfinished file is kept as ``<stem>.killed.mcap``
@@ -504,7 +582,8 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
 
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
-        fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None) -> RunResult:
+        fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
+        layout=None) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
@@ -512,11 +591,18 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     which of simulator, motor_driver, controller to start (a user's own node replaces
     the others: see docs/topic_contract.md); ``pin``: with ``processes``, the simulator
     alone on one CPU and the other nodes on the rest (:func:`cpu_placement`; None: in
-    ``realtime`` only)."""
+    ``realtime`` only); ``layout``: ``"one"`` process, ``"split"`` (the simulator in a
+    process of its own, :class:`SplitGraph`) or ``"processes"`` (one per node; also
+    ``processes=True``); None: :func:`default_layout`."""
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes._common import StopFlag
     if mode not in MODES:
         raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
+    if layout is None:
+        layout = "processes" if processes else default_layout(mode)
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout: got {layout!r}, expected one of {LAYOUTS}")
+    processes = layout == "processes"
     # fails early on a bad scene or override (SceneError, exit 2)
     loaded = load_scene(scene).with_fidelity(**(fidelity or {}))
     name = loaded.name
@@ -567,6 +653,10 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                 res.recorded = _bag_counts(record)
                 res.first_command_s = _first_command_s(record)
             return res
+        if layout == "split":
+            return _run_split(scene, mode, duration, record, namespace, progress, fidelity,
+                              simulator, nodes, (mode == "realtime") if pin is None else pin,
+                              stop, name, t0)
         g = InProcessGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                            fidelity=fidelity, simulator=simulator)
         try:
@@ -593,6 +683,70 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         return res
     finally:
         stop.restore()
+
+
+LAYOUTS = ("one", "split", "processes")
+
+
+def default_layout(mode: str) -> str:
+    """One process in every mode: on the 2-core host "split" did not keep the wall clock
+    measurably better in realtime (docs/design_notes.md, *The simulator in a process of
+    its own*); bench/bench_realtime.py compares the layouts on the machine at hand."""
+    return "one"
+
+
+def _summary_path() -> Path:
+    import tempfile
+    tmp = tempfile.NamedTemporaryFile(prefix="flexarm_sim_", suffix=".json", delete=False)
+    tmp.close()
+    path = Path(tmp.name)
+    path.unlink()
+    return path
+
+
+def _run_split(scene, mode, duration, record, namespace, progress, fidelity, simulator,
+               nodes, pin, stop, name, t0) -> RunResult:
+    """:func:`run` with a :class:`SplitGraph`."""
+    summary_file = _summary_path()
+    g = SplitGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
+                   fidelity=fidelity, simulator={**(simulator or {}),
+                                                 "summary_file": str(summary_file)},
+                   pin=pin)
+    try:
+        sim = g.simulator
+        g.graph.spin_until(lambda: sim.poll() is not None, stop=stop)
+        codes = g.procs.stop()
+        sim_summary = _read_summary(summary_file) or {}
+        summary_file.unlink(missing_ok=True)
+        if record:           # what the simulator sent is on its way: let it arrive
+            g.graph.spin_until(lambda: g.recorded_all(sim_summary.get("published")),
+                               timeout=10.0)
+        for other in ("motor_driver", "controller"):
+            if other in g.graph.nodes:
+                g.graph[other].finish(g.graph.executor)
+        driver = g.graph.nodes.get("motor_driver")
+        res = RunResult(name, mode, False, record, time.monotonic() - t0,
+                        rejected_commands=(driver.rejected if driver else 0) + sum(
+                            (sim_summary.get("rejected_efforts") or {}).values()),
+                        rejected=_node_rejections(g.graph.nodes),
+                        interrupted=stop.set, returncodes=codes,
+                        nodes=tuple(n for n in NODES if n in nodes or
+                                    (n == "recorder" and record)),
+                        cpus=g.procs.placement or None, layout="split")
+        if sim_summary:
+            _take_summary(res, sim_summary, namespace)
+        if codes.get("simulator") == 3 and not res.stalled:
+            res.diverged = res.diverged or ("the simulator reported a divergence (its "
+                                            "message above)")
+    finally:
+        g.close()
+    if record:
+        sim_rej = _bag_rejections(record)
+        if sim_rej:
+            res.rejected = sim_rej
+        res.recorded = _bag_counts(record)
+        res.first_command_s = _first_command_s(record)
+    return res
 
 
 def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:

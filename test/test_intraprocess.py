@@ -73,7 +73,12 @@ def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
         got = []
         node.create_subscription(JointState, T.JOINT_STATES, got.append, QOS)
         pub = g["simulator"].pubs[T.JOINT_STATES]
-        assert g.spin_until(lambda: pub.pub.get_subscription_count() >= 1, 20)
+        # matched before the graph spins (the twin starts on its first spin, and DDS
+        # discovery needs no spinning): a reader that matched later would miss the start
+        t0 = time.monotonic()
+        while pub.pub.get_subscription_count() < 1 and time.monotonic() - t0 < 20:
+            time.sleep(0.01)
+        assert pub.pub.get_subscription_count() >= 1
         sim = g["simulator"]
         assert g.spin_until(lambda: sim.finished, 120)
         from rclpy.executors import SingleThreadedExecutor

@@ -49,11 +49,19 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
     assert s["rejected_commands"] == 0
 
 
-@pytest.mark.parametrize("argv,gt_every", [([], 10), (["--ground-truth-rate", "0"], 1)])
-def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_every):
+@pytest.mark.parametrize("argv,gt_every,layout", [
+    ([], 10, "one"), (["--ground-truth-rate", "0"], 1, "one"),
+    (["--layout", "split"], 10, "split")])
+def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_every, layout):
+    """Every node in this process (the default), or the simulator in a process of its own
+    joined to the others by a socket (``--layout split``): every message in the bag."""
     s = _run_json(capsys, "two_link_case1", "--mode", "realtime", "--duration", "0.5",
                   "--record", str(tmp_path / "rt.mcap"), *argv)
     _check_summary(s, 500, gt_every)
+    assert s["layout"] == layout
+    assert set(s["nodes"]) == {"simulator", "motor_driver", "controller", "recorder"}
+    if layout == "split":
+        assert s["returncodes"] == {"simulator": 0}
     # the drives hold 0 until the controller's first command: when that came is reported
     with open(tmp_path / "rt.mcap", "rb") as f:
         first = next(make_reader(f).iter_messages(topics=[T.resolve(NS, T.COMMANDS)]))[2]

@@ -63,6 +63,19 @@ def test_lockstep_run_records_exactly_the_cosimulation(tmp_path, scene, duration
     assert js == [m.data for m in ref.topic(T.JOINT_STATES)]
 
 
+def test_lockstep_with_the_simulator_in_its_own_process_records_the_cosimulation(tmp_path):
+    """--layout split: the simulator's process and this one exchange the messages over
+    their bridge; the bag is the batch co-simulation's, bit for bit."""
+    path = tmp_path / "split.mcap"
+    res = _lockstep_run("two_link_case1", 0.1, path, layout="split")
+    assert res.ticks == 100 and res.layout == "split" and res.returncodes == {"simulator": 0}
+    ref = cosimulate(load_scene("two_link_case1"), 0.1)
+    raw = _raw(path)
+    for topic in {m.topic for m in ref.messages}:
+        assert raw[T.resolve(NS, topic)] == [(m.t_ns, encode_cdr(m.msgtype, m.data))
+                                             for m in ref.topic(topic)], topic
+
+
 def test_lockstep_runs_are_byte_identical(tmp_path):
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
     _lockstep_run("two_link_case1", 0.05, a)

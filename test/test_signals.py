@@ -205,3 +205,47 @@ def test_a_node_whose_teardown_hangs_ends_with_the_status_it_earned(diverged, co
     assert "motor_driver: its work is done but the process has not exited 0.3 s later" \
         in r.stderr
     assert "time.sleep(30)" in r.stderr or "line 5" in r.stderr, r.stderr
+
+
+def test_ctrl_c_to_a_split_run_exits_0_with_a_finalized_bag(tmp_path):
+    """--layout split (the simulator in its own process, the bag written by another): a
+    terminal's Ctrl-C reaches all three; the run ends with exit 0, a finalized bag, and
+    no process left."""
+    out = tmp_path / "split.mcap"
+    exe = Path(sys.executable).with_name("flexarm")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "flexarm_ros.cli"]
+    proc = subprocess.Popen(cmd + ["run", "two_link_case1", "--mode", "realtime", "--layout",
+                                   "split", "--duration", "100", "--record", str(out),
+                                   "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        t0 = time.monotonic()
+
+        def sim_running():
+            return any("flexarm_ros.nodes.simulator " in _cmdline(k)
+                       for k in _children(proc.pid))
+        while not sim_running():         # the bag's metadata is written before it starts
+            assert proc.poll() is None and time.monotonic() - t0 < 240, proc.communicate()
+            time.sleep(0.1)
+        size = out.stat().st_size if out.exists() else 0
+        while not (out.exists() and out.stat().st_size > size + 20_000):
+            assert proc.poll() is None and time.monotonic() - t0 < 240, proc.communicate()
+            time.sleep(0.1)
+        kids = _children(proc.pid)
+        assert any("flexarm_ros.nodes.simulator " in _cmdline(k) for k in kids), \
+            [_cmdline(k) for k in kids]
+        assert any("flexarm_ros.bag.writer_process" in _cmdline(k) for k in kids)
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        _cleanup(proc)
+    assert proc.returncode == 0, stderr
+    assert "interrupted" in stdout and "Traceback" not in stderr
+    t0 = time.monotonic()
+    while any(_alive(k) for k in kids) and time.monotonic() - t0 < 5:
+        time.sleep(0.05)
+    assert not any(_alive(k) for k in kids)
+    bag = read_bag(out)
+    assert not bag.truncated and bag.message_count > 100
+    assert bag.rosbag2_metadata()["message_count"] == bag.message_count

@@ -370,6 +370,8 @@ def _node_main(cls, args=None) -> int:
     environment.use_loopback()
     ctx = Context()
     rclpy.init(args=argv, context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    from flexarm_ros.nodes.bridge import attach_from_environment
+    bus = attach_from_environment(ctx)      # `flexarm run --layout split`'s simulator
     stop = StopFlag()
     node = None
     try:
@@ -396,6 +398,8 @@ def _node_main(cls, args=None) -> int:
             ShutdownGuard(cls.EXECUTABLE, node)
         if hasattr(node, "finish"):
             node.finish(exe)
+        if bus is not None:
+            bus.flush()
         exe.shutdown()
         diverged = getattr(node, "diverged", None)
         if diverged is not None:                 # like flexarm simulate: the message, 3

@@ -166,6 +166,7 @@ class DrainExecutor:
                     self._drain(s)
         if bus is not None:
             bus.deliver()
+            bus.flush()             # what the callbacks sent the other process, if any
 
     @staticmethod
     def _drain(sub) -> None:

@@ -12,9 +12,8 @@ twin's.
 
 Rule: a topic whose source node (:data:`flexarm_ros.twin.topics.SOURCE`) is a member of
 the process's :class:`Bus` is delivered in-process to the subscribers of that process:
-the publisher still publishes every message on DDS while DDS has a reader for it (a
-foreign ``ros2 topic echo``, a user's node, another process see everything, unchanged;
-:data:`DDS_RECOUNT_S`), and the in-process subscriber
+the publisher still publishes every message on DDS (a foreign ``ros2 topic echo``, a
+user's node, another process see everything, unchanged), and the in-process subscriber
 gets the same bytes with the same kind of ``MessageInfo`` (a source timestamp from the
 host's real-time clock, as DDS's, and the publisher's GID), so the nodes' source rule,
 validation and the recorder's stamping do not change. Such a subscription has no DDS
@@ -42,11 +41,6 @@ from collections import deque
 from flexarm_ros.twin import topics as T
 
 GRAPH_POLL_S = 0.1
-DDS_RECOUNT_S = 0.02
-"""How often a member's publisher asks DDS whether any reader is matched: with none (the
-usual case in one process, whose own subscribers take the bus) the DDS write is skipped
-(~3 µs per message of ~10 per tick). A reader that matches later misses at most this much
-more than DDS's own discovery makes any late joiner miss."""
 
 _BUSES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
@@ -87,6 +81,17 @@ class Bus:
         self._delivering = False
         self._polled = 0.0
         self._last_ts = 0
+        self.bridge = None              # the other process's bus (nodes/bridge.py)
+
+    def attach(self, sock) -> None:
+        """Join this bus to another process's over ``sock`` (:mod:`.bridge`)."""
+        from flexarm_ros.nodes.bridge import Bridge
+        self.bridge = Bridge(self, sock)
+
+    def flush(self) -> None:
+        """Send what is buffered for the other process (no-op without a bridge)."""
+        if self.bridge is not None:
+            self.bridge.flush()
 
     # ------------------------------------------------------------------ routing
     def routes(self, node, topic_abs: str) -> bool:
@@ -143,6 +148,8 @@ class Bus:
         end = time.monotonic() + slice_s
         while self.queue and time.monotonic() < end:
             self.deliver()
+        if self.bridge is not None:
+            self.bridge.flush()
 
     def poll_graph(self) -> None:
         """Open the DDS reader of a subscription whose topic got a foreign publisher."""
@@ -152,6 +159,8 @@ class Bus:
         self._polled = now
         for topic, subs in list(self.subs.items()):
             local = len(self.pubs.get(topic, ()))
+            if self.bridge is not None:
+                local += self.bridge.remote_publishers(topic)
             for s in subs:
                 if s.dds is None and not s.destroyed and \
                         s.node.count_publishers(topic) > local:
@@ -166,7 +175,10 @@ class Bus:
                     items.remove(e)
 
     def local_gids(self, topic_abs: str) -> set:
-        return {p.gid for p in self.pubs.get(topic_abs, ()) if p.gid is not None}
+        gids = {p.gid for p in self.pubs.get(topic_abs, ()) if p.gid is not None}
+        if self.bridge is not None:
+            gids |= self.bridge.remote_gids.get(topic_abs, set())
+        return gids
 
 
 class BusPublisher:
@@ -177,8 +189,10 @@ class BusPublisher:
         self.topic = pub.topic_name
         self.destroyed = False
         self._gid = None
-        self._dds_readers, self._recount_at = 0, 0.0
         bus.pubs.setdefault(self.topic, []).append(self)
+        if bus.bridge is not None:
+            bus.bridge.announce_pub(self)
+            bus.bridge.flush()
 
     @property
     def gid(self):
@@ -191,27 +205,32 @@ class BusPublisher:
         return self._gid
 
     def publish(self, data) -> None:
-        now = time.monotonic()
-        if now >= self._recount_at:
-            self._dds_readers = self.pub.get_subscription_count()
-            self._recount_at = now + DDS_RECOUNT_S
-        if self._dds_readers:
-            self.pub.publish(data)
-        if self.bus.subs.get(self.topic):
+        self.pub.publish(data)
+        bridge = self.bus.bridge
+        remote = bridge is not None and bridge.wants(self.topic)
+        if self.bus.subs.get(self.topic) or remote:
             if not isinstance(data, bytes):
                 from rclpy.serialization import serialize_message
                 data = serialize_message(data)
-            info = {"source_timestamp": self.bus.timestamp(),
-                    "publisher_gid": {"data": self.gid}}
+            ts = self.bus.timestamp()
+            if remote:
+                bridge.send(self, data, ts)
+            info = {"source_timestamp": ts, "publisher_gid": {"data": self.gid}}
             self.bus.post(self.topic, data, info)
 
     def local_subscribers(self) -> list:
         """(node name, namespace) of the in-process subscribers."""
-        return [(s.node.get_name(), s.node.get_namespace())
-                for s in self.bus.subs.get(self.topic, ())]
+        out = [(s.node.get_name(), s.node.get_namespace())
+               for s in self.bus.subs.get(self.topic, ())]
+        if self.bus.bridge is not None:
+            out += self.bus.bridge.remote_subs.get(self.topic, [])
+        return out
 
     def get_subscription_count(self) -> int:
-        return self.pub.get_subscription_count() + len(self.bus.subs.get(self.topic, ()))
+        n = self.pub.get_subscription_count() + len(self.bus.subs.get(self.topic, ()))
+        if self.bus.bridge is not None:
+            n += len(self.bus.bridge.remote_subs.get(self.topic, ()))
+        return n
 
     @property
     def topic_name(self) -> str:
@@ -234,6 +253,9 @@ class BusSubscription:
         self.destroyed = False
         self.dds = None
         bus.subs.setdefault(topic_abs, []).append(self)
+        if bus.bridge is not None:
+            bus.bridge.announce_sub(self)
+            bus.bridge.flush()
 
     @property
     def topic_name(self) -> str:

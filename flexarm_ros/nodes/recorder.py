@@ -4,7 +4,10 @@ Subscribes (node-relative, reliable keep_last 1000): every topic of the contract
 (:mod:`flexarm_ros.twin.topics`) — ``/clock``, ``joint_states``, ``encoders/counts``,
 the sensor batches, ``tool/contact``, ``tool/wrench``, ``ground_truth/*``,
 ``motor_driver/commands``, ``effort_controller/commands``, ``motor_driver/motor_states``.
-Publishes nothing. Writes ``output`` with :class:`~flexarm_ros.bag.BagWriter`: topics
+Publishes nothing. Writes ``output`` with :class:`~flexarm_ros.bag.BagWriter` — in this
+process, or with ``writer_process`` (set by ``flexarm run`` in one process) in a child
+process on the other core (:mod:`flexarm_ros.bag.writer_process`; the stamping below runs
+there, :mod:`flexarm_ros.bag.stamping`): topics
 under their absolute names, metadata ``flexarm_ros`` (scene YAML text, scene name,
 software version, time mode, namespace, the fidelity overrides as JSON) and ``model`` (the
 built model, ``flexarm explain``). With fidelity overrides (``-p rung:=rigid``, ``flexarm

@@ -162,6 +162,29 @@ def test_flexarm_run_rejects_a_bad_scene(capsys):
     assert "no_such_scene" in capsys.readouterr().err
 
 
+def test_flexarm_run_refuses_two_layouts_at_once(capsys):
+    from flexarm_ros.cli import main
+    assert main(["run", "link_motor", "--processes", "--layout", "split", "--no-record",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--processes and --layout split" in err
+
+
+def test_run_refuses_an_unknown_layout():
+    from flexarm_ros.run import run
+    with pytest.raises(ValueError, match=r"layout: got 'two', expected one of"):
+        run("link_motor", 0.01, "lockstep", record=None, layout="two", progress=False)
+
+
+def test_an_unknown_beam_sum_setting_is_refused_naming_the_variable():
+    r = subprocess.run([sys.executable, "-c", "import flexarm_ros.model.chain"],
+                       env={**os.environ, "FLEXARM_BEAM_SUMS": "fast"},
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0
+    assert "FLEXARM_BEAM_SUMS: got 'fast', expected 'invariants' (the default) or " \
+           "'points'" in r.stderr
+
+
 # ------------------------------------------------------------------------------ control
 def _tool(chain, scene, coordinates) -> np.ndarray:
     """The tool point (m) of one ground_truth/coordinates message: the last tip frame

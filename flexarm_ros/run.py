@@ -619,12 +619,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     t0 = time.monotonic()
     try:
         if processes:
-            import tempfile
-            tmp = tempfile.NamedTemporaryFile(prefix="flexarm_sim_", suffix=".json",
-                                              delete=False)
-            tmp.close()
-            summary_file = Path(tmp.name)
-            summary_file.unlink()
+            summary_file = _summary_path()
             g = ProcessGraph(scene, mode, duration, record, namespace, progress,
                              nodes=nodes, fidelity=fidelity,
                              simulator={**(simulator or {}),
@@ -696,6 +691,7 @@ def default_layout(mode: str) -> str:
 
 
 def _summary_path() -> Path:
+    """A fresh path for the simulator process's summary_file (not yet existing)."""
     import tempfile
     tmp = tempfile.NamedTemporaryFile(prefix="flexarm_sim_", suffix=".json", delete=False)
     tmp.close()

@@ -51,7 +51,6 @@ class Bridge:
         self.remote_subs: dict = {}             # topic -> [(node, namespace)]
         self.remote_pubs: dict = {}             # index -> (topic, gid)
         self.remote_gids: dict = {}             # topic -> {gid}
-        self.received = 0
         for topic, subs in list(bus.subs.items()):
             for s in subs:
                 self.announce_sub(s)
@@ -132,7 +131,6 @@ class Bridge:
                     break
                 if kind == _MSG:
                     topic, gid = self.remote_pubs[idx]
-                    self.received += 1
                     bus.post(topic, payload, {"source_timestamp": ts,
                                               "publisher_gid": {"data": gid}})
                     # always: a post while the executor delivers does not wake it

@@ -191,3 +191,67 @@ def test_an_unusable_profile_dir_is_named_and_does_not_stop_the_node(tmp_path, m
         sum(range(10))
     import pstats
     assert pstats.Stats(str(tmp_path / "prof" / "simulator.prof")).total_calls > 0
+
+
+def test_a_publisher_announced_over_the_bridge_is_the_expected_source_before_dds_shows_it():
+    """--layout split: the simulator's process announces each publisher (topic, GID, node,
+    namespace) on the bridge; the other process's source rule takes it as the expected
+    node's at once, with a DDS graph that does not show it yet. (Before session 11 the
+    rule waited for discovery, 0.5 s per GID and topic, and the driver answered no state
+    for ~6 s in about half of the split realtime runs.)"""
+    import socket
+    import threading
+    from types import SimpleNamespace
+
+    from flexarm_ros.nodes import _wire, intraprocess
+    from flexarm_ros.nodes.bridge import Bridge
+
+    topic, gid = f"{NS}/{T.JOINT_STATES}", bytes(range(24))
+    class Pub:                                   # what the bridge reads of a BusPublisher
+        node = SimpleNamespace(get_name=lambda: "simulator", get_namespace=lambda: NS)
+
+    pub = Pub()
+    pub.topic, pub.gid = topic, gid
+    sim_bus = SimpleNamespace(subs={}, pubs={topic: [pub]}, guard=None)
+    here = SimpleNamespace(subs={}, pubs={}, guard=SimpleNamespace(
+        trigger_guard_condition=lambda: None))
+    a, b = socket.socketpair()
+    receiving = Bridge(here, b)
+    sending = Bridge(sim_bus, a)                 # announces its publisher at once
+    class Context:                               # a key of the bus table (weakly held)
+        pass
+
+    context = Context()
+    intraprocess._BUSES[context] = SimpleNamespace(bridge=receiving)
+    dds_asked = threading.Event()
+
+    class Driver:                                # a subscriber whose DDS graph is empty
+        def __init__(self):
+            self.context = context
+
+        def get_namespace(self):
+            return NS
+
+        def get_publishers_info_by_topic(self, t):
+            dds_asked.set()
+            return []
+
+        def count_publishers(self, t):
+            return 0
+
+    try:
+        t0 = time.monotonic()
+        while gid not in receiving.remote_names and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
+        assert receiving.remote_names[gid] == ("simulator", NS)
+        src = _wire.Source(Driver(), topic, expected="simulator")
+        info = {"publisher_gid": {"data": gid}}
+        assert src.verdict(info) is None
+        assert src.trusted(info) and src.owner == {gid} and dds_asked.is_set()
+        assert gid not in src._waited          # taken without waiting for discovery
+        # another GID on the topic is a second publisher: refused
+        assert src.verdict({"publisher_gid": {"data": bytes(24)}}) == "an unknown node"
+    finally:
+        del intraprocess._BUSES[context]
+        sending.close()
+        receiving.close()

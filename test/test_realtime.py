@@ -51,10 +51,7 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
 
 @pytest.mark.parametrize("argv,gt_every,layout", [
     ([], 10, "one"), (["--ground-truth-rate", "0"], 1, "one"),
-    pytest.param(["--layout", "split"], 10, "split", marks=pytest.mark.xfail(
-        strict=False, reason="known defect (session 10, issue 13 note): in about one of "
-        "three split realtime runs the bag ends short (/clock 422 of 501 recorded) — "
-        "messages still on the bridge when the run closes; cause not found yet"))])
+    (["--layout", "split"], 10, "split")])
 def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_every, layout):
     """Every node in this process (the default), or the simulator in a process of its own
     joined to the others by a socket (``--layout split``): every message in the bag."""

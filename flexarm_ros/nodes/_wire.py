@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 
+from flexarm_ros.nodes.intraprocess import bus_of
 from flexarm_ros.twin.validation import FOREIGN, NOT_CDR
 
 RESOLVE_S = 0.5
@@ -58,10 +59,15 @@ class Source:
         self._waited: set = set()              # GIDs already waited for
 
     def _graph(self) -> dict:
-        """GID -> (node name, namespace) of the topic's publishers now."""
+        """GID -> (node name, namespace) of the topic's publishers now: the DDS graph's,
+        and those another process of the twin announced over its bridge
+        (:mod:`~flexarm_ros.nodes.bridge`; DDS may not show them for seconds)."""
         out = {}
         for info in self.node.get_publishers_info_by_topic(self.topic):
             out[bytes(info.endpoint_gid)] = (info.node_name, info.node_namespace)
+        bus = bus_of(self.node.context)
+        if bus is not None and bus.bridge is not None:
+            out.update(bus.bridge.remote_publisher_names(self.topic))
         return out
 
     def _snapshot(self, gid) -> dict:

@@ -20,7 +20,12 @@ message keeps its source timestamp (the host's real-time clock, as DDS's) and it
 publisher's GID.
 
 Framing: ``<B kind><H index><q source ts><I length>`` then the payload; ``PUB`` and ``SUB``
-payloads are JSON. A reader thread per process takes the records and posts the messages
+payloads are JSON. A ``PUB`` record names its node and namespace with its GID, so the
+source rule (:mod:`~flexarm_ros.nodes._wire`) knows the other process's publishers at
+once: DDS discovery between two processes took up to several seconds here, and a rule
+that waited for it (0.5 s per unknown GID and topic) stalled the receiving side for
+~6 s in about half of the split realtime runs — the driver answered no state until the
+run was over (found in session 11 from a stack dump during the stall). A reader thread per process takes the records and posts the messages
 on its bus (waking its executor); the socket's end (the other process ended) stops it.
 """
 
@@ -51,6 +56,7 @@ class Bridge:
         self.remote_subs: dict = {}             # topic -> [(node, namespace)]
         self.remote_pubs: dict = {}             # index -> (topic, gid)
         self.remote_gids: dict = {}             # topic -> {gid}
+        self.remote_names: dict = {}            # gid -> (node name, namespace)
         for topic, subs in list(bus.subs.items()):
             for s in subs:
                 self.announce_sub(s)
@@ -75,7 +81,9 @@ class Bridge:
         with self._lock:
             idx = self._pub_index.setdefault(pub, len(self._pub_index))
         gid = pub.gid
-        self._frame(_PUB, idx, 0, json.dumps([pub.topic, gid.hex() if gid else ""]).encode())
+        self._frame(_PUB, idx, 0, json.dumps([pub.topic, gid.hex() if gid else "",
+                                              pub.node.get_name(),
+                                              pub.node.get_namespace()]).encode())
 
     def wants(self, topic: str) -> bool:
         return topic in self.remote_subs
@@ -136,10 +144,11 @@ class Bridge:
                     # always: a post while the executor delivers does not wake it
                     bus.guard.trigger_guard_condition()
                 elif kind == _PUB:
-                    topic, gid = json.loads(payload)
+                    topic, gid, name, ns = json.loads(payload)
                     gid = bytes.fromhex(gid) if gid else None
                     self.remote_pubs[idx] = (topic, gid)
                     if gid:
+                        self.remote_names[gid] = (name, ns)
                         self.remote_gids.setdefault(topic, set()).add(gid)
                 elif kind == _SUB:
                     topic, name, ns = json.loads(payload)
@@ -155,6 +164,12 @@ class Bridge:
 
     def remote_publishers(self, topic: str) -> int:
         return sum(1 for t, _ in list(self.remote_pubs.values()) if t == topic)
+
+    def remote_publisher_names(self, topic: str) -> dict:
+        """GID -> (node name, namespace) of the other process's publishers of ``topic``,
+        as they announced themselves (known before DDS discovery shows them)."""
+        return {g: self.remote_names[g] for g in list(self.remote_gids.get(topic, ()))
+                if g in self.remote_names}
 
 
 def socket_pair():

@@ -16,7 +16,13 @@ at 4 kHz batched four samples per message, wall, recorder on):
    (``--layout split``: the simulator in a process of its own, the default; ``one``;
    ``processes``): real-time factor, ticks late by more than half a period, lateness
    p50/p99/max, and the messages the recorder lost (published minus recorded, per topic);
-   ``--rate 2000`` repeats it at 2 kHz control.
+   ``--rate 2000`` repeats it at 2 kHz control;
+4. the host's floor (``--floor``, on by default): the simulator's own pacing
+   (:class:`~flexarm_ros.twin.pacing.Pacer`) with nothing but a busy loop of W µs per
+   tick in place of the twin (W = 0, 250, 500, 750 at 1 kHz), for ``--floor-seconds``
+   each: the share of ticks this machine starts on time when the work is known and
+   fixed. No twin can do better than its work's row; it separates what the twin costs
+   from what the host's scheduler does.
 
     python bench/bench_realtime.py                  # 60 s of realtime (the issue's run)
     python bench/bench_realtime.py --seconds 5      # shorter
@@ -141,6 +147,27 @@ def realtime_run(scene, seconds: float, record: Path, layout: str) -> dict:
     return res
 
 
+def host_floor(seconds: float, work_us: float, rate_hz: float = 1000.0) -> dict:
+    """The twin's pacing loop with a busy loop of ``work_us`` µs per tick in place of the
+    twin's tick (no ROS, no allocation): lateness statistics as in a realtime run."""
+    from flexarm_ros.twin.pacing import Pacer
+    pacer = Pacer(1.0 / rate_hz, late_bound=0.1, late_policy="slow")
+    n = int(round(seconds * rate_hz))
+    clock = time.perf_counter
+    pacer.start()
+    t0 = time.monotonic()
+    for _ in range(n):
+        pacer.wait()
+        end = clock() + work_us * 1e-6
+        while clock() < end:
+            pass
+    wall = time.monotonic() - t0
+    out = pacer.summary()
+    out.update({"work_us": work_us, "rate_hz": rate_hz, "real_time_factor": n / rate_hz / wall,
+                "on_time_share": 1.0 - out["late_ticks"] / max(out["ticks"], 1)})
+    return out
+
+
 def scene_at_rate(scene_name: str, rate_hz: float, tmp: Path) -> str:
     """A copy of the scene file with ``control.rate_hz`` set."""
     import yaml
@@ -165,11 +192,18 @@ def main(argv=None) -> int:
     ap.add_argument("--layout", action="append", choices=("one", "split", "processes"),
                     help="the realtime runs' layouts (default: split, one, processes)")
     ap.add_argument("--no-lockstep", action="store_true", help="realtime runs only")
+    ap.add_argument("--floor-seconds", type=float, default=10.0,
+                    help="seconds of each host-floor run (0: none; default 10)")
+    ap.add_argument("--floor-work", type=float, action="append", default=None,
+                    help="µs of busy work per tick of the host-floor runs "
+                         "(default 0, 250, 500, 750)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     from flexarm_ros.nodes import environment
     env = environment.private_graph()
-    lockstep, realtime = [], []
+    lockstep, realtime, floor = [], [], []
+    for work in (args.floor_work or [0.0, 250.0, 500.0, 750.0]) if args.floor_seconds else ():
+        floor.append(host_floor(args.floor_seconds, work))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
@@ -187,7 +221,7 @@ def main(argv=None) -> int:
                 realtime.append(r)
     out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"],
            "plant_only_ticks_per_s": plant, "simulator_tick_us": budget,
-           "lockstep": lockstep, "realtime": realtime}
+           "lockstep": lockstep, "realtime": realtime, "host_floor": floor}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
@@ -198,6 +232,11 @@ def main(argv=None) -> int:
           f" + wire bytes {b['wire']:.0f} + publish {b['publish']:.0f} "
           f"({b['messages_per_tick']} messages; the former dicts + encode: "
           f"{b['messages']:.0f} + {b['encode']:.0f})")
+    for r in floor:
+        print(f"  host floor, {r['work_us']:4.0f} µs busy per 1 ms tick: RTF "
+              f"{r['real_time_factor']:.3f}, {100 * r['on_time_share']:.1f} % on time, lateness "
+              f"p50 {r['lateness_p50_s'] * 1e3:.3f} / p99 {r['lateness_p99_s'] * 1e3:.2f} / max "
+              f"{r['lateness_max_s'] * 1e3:.2f} ms")
     for r in lockstep:
         print(f"  lockstep, {r['executor']:<6} executor, "
               f"{'bus' if r['intraprocess'] else 'DDS'}, "

@@ -88,6 +88,11 @@ class Plant:
         self._cycle = math.lcm(*self._every) if self._every else 1
         self._due_at: dict = {}
         self._rng = {s.name: np.random.default_rng(s.spec.seed) for s in self.sensors}
+        # every accelerometer reads its true value (no sensitivity, noise or ADC): its
+        # measured value is the true one (what _measure would return)
+        self._plain = all(s.spec.sensitivity is None and not s.spec.noise_std > 0 and
+                          s.spec.adc_range is None for s in self.sensors
+                          if s.spec.kind == "accelerometer")
         self._act = {a.link: j for j, a in enumerate(ch.actuators)}
         # accelerometers read by the compiled kernel (numba backend; else the numpy path)
         self._acc = None
@@ -133,7 +138,15 @@ class Plant:
     def step(self, dt: float) -> list[Sample]:
         """Advance by ``dt`` (a whole number of sensor-grid periods when sensors are
         declared); returns the sensor samples taken in (t, t + dt], in time order."""
-        samples: list[Sample] = []
+        return [Sample(name, t, v, tr) for t, names, vals, trues in self.step_rows(dt)
+                for name, v, tr in zip(names, vals, trues)]
+
+    def step_rows(self, dt: float) -> list[tuple]:
+        """:meth:`step` with the readings grouped by instant: ``(t, names, values, trues)``
+        per grid instant at which a sensor is due, in time order (``names``: a tuple, the
+        same object for the same set of due sensors — a caller may key on it). The
+        simulator's tick reads these (no object per reading)."""
+        rows: list = []
         if self.grid_ns:
             n = dt * 1e9 / self.grid_ns
             if abs(n - round(n)) > 1e-6 or round(n) < 1:
@@ -144,16 +157,18 @@ class Plant:
             for _ in range(int(round(n))):
                 self.k += 1
                 self._advance(self.k * self.grid_ns * 1e-9)
-                samples.extend(self._sample_due())
+                row = self._read_due()
+                if row is not None:
+                    rows.append(row)
         else:
             self._advance(self.t + dt)
-        return samples
+        return rows
 
-    def _step_contact(self, n: int) -> list[Sample]:
+    def _step_contact(self, n: int) -> list[tuple]:
         """``n`` sensor-grid periods with a wall: one :meth:`ContactStepper.advance` to the
         end (its steps divide the output period, never cross the end), which writes the
         grid instants on the way (dense samples: state, contact quantities, q̈ and the
-        accelerometers from each sample's own evaluation)."""
+        accelerometers from each sample's own evaluation). Rows as :meth:`step_rows`."""
         g = self.grid_ns
         ts = (self.k + np.arange(1, n + 1)) * (g * 1e-9)
         buf = self._bufs.get(n)
@@ -172,18 +187,20 @@ class Plant:
         acc = None
         if self._acc is not None:
             buf.complete(self.chain, self.ws)           # rows the reference wrote
-            acc = buf.ACC
+            acc = buf.ACC.tolist()
             self._frames_at = None                  # the workspace holds another state
-        samples: list[Sample] = []
+        rows: list = []
         numpy_acc = self._acc is None
+        tl = ts.tolist()
         for i in range(n):
             self.k += 1
             if numpy_acc:       # the numpy read-out takes q̈ from the current sample
                 self._set_row(buf, i)
-            samples.extend(self._sample_due(None if acc is None else acc[i], float(ts[i]),
-                                            buf.X[i]))
+            row = self._read_due(None if acc is None else acc[i], tl[i], buf.X[i])
+            if row is not None:
+                rows.append(row)
         self._set_row(buf, n - 1)
-        return samples
+        return rows
 
     def _set_row(self, buf, i) -> None:
         """The plant's state and contact sample from row i of a SampleBuffer."""
@@ -223,25 +240,44 @@ class Plant:
 
     def _due(self, t_ns: int) -> tuple:
         """(sensor indices due at grid time ``t_ns``, any accelerometer among them, all
-        of them accelerometers),
+        of them accelerometers, the readings' names (a tip position gives two), the
+        accelerometers' rows in the compiled read-out when all are accelerometers),
         computed once per instant of the sensors' common cycle."""
         key = t_ns % self._cycle
         due = self._due_at.get(key)
         if due is None:
             idx = tuple(j for j, every in enumerate(self._every) if t_ns % every == 0)
             kinds = [self.sensors[j].spec.kind for j in idx]
-            due = self._due_at[key] = (idx, "accelerometer" in kinds,
-                                       all(k == "accelerometer" for k in kinds))
+            names = []
+            for j in idx:
+                sm = self.sensors[j]
+                names += ([f"{sm.name}_x", f"{sm.name}_y"]
+                          if sm.spec.kind == "tip_position" else [sm.name])
+            only_acc = all(k == "accelerometer" for k in kinds)
+            rows = (tuple(self._acc_row[j] for j in idx)
+                    if only_acc and self._acc is not None else None)
+            due = self._due_at[key] = (idx, "accelerometer" in kinds, only_acc,
+                                       tuple(names), rows)
         return due
 
     def _sample_due(self, acc_row=None, t=None, x=None) -> list[Sample]:
-        """The sensors due at grid index self.k, at (t, x) (default: now); ``acc_row``: the
+        """The sensors due at grid index self.k as :class:`Sample` objects
+        (:meth:`_read_due`)."""
+        row = self._read_due(acc_row, t, x)
+        if row is None:
+            return []
+        t, names, vals, trues = row
+        return [Sample(n, t, v, tr) for n, v, tr in zip(names, vals, trues)]
+
+    def _read_due(self, acc_row=None, t=None, x=None) -> tuple | None:
+        """The sensors due at grid index self.k, at (t, x) (default: now): ``(t, names,
+        measured values, true values)``, or None when none is due; ``acc_row``: the
         accelerometers' readings of this instant when already computed
         (:meth:`_step_contact`)."""
         t_ns = self.k * self.grid_ns
-        due, any_acc, only_acc = self._due(t_ns)
+        due, any_acc, only_acc, names, acc_rows = self._due(t_ns)
         if not due:
-            return []
+            return None
         if t is None:
             t, x = self.t, self.x
         ch = self.chain
@@ -250,9 +286,11 @@ class Plant:
         if acc_row is not None and any_acc:
             self._acc_out[:] = acc_row
             if only_acc:            # nothing else due: no state assembly
-                return [Sample(self.sensors[j].name, t, self._measure(
-                    self.sensors[j], float(acc_row[self._acc_row[j]])),
-                    float(acc_row[self._acc_row[j]])) for j in due]
+                trues = [float(acc_row[r]) for r in acc_rows]
+                if self._plain:
+                    return t, names, trues, trues
+                sensors, measure_ = self.sensors, self._measure
+                return t, names, [measure_(sensors[j], v) for j, v in zip(due, trues)], trues
         q, qd = ch.full_state(t, x)
         if acc_row is None and any_acc:
             qdd = self.accelerations()
@@ -260,7 +298,7 @@ class Plant:
                 self._frames_now()
                 ksensors.readings(q, qd, qdd, ch.kernel_args, self.ws, *self._acc[1:],
                                   self._acc_out)
-        out = []
+        vals, trues = [], []
         for j in due:
             sm = self.sensors[j]
             kind = sm.spec.kind
@@ -271,8 +309,8 @@ class Plant:
                     kin = ch.kinematics(q, qd, frames_only=True)
                 val = true_value(sm, ch, q, qd, qdd, self.q_initial, kin)
             if kind == "tip_position":
-                out.append(Sample(f"{sm.name}_x", t, val[0], val[0]))
-                out.append(Sample(f"{sm.name}_y", t, val[1], val[1]))
+                vals += [val[0], val[1]]
+                trues += [val[0], val[1]]
                 continue
             if kind == "encoder" and abs(val) > INT32_MAX:
                 raise SimulationDiverged(
@@ -281,8 +319,9 @@ class Plant:
                     f"are sized for ±{ENCODER_REVOLUTIONS} output revolutions",
                     detail=f"{val:.0f} counts leave the int32 range (±{INT32_MAX}) of the "
                            f"encoder_counts message (std_msgs/Int32MultiArray)")
-            out.append(Sample(sm.name, t, self._measure(sm, val), val))
-        return out
+            vals.append(self._measure(sm, val))
+            trues.append(val)
+        return t, names, vals, trues
 
     def _measure(self, sm, val: float) -> float:
         """Instrument output of one reading: :func:`sensors.measure` on a scalar (the same

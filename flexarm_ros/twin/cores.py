@@ -84,6 +84,10 @@ class SimulatorCore:
         self.counts = {link: 0 for link in self.encoders}
         self._prev_angle = None
         self._prev_k = 0
+        self._plans: dict = {}                  # due sensors' names -> _plan
+        self._i_joint = [lm.i_joint for lm in ch.links]
+        self._i_drive = ch.drive_index()
+        self._enc_links = sorted(self.encoders)
         self.k = 0
         self._warm_up()
 
@@ -105,10 +109,12 @@ class SimulatorCore:
     def t(self) -> float:
         return self.plant.t
 
-    def _encoder_angles(self):
+    def _encoder_angles(self, q=None):
         """Joint angles as the controller sees them: from the encoder counts where an
-        encoder is declared (quantized), else the model's angle."""
-        q, _ = self.plant.joint_state()
+        encoder is declared (quantized), else the model's angle (``q``: the link-side
+        joint angles now, when already at hand)."""
+        if q is None:
+            q, _ = self.plant.joint_state()
         ang = q.copy()
         q0 = self.plant.q_initial
         for link, sm in self.encoders.items():
@@ -125,86 +131,99 @@ class SimulatorCore:
         angles since the previous call (one control period, or more when ticks were
         stepped without publishing). ``build``: the message constructors — the dicts of
         :mod:`~flexarm_ros.bag.messages`, or a :class:`~flexarm_ros.bag.cdr_fixed.CdrBuilder`
-        for the same messages as CDR bytes (the simulator node's wire path)."""
+        for the same messages as CDR bytes (the simulator node's wire path). The state is
+        assembled once (:meth:`Chain.full_state`) for every message of the instant."""
+        plant = self.plant
+        ch = plant.chain
         t_ns = _ns(self.t)
-        out = [(T.CLOCK, T.TYPES[T.CLOCK], build.clock(t_ns))]
-        ang = self._encoder_angles()
+        TY = T.TYPES
+        out = [(T.CLOCK, TY[T.CLOCK], build.clock(t_ns))]
+        qf, qdf = ch.full_state(plant.t, plant.x)
+        q, qd = qf[self._i_joint], qdf[self._i_joint]
+        ang = self._encoder_angles(q)
         if self._prev_angle is None or self.k == 0:
             vel = np.zeros_like(ang)
         else:
             vel = (ang - self._prev_angle) / (self.period * (self.k - self._prev_k))
         self._prev_angle, self._prev_k = ang, self.k
-        names = self._joint_names
-        out.append((T.JOINT_STATES, T.TYPES[T.JOINT_STATES],
-                    build.joint_state(t_ns, names, ang, vel, self.plant.torques)))
+        torques = plant.torques
+        out.append((T.JOINT_STATES, TY[T.JOINT_STATES],
+                    build.joint_state(t_ns, self._joint_names, ang, vel, torques)))
         if self.encoders:
-            counts = [int(self.counts[link]) for link in sorted(self.encoders)]
-            out.append((T.ENCODER_COUNTS, T.TYPES[T.ENCODER_COUNTS],
+            counts = [int(self.counts[link]) for link in self._enc_links]
+            out.append((T.ENCODER_COUNTS, TY[T.ENCODER_COUNTS],
                         build.int32_multiarray(np.array(counts, dtype=np.int64), "joint")))
-        for topic, names_ in self.groups.items():
+        for topic in self.groups:
             rows = self.batch[topic]
             if rows:
-                out.append((topic, T.TYPES[topic],
+                out.append((topic, TY[topic],
                             build.float64_multiarray(np.array(rows), ("sample", "channel"))))
             self.batch[topic] = []
-        cs = self.plant.contact_state()
-        if self.plant.contact is not None:
-            out.append((T.TOOL_CONTACT, T.TYPES[T.TOOL_CONTACT],
+        if plant.contact is not None:
+            cs = plant.contact_state()
+            out.append((T.TOOL_CONTACT, TY[T.TOOL_CONTACT],
                         build.boolean(cs["phase"] != "free")))
-            out.append((T.TOOL_WRENCH, T.TYPES[T.TOOL_WRENCH],
+            out.append((T.TOOL_WRENCH, TY[T.TOOL_WRENCH],
                         build.wrench_stamped(t_ns, "wall", (cs["normal_force"],
                                                             cs["friction_force"], 0.0),
                                              (0.0, 0.0, 0.0))))
-        q, qd = self.plant.joint_state()
-        qm, qdm = self.plant.drive_state()
-        gt_names = self._gt_names
-        out.append((T.GT_JOINT_STATES, T.TYPES[T.GT_JOINT_STATES],
-                    build.joint_state(t_ns, gt_names, np.concatenate([q, qm]),
+        qm, qdm = qf[self._i_drive], qdf[self._i_drive]
+        out.append((T.GT_JOINT_STATES, TY[T.GT_JOINT_STATES],
+                    build.joint_state(t_ns, self._gt_names, np.concatenate([q, qm]),
                                       np.concatenate([qd, qdm]),
-                                      np.concatenate([self.plant.torques,
-                                                      self.plant.torques]))))
+                                      np.concatenate([torques, torques]))))
         if not ground_truth:
             return out
-        tip = self.plant.tip_position()
-        out.append((T.GT_TIP, T.TYPES[T.GT_TIP],
+        tip = plant.tip_position()
+        out.append((T.GT_TIP, TY[T.GT_TIP],
                     build.point_stamped(t_ns, "world", (tip[0], tip[1], 0.0))))
-        ch = self.plant.chain
-        qf, qdf = ch.full_state(self.t, self.plant.x)
         applied = np.zeros(ch.n)          # input torque on each coordinate, 0 where none acts
-        for link, j in self.plant._act.items():
-            applied[ch.actuators[j].coord] = self.plant.torques[link]
-        out.append((T.GT_COORDINATES, T.TYPES[T.GT_COORDINATES],
+        for link, j in plant._act.items():
+            applied[ch.actuators[j].coord] = torques[link]
+        out.append((T.GT_COORDINATES, TY[T.GT_COORDINATES],
                     build.joint_state(t_ns, ch.names, qf, qdf, applied)))
         return out
+
+    def _plan(self, names: tuple) -> tuple:
+        """Where the readings of one instant go, for the due sensors ``names``: (position,
+        link) of each encoder's count, (topic, positions) of each batch row (a batch
+        topic's row when its first sensor is due; its sensors share one rate)."""
+        at = {n: i for i, n in enumerate(names)}
+        encoders = [(at[sm.name], link) for link, sm in self.encoders.items()
+                    if sm.name in at]
+        groups = [(topic, [at[n] for n in group]) for topic, group in self.groups.items()
+                  if group[0] in at]
+        return encoders, groups
 
     def step(self, torques) -> None:
         """Hold ``torques`` (N·m, joint order) over one control period."""
         self.plant.set_torques(torques)
         try:
-            samples = self.plant.step(self.period)
+            rows = self.plant.step_rows(self.period)
         except SimulationDiverged as exc:           # name the input held over the period
             held = np.array2string(self.plant.torques, precision=4)
             raise SimulationDiverged(
                 exc.quantity, exc.time, exc.last_value,
                 f"check the joint torques (held {held} N·m from t = {self.t:.6g} s); "
                 f"else {exc.suggestion}", detail=exc.detail) from None
-        by_time: dict = {}
-        for s in samples:
-            if not (math.isfinite(s.value) and math.isfinite(s.true)):
+        isfinite = math.isfinite
+        for t, names, vals, trues in rows:               # one per grid instant, in order
+            if not (all(map(isfinite, vals)) and all(map(isfinite, trues))):
+                bad = next(n for n, v, tr in zip(names, vals, trues)
+                           if not (isfinite(v) and isfinite(tr)))
                 raise SimulationDiverged(
-                    f"sensor {s.sensor}", s.t, float("nan"),
+                    f"sensor {bad}", t, float("nan"),
                     f"check the joint torques (held "
                     f"{np.array2string(self.plant.torques, precision=4)} N·m); reduce the "
                     f"step (fidelity.dt)", detail="a sensor reading became non-finite")
-            by_time.setdefault(s.t, {})[s.sensor] = s.value
-        for t in sorted(by_time):
-            vals = by_time[t]
-            for link, sm in self.encoders.items():
-                if sm.name in vals:
-                    self.counts[link] = int(vals[sm.name])
-            for topic, names in self.groups.items():
-                if names[0] in vals:
-                    self.batch[topic].append([vals[n] for n in names])
+            plan = self._plans.get(names)
+            if plan is None:
+                plan = self._plans[names] = self._plan(names)
+            encoders, groups = plan
+            for pos, link in encoders:
+                self.counts[link] = int(vals[pos])
+            for topic, positions in groups:
+                self.batch[topic].append([vals[i] for i in positions])
         self.k += 1
 
 

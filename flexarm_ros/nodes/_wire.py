@@ -37,11 +37,13 @@ def gid_of(info) -> bytes | None:
     """The publisher GID of a message (``MessageInfo``), or None when rmw gives none."""
     if not info:
         return None
-    gid = info.get("publisher_gid") if isinstance(info, dict) else None
-    if not gid:
+    try:                                  # a dict (rclpy's MessageInfo, the bus's info)
+        data = info["publisher_gid"]["data"]
+    except (TypeError, KeyError, IndexError):
         return None
-    data = gid.get("data")
-    return bytes(data) if data is not None else None
+    if data is None:
+        return None
+    return data if type(data) is bytes else bytes(data)
 
 
 class Source:

@@ -60,6 +60,7 @@ class ControllerNode(Node):
                                  plain=True)
             self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
         self.published = {T.COMMANDS: 0}
+        self._started = False                   # the start barrier passed
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
     def _on(self, topic, m, info=None):
@@ -79,9 +80,11 @@ class ControllerNode(Node):
         self._drain()
 
     def _drain(self):
-        if not self.ready():
-            return
-        self.timer.cancel()
+        if not self._started:
+            if not self.ready():
+                return
+            self.timer.cancel()
+            self._started = True
         qs = self.queues
         while qs[T.JOINT_STATES] and (not self.lockstep or all(qs.values())):
             js = qs[T.JOINT_STATES].popleft()

@@ -82,6 +82,7 @@ class MotorDriverNode(Node):
             self._subscribe_states()
         self.rejections = Rejections(self)
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
+        self._started = False                   # the start barrier passed
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
     @property
@@ -155,9 +156,11 @@ class MotorDriverNode(Node):
                         f"answers)")
                 return
             self._subscribe_states()
-        if not self.ready():
-            return
-        self.timer.cancel()
+        if not self._started:
+            if not self.ready():
+                return
+            self.timer.cancel()
+            self._started = True
         while self.states and (self.commands or not self.lockstep):
             gt = self.states.popleft()
             t_ns = C.stamp_ns(gt.header.stamp)

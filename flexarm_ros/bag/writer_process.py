@@ -6,7 +6,7 @@ the second core sat nearly idle; a DDS hop into another process costs the publis
 25–90 µs per message (docs/design_notes.md, *Intra-process delivery*). Here the recorder
 node stays in the graph's process — it still decides what is taken (source rule,
 validation, rejections) — and hands what it takes to a child process through a pipe,
-written once per simulator tick (at each ``/clock``); the child runs
+written at a ``/clock`` at most every :data:`SEND_PERIOD_S`; the child runs
 :class:`~flexarm_ros.bag.stamping.SimTimeStamper` and the bag writer on the other core.
 The bag is the same, record for record, as when both run in one process
 (``test/test_writer_process.py``).
@@ -25,6 +25,7 @@ import signal
 import struct
 import subprocess
 import sys
+import time
 
 from flexarm_ros.bag.stamping import SimTimeStamper
 
@@ -32,6 +33,11 @@ _HEAD = struct.Struct("<BIqqI")     # kind, topic index, source ts, extra (ns), 
 _INIT, _TOPIC, _MSG, _CLOCK, _CLOSE = range(5)
 _NONE = -2**63                      # no header stamp
 _BATCH = 1 << 18                    # bytes held before a write between two clocks
+SEND_PERIOD_S = 0.005
+"""Wall time between two writes to the child, at a /clock: one pipe write per tick cost
+the tick ~30 µs (a system call that wakes the child's core; cProfile of the one-process
+realtime graph, session 11); every 5 ms it is one write per five ticks at 1 kHz. What is
+held is written at close, and a parent killed outright loses at most this much."""
 
 
 class WriterProcessError(OSError):
@@ -60,6 +66,7 @@ class WriterProcess:
             pass
         self._buf = bytearray()
         self._topics: dict = {}
+        self._sent = 0.0                         # monotonic time of the last write
         self.closed = False
         self._frame(_INIT, 0, 0, 0, json.dumps(
             {"path": str(path), "info": info, "qos_depth": qos_depth, "extra": extra,
@@ -110,7 +117,10 @@ class WriterProcess:
 
     def clock(self, ts, topic, tp, data, t_ns) -> None:
         self._frame(_CLOCK, self._index(topic, tp), int(ts or 0), int(t_ns), data)
-        self._send()                          # one write per simulator tick
+        now = time.monotonic()
+        if now - self._sent >= SEND_PERIOD_S:     # at most one write per SEND_PERIOD_S
+            self._sent = now
+            self._send()
 
     def close(self, metadata: dict | None = None, timeout: float = 120.0) -> None:
         """Send what is held and the metadata records; wait for the child to finalize

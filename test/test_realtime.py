@@ -161,3 +161,39 @@ def test_a_stalled_effort_source_is_waited_for_again_once_it_speaks():
     sim._await_effort(5, 5.0)                            # an answer ends the wait early
     assert (sim.waited_ticks, sim.stale_ticks, sim.answered) == (3, 2, 5)
     assert waited[0] < 1.0
+
+
+_LAZY_KERNELS = """
+import sys
+from numba.core import dispatcher
+loaded = []
+orig = dispatcher.Dispatcher._compile_for_args
+def record(self, *a, **k):
+    loaded.append(self.py_func.__module__ + "." + self.py_func.__name__)
+    return orig(self, *a, **k)
+dispatcher.Dispatcher._compile_for_args = record
+from flexarm_ros.scene import load_scene
+from flexarm_ros.twin.cosim import Lockstep
+ls = Lockstep(load_scene("two_link_case1"))
+before = list(loaded)
+loaded.clear()
+for _ in range(2200):                      # through the wall strike near t = 2.12 s
+    ls.tick()
+print(len(ls.sim.plant.stepper.impacts), bool(before), ",".join(loaded) or "none")
+"""
+
+
+def test_no_kernel_is_loaded_or_compiled_after_start_up_not_even_at_the_impact():
+    """A realtime tick must not stop to load or compile a numba function: the simulator
+    core's start-up loads every kernel a tick can call, including those only an impact
+    calls (before session 11 the impact tick of two_link_case1 loaded
+    ``sensors.table`` from the cache, 30–37 ms, and compiled it for ~11 s on a fresh
+    machine). Run in a fresh interpreter, where nothing else has loaded them."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", _LAZY_KERNELS], capture_output=True,
+                         text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    impacts, started_with_kernels, after = out.stdout.split()
+    assert int(impacts) >= 1 and started_with_kernels == "True"
+    assert after == "none", f"loaded or compiled after start-up: {after}"

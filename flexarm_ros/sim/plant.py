@@ -202,6 +202,23 @@ class Plant:
         self._set_row(buf, n - 1)
         return rows
 
+    def load_event_kernels(self) -> None:
+        """Load (or, on a fresh machine, compile) the compiled functions that only events
+        call, now: the accelerometers of the rows the Python reference stepper writes
+        around an impact (:meth:`SampleBuffer.complete`). Measured without this: the
+        impact tick of a realtime two_link_case1 took 37 ms (30 ms loading
+        ``sensors.table`` from numba's cache) and 11 s on a fresh machine. Leaves the
+        workspace's frames invalid (call it on a copy, as
+        :meth:`~flexarm_ros.twin.cores.SimulatorCore._warm_up` does)."""
+        if self.stepper is None or self._acc is None:
+            return
+        buf = SampleBuffer(np.array([self.t]), len(self.x), len(self.chain.free),
+                           self._acc[1:])
+        buf.X[0], buf.QDD[0] = self.x, 0.0
+        buf.ref_rows[0], buf.k = True, 1
+        buf.complete(self.chain, self.ws)
+        self._frames_at = None
+
     def _set_row(self, buf, i) -> None:
         """The plant's state and contact sample from row i of a SampleBuffer."""
         R = buf.R

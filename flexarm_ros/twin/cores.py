@@ -96,12 +96,14 @@ class SimulatorCore:
         compiles (cold cache: ~40 s) or loads (~70 ms) the kernels a tick calls here, at
         start-up, not inside the first tick — where it counted as ticking (the README's
         first `flexarm run` on a fresh machine reported a real-time factor of 0.01) and,
-        in realtime, made the first tick late by that much. Nothing of the copy is kept."""
+        in realtime, made the first tick late by that much; and those only an impact
+        calls (:meth:`Plant.load_event_kernels`). Nothing of the copy is kept."""
         import copy
         shadow = copy.deepcopy(self)
         try:
             shadow.step(np.zeros(len(self.names)))
             shadow.outputs()
+            shadow.plant.load_event_kernels()     # what only an impact calls
         except (SceneError, SimulationDiverged):    # the real first tick will say it
             pass
 
@@ -268,6 +270,9 @@ class DriverCore:
         self.held = 0
         self.tripped = False
         self.torque = np.array([self._torque(k, 0.0, self.command[k]) for k in range(self.n)])
+        for k in range(self.n):     # load the compiled drive functions a tick calls, now
+            drives.advance_state(self.kind[k], self.par[k], 0.0, 0.0, float(self.z[k]), 1e-3)
+            drives.motor_current(self.kind[k], self.par[k], 0.0, 0.0, 0.0)
 
     @property
     def rejected(self) -> int:

@@ -108,28 +108,29 @@ def _load(args):
 
 class _Progress:
     """The progress line on stderr (simulated time / total), at most once per wall second
-    (the integrators call it), cleared at the end; nothing with ``quiet``."""
+    (the integrators call it), cleared at the end; nothing with ``quiet``
+    (:class:`~flexarm_ros.io.progress.ProgressLine`)."""
 
     WIDTH = 48
 
     def __init__(self, total_s, quiet):
+        from flexarm_ros.io.progress import ProgressLine
         self.total = total_s
         self.quiet = quiet
-        self.drawn = False
+        self.line = ProgressLine(self.WIDTH)
 
     @property
     def callback(self):
         return None if self.quiet else self
 
     def __call__(self, frac):
-        self.drawn = True
-        print(f"\r  t = {frac * self.total:.4g} / {self.total:.4g} s ({100 * frac:5.1f} %)"
-              .ljust(self.WIDTH), end="", file=sys.stderr, flush=True)
+        self.line.show(f"  t = {frac * self.total:.4g} / {self.total:.4g} s "
+                       f"({100 * frac:5.1f} %)")
 
     def clear(self):
         """Blank the progress line, if one was drawn."""
-        if not self.quiet and self.drawn:
-            print("\r" + " " * self.WIDTH + "\r", end="", file=sys.stderr, flush=True)
+        if not self.quiet:
+            self.line.clear()
 
 
 def cmd_simulate(args):
@@ -298,6 +299,22 @@ def _names(values) -> list | None:
     return [n.strip() for v in values for n in v.split(",") if n.strip()]
 
 
+def _say_domain() -> None:
+    """On stderr: the ROS domain of the run and how a user's own node joins it (the run
+    picks a private domain unless ROS_DOMAIN_ID is set, so a node started in another
+    terminal would not see the twin)."""
+    import os
+
+    from flexarm_ros.nodes import environment
+    mine = environment.DOMAIN not in os.environ
+    env = environment.private_graph()
+    d = env[environment.DOMAIN]
+    print(f"flexarm run: ROS domain {d}" + (
+        f" (chosen for this run; start your own nodes with ROS_DOMAIN_ID={d} "
+        f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, or set ROS_DOMAIN_ID before flexarm run)"
+        if mine else " (from ROS_DOMAIN_ID)"), file=sys.stderr)
+
+
 def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
     from flexarm_ros.io.paths import check_output_file
@@ -324,6 +341,8 @@ def cmd_run(args):
         raise SceneError(f"{'--nodes' if args.nodes else '--without'}: {exc}") from None
     if "recorder" not in nodes:
         record = None
+    if set(nodes) != set(select_nodes()) and not args.quiet:
+        _say_domain()                 # the user's own nodes must join this domain
     if args.processes and args.layout not in (None, "processes"):
         from flexarm_ros.errors import SceneError
         raise SceneError(f"--processes and --layout {args.layout}: choose one layout")

@@ -287,16 +287,16 @@ def command(args) -> int:
             if args.json:
                 print(json.dumps(out, indent=2))
             return 0
-    progress = None if (args.quiet or args.json) else (
-        lambda text: print(f"\r  {text}", end="", file=sys.stderr, flush=True))
+    from flexarm_ros.io.progress import ProgressLine
+    line = ProgressLine(48)
+    progress = None if (args.quiet or args.json) else (lambda text: line.show(f"  {text}"))
     try:
         res = replay(plan, rate=args.rate, loop=args.loop,
                      wait_subscribers=args.wait_subscribers, delay=args.delay,
                      progress=progress)
     except TimeoutError as exc:
         return fail(exc, 1)
-    if progress is not None:
-        print("\r" + " " * 48 + "\r", end="", file=sys.stderr, flush=True)
+    line.clear()
     out.update(published=res.published, clock=res.clock, loops=res.loops,
                wall_s=res.wall_s, interrupted=res.interrupted, skipped=res.skipped)
     if args.json:

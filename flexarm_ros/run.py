@@ -46,8 +46,10 @@ def select_nodes(nodes=None, without=()) -> tuple:
             raise ValueError(f"node {name!r}: expected one of {', '.join(NODES)}")
     chosen = [n for n in NODES if n in chosen and n not in without]
     if "simulator" not in chosen:
-        raise ValueError("nodes: the simulator cannot be left out (it is the twin); "
-                         f"got {', '.join(chosen) or 'none'}")
+        given = ", ".join(without if "simulator" in without else (nodes or ()))
+        raise ValueError(f"got {given or 'none'}, which leaves the simulator out; expected "
+                         f"the simulator among the nodes (it is the twin; leave out any of "
+                         f"{', '.join(n for n in NODES if n != 'simulator')})")
     return tuple(chosen)
 
 

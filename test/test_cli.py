@@ -141,14 +141,30 @@ def test_study_refuses_the_options_its_ladder_varies(capsys):
 def test_the_progress_line_is_cleared_only_when_drawn(capsys):
     """An error right after start must not be preceded by a blanked line (a log read
     '\\r' + 48 spaces + '\\r' before every one-line error)."""
+    import io
+    import sys
+
     from flexarm_ros.cli import _Progress
-    p = _Progress(2.0, quiet=False)
-    p.clear()
-    assert capsys.readouterr().err == ""
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    real, sys.stderr = sys.stderr, Tty()
+    try:                                          # on a terminal: redrawn, then blanked
+        p = _Progress(2.0, quiet=False)
+        p.clear()
+        assert sys.stderr.getvalue() == ""
+        p(0.5)
+        p.clear()
+        err = sys.stderr.getvalue()
+    finally:
+        sys.stderr = real
+    assert err.startswith("\r  t = 1 / 2 s") and err.endswith(" " * _Progress.WIDTH + "\r")
+    p = _Progress(2.0, quiet=False)               # in a log (capsys): plain lines only
     p(0.5)
     p.clear()
-    err = capsys.readouterr().err
-    assert err.startswith("\r  t = 1 / 2 s") and err.endswith(" " * _Progress.WIDTH + "\r")
+    assert capsys.readouterr().err == "t = 1 / 2 s ( 50.0 %)\n"
     q = _Progress(2.0, quiet=True)
     assert q.callback is None
     q.clear()
@@ -161,7 +177,7 @@ def test_quiet_hides_progress_not_the_summary(capsys):
     loud = capsys.readouterr()
     # a run this short may end before the first progress report (at most one per wall
     # second): then nothing was drawn and nothing is cleared
-    assert loud.err == "" or loud.err.startswith("\r")
+    assert loud.err == "" or loud.err.startswith("t = ")
     assert main(argv + ["--quiet"]) == 0
     quiet = capsys.readouterr()
     assert quiet.err == ""

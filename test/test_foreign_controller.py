@@ -131,7 +131,9 @@ def test_lockstep_waits_for_a_controller_and_says_so(tmp_path, capfd):
 
 
 @pytest.mark.parametrize("nodes,without,message", [
-    (None, ["simulator"], "the simulator cannot be left out"),
+    (None, ["simulator"], "got simulator, which leaves the simulator out; expected the "
+                          "simulator among the nodes"),
+    (["motor_driver"], [], "got motor_driver, which leaves the simulator out"),
     (["simulator", "planner"], [], "node 'planner': expected one of"),
 ])
 def test_node_selection_names_the_bad_value(nodes, without, message):
@@ -187,3 +189,20 @@ def test_lockstep_without_answers_ends_as_stalled_and_keeps_the_bag(tmp_path):
     assert wall < 60                          # ended by the watchdog, not by the test
     bag = read_bag(tmp_path / "run.mcap")
     assert len(bag[f"{NS}/{T.JOINT_STATES}"]) == 1
+
+
+def test_a_run_for_your_own_nodes_says_which_ros_domain_to_join(monkeypatch, capsys):
+    """With --without/--nodes, `flexarm run` names its ROS domain on stderr: the private
+    one it chose (a user's node in another terminal must join it) or the user's."""
+    import os
+
+    from flexarm_ros.cli import _say_domain
+    mine = os.environ["ROS_DOMAIN_ID"]
+    _say_domain()
+    assert capsys.readouterr().err == f"flexarm run: ROS domain {mine} (from ROS_DOMAIN_ID)\n"
+    monkeypatch.delenv("ROS_DOMAIN_ID")          # restored after the test
+    _say_domain()
+    err = capsys.readouterr().err
+    chosen = os.environ["ROS_DOMAIN_ID"]
+    assert f"ROS domain {chosen} (chosen for this run; start your own nodes with " \
+           f"ROS_DOMAIN_ID={chosen} " in err

@@ -198,8 +198,9 @@ def cmd_calibrate(args) -> int:
                 lambda v: isinstance(v, (int, float)) and 0 < v < 0.5)
     nmax = _option(args, opts, "max_evaluations", None,
                    lambda v: isinstance(v, int) and v >= 1)
-    log = None if args.quiet else (lambda s: print(f"\r  {s}".ljust(78), end="",
-                                                   file=sys.stderr, flush=True))
+    from flexarm_ros.io.progress import ProgressLine
+    line = ProgressLine(78)
+    log = None if args.quiet else (lambda s: line.show(f"  {s}"))
     ex = open_executor(args.workers, args.scheduler,
                        warm_up=CaseTask(problem.cases).warm_up, timeout_s=args.timeout)
     if not args.quiet:
@@ -210,8 +211,7 @@ def cmd_calibrate(args) -> int:
                         max_evaluations=nmax, log=log)
     finally:
         ex.close()
-        if log:
-            print("\r" + " " * 78 + "\r", end="", file=sys.stderr, flush=True)
+        line.clear()
     written = []
     if args.out is not None:
         from flexarm_ros.calibration.output import write_scenes

@@ -43,7 +43,6 @@ import csv
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -132,6 +131,8 @@ class Progress:
         self.done = self.bad = 0
         self.t0 = time.perf_counter()
         self._last = 0.0
+        from flexarm_ros.io.progress import ProgressLine
+        self.line = ProgressLine(self.WIDTH)
 
     def update(self, status: str = "ok") -> None:
         self.done += 1
@@ -144,14 +145,14 @@ class Progress:
         rate = self.done / max(now - self.t0, 1e-9)
         left = (self.total - self.done) / rate if rate > 0 else math.inf
         bar = "#" * int(20 * frac) + "." * (20 - int(20 * frac))
-        text = (f"\r  [{bar}] {self.done}/{self.total} {self.label}"
+        text = (f"  [{bar}] {self.done}/{self.total} {self.label}"
                 + (f", {self.bad} not ok" if self.bad else "")
                 + f", {rate:.3g}/s, {left:.0f} s left")
-        print(text.ljust(self.WIDTH), end="", file=sys.stderr, flush=True)
+        self.line.show(text)
 
     def clear(self) -> None:
         if not self.quiet:
-            print("\r" + " " * self.WIDTH + "\r", end="", file=sys.stderr, flush=True)
+            self.line.clear()
 
 
 # ------------------------------------------------------------------------- executors

@@ -70,6 +70,7 @@ from rclpy.node import Node
 
 from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.errors import SimulationDiverged
+from flexarm_ros.io.progress import ProgressLine
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import REALTIME_GT_HZ, Pacer, check_settings, ground_truth_rate
@@ -164,6 +165,7 @@ class SimulatorNode(Node):
         self.finished = self.started = False
         self.t_wall0 = self.t_wall_end = None
         self._last_report = self._last_log = 0.0
+        self._line = ProgressLine(0)
         rate = ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode)
         check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate)
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
@@ -439,9 +441,10 @@ class SimulatorNode(Node):
         now = time.monotonic()
         if self.p["progress"] and (final or now - self._last_report > 0.2):
             end = "" if self.n_end is None else f" / {self.n_end * self.period:.3f}"
-            print(f"\r  t = {self.core.t:.3f}{end} s  (real-time factor {self.rtf():.3g}"
-                  + (f", {self.overruns} late ticks" if self.mode == "realtime" else "")
-                  + ")", end="\n" if final else "", file=sys.stderr, flush=True)
+            self._line.show(f"  t = {self.core.t:.3f}{end} s  (real-time factor "
+                            f"{self.rtf():.3g}" + (f", {self.overruns} late ticks"
+                                                   if self.mode == "realtime" else "") + ")",
+                            final=final)
             self._last_report = now
         if final or (self.mode != "lockstep" and now - self._last_log > 5.0):
             self._last_log = now

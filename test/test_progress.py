@@ -1,0 +1,37 @@
+"""The progress line (flexarm_ros/io/progress.py): redrawn in place on a terminal, one
+plain line per update (throttled) in a log file."""
+
+import io
+
+from flexarm_ros.io import progress as P
+
+
+class _Tty(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_on_a_terminal_the_line_is_redrawn_and_blanked():
+    out = _Tty()
+    line = P.ProgressLine(10, out)
+    line.show("a")
+    line.show("bb")
+    line.clear()
+    assert out.getvalue() == "\ra         \rbb        \r          \r"
+
+
+def test_in_a_log_file_each_update_is_a_line_of_its_own_at_most_once_per_period(
+        monkeypatch):
+    now = [100.0]
+    monkeypatch.setattr(P.time, "monotonic", lambda: now[0])
+    out = io.StringIO()                        # not a terminal
+    line = P.ProgressLine(10, out)
+    line.show("  t = 1")
+    now[0] += 1.0
+    line.show("  t = 2")                      # within LOG_PERIOD_S: not written
+    now[0] += P.LOG_PERIOD_S
+    line.show("  t = 3")
+    line.show("  t = 4", final=True)          # the final one always
+    line.clear()
+    assert out.getvalue() == "t = 1\nt = 3\nt = 4\n"
+    assert "\r" not in out.getvalue()

@@ -43,8 +43,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line (exit 2), like every other bad input."""
 
     def error(self, message):
-        if "expected" not in message:
-            message += f", expected the usage of {self.prog} --help"
+        if "expected" not in message and "choose from" not in message:
+            message += f" (expected the usage that {self.prog} --help shows)"
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
@@ -315,6 +315,22 @@ def _say_domain() -> None:
         if mine else " (from ROS_DOMAIN_ID)"), file=sys.stderr)
 
 
+def _check_pacing_flags(args) -> None:
+    """--late-bound and --ground-truth-rate checked before the graph starts, with the
+    flags' names (the simulator node checks the same values as its parameters)."""
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.scene import load_scene
+    from flexarm_ros.twin.pacing import check_settings
+    period = 1.0 / load_scene(args.scene or DEFAULT_SCENE).control.rate_hz
+    try:
+        check_settings(period, args.late_policy or "slow",
+                       0.1 if args.late_bound is None else args.late_bound,
+                       0.0 if args.ground_truth_rate is None else args.ground_truth_rate)
+    except SceneError as exc:
+        raise SceneError(str(exc).replace("parameter late_bound", "--late-bound").replace(
+            "parameter ground_truth_rate_hz", "--ground-truth-rate")) from None
+
+
 def cmd_run(args):
     """The ROS 2 graph (simulator, motor driver, controller, recorder); see flexarm_ros.run."""
     from flexarm_ros.io.paths import check_output_file
@@ -326,6 +342,8 @@ def cmd_run(args):
                          f"simulate (the twin's plant steps within its control tick with "
                          f"the held efforts, which the step-halving pilots cannot "
                          f"replay; set --dt)")
+    if args.late_bound is not None or args.ground_truth_rate is not None:
+        _check_pacing_flags(args)
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record

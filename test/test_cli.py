@@ -183,3 +183,21 @@ def test_quiet_hides_progress_not_the_summary(capsys):
     assert quiet.err == ""
     assert quiet.out.startswith("link: ") and "simulated in" in quiet.out
     assert quiet.out.count("\n") == loud.out.count("\n") == 1
+
+
+@pytest.mark.parametrize("argv,expect", [
+    (["--late-bound", "-1"], "--late-bound: got -1.0 s, expected a finite bound of at "
+                             "least one control period (0.001 s)"),
+    (["--ground-truth-rate", "-5"], "--ground-truth-rate: got -5.0, expected 0 (every "
+                                    "tick)"),
+    (["--layout", "triple"], "argument --layout: invalid choice: 'triple' (choose from "
+                             "'one', 'split', 'processes')"),
+])
+def test_bad_run_flags_are_named_as_flags_before_anything_starts(capsys, argv, expect):
+    try:
+        code = main(["run", "--duration", "0.01", "--no-record", *argv])
+    except SystemExit as exc:                     # argparse's own usage errors
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert expect in err and "Traceback" not in err and err.count("\n") == 1, err

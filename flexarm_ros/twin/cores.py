@@ -88,6 +88,10 @@ class SimulatorCore:
         self._i_joint = [lm.i_joint for lm in ch.links]
         self._i_drive = ch.drive_index()
         self._enc_links = sorted(self.encoders)
+        q0 = self.plant.q_initial              # (link, the encoder's zero angle, counts/rad)
+        self._enc_zero = [(link, float(q0[ch.links[link].i_motor if ch.links[link].i_motor
+                                          >= 0 else ch.links[link].i_joint]), sm.gain)
+                          for link, sm in self.encoders.items()]
         self.k = 0
         self._warm_up()
 
@@ -111,18 +115,15 @@ class SimulatorCore:
     def t(self) -> float:
         return self.plant.t
 
-    def _encoder_angles(self, q=None):
+    def _encoder_angles(self, q=None) -> list:
         """Joint angles as the controller sees them: from the encoder counts where an
         encoder is declared (quantized), else the model's angle (``q``: the link-side
-        joint angles now, when already at hand)."""
+        joint angles now, when already at hand). A list of floats."""
         if q is None:
-            q, _ = self.plant.joint_state()
-        ang = q.copy()
-        q0 = self.plant.q_initial
-        for link, sm in self.encoders.items():
-            lm = self.plant.chain.links[link]
-            i0 = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
-            ang[link] = q0[i0] + self.counts[link] / sm.gain
+            q = self.plant.joint_state()[0].tolist()
+        ang = list(q)
+        for link, q0, gain in self._enc_zero:
+            ang[link] = q0 + self.counts[link] / gain
         return ang
 
     def outputs(self, ground_truth: bool = True, build=msg) -> list[tuple]:
@@ -140,15 +141,20 @@ class SimulatorCore:
         t_ns = _ns(self.t)
         TY = T.TYPES
         out = [(T.CLOCK, TY[T.CLOCK], build.clock(t_ns))]
+        # the handful of values per message as Python floats: the same IEEE arithmetic
+        # as numpy's, without its per-call cost on 2-element arrays
         qf, qdf = ch.full_state(plant.t, plant.x)
-        q, qd = qf[self._i_joint], qdf[self._i_joint]
+        qfl, qdfl = qf.tolist(), qdf.tolist()
+        q = [qfl[i] for i in self._i_joint]
+        qd = [qdfl[i] for i in self._i_joint]
         ang = self._encoder_angles(q)
         if self._prev_angle is None or self.k == 0:
-            vel = np.zeros_like(ang)
+            vel = [0.0] * len(ang)
         else:
-            vel = (ang - self._prev_angle) / (self.period * (self.k - self._prev_k))
+            span = self.period * (self.k - self._prev_k)
+            vel = [(a - b) / span for a, b in zip(ang, self._prev_angle)]
         self._prev_angle, self._prev_k = ang, self.k
-        torques = plant.torques
+        torques = plant.torques.tolist()
         out.append((T.JOINT_STATES, TY[T.JOINT_STATES],
                     build.joint_state(t_ns, self._joint_names, ang, vel, torques)))
         if self.encoders:
@@ -169,11 +175,11 @@ class SimulatorCore:
                         build.wrench_stamped(t_ns, "wall", (cs["normal_force"],
                                                             cs["friction_force"], 0.0),
                                              (0.0, 0.0, 0.0))))
-        qm, qdm = qf[self._i_drive], qdf[self._i_drive]
         out.append((T.GT_JOINT_STATES, TY[T.GT_JOINT_STATES],
-                    build.joint_state(t_ns, self._gt_names, np.concatenate([q, qm]),
-                                      np.concatenate([qd, qdm]),
-                                      np.concatenate([torques, torques]))))
+                    build.joint_state(t_ns, self._gt_names,
+                                      q + [qfl[i] for i in self._i_drive],
+                                      qd + [qdfl[i] for i in self._i_drive],
+                                      torques + torques)))
         if not ground_truth:
             return out
         tip = plant.tip_position()

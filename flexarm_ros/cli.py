@@ -348,7 +348,7 @@ def cmd_run(args):
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record
     if record is not None:
-        check_output_file("--record", record)
+        check_output_file("--record", record, (".mcap",))   # what replay/compare read
     if args.rerun:
         check_output_file("--rerun", args.rerun, (".rrd",))
     from flexarm_ros.run import select_nodes

@@ -326,6 +326,7 @@ def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
     """Each refusal comes before any simulation (two_link_case1's 6 s would take longer
     than the refusal) and leaves nothing behind."""
     (tmp_path / "d.csv").mkdir()
+    (tmp_path / "d.mcap").mkdir()
     (tmp_path / "f").write_text("x")
     bag = ROOT / "bags" / "golden_case1.mcap"
     csv = ROOT / "bags" / "synthetic_experiment_case1.csv"
@@ -340,8 +341,10 @@ def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
         (["linearize", "link", "--out", tmp_path / "no" / "ss.npz"], "--out",
          "does not exist"),
         (["study", "link", "--png", tmp_path / "no" / "p.png"], "--png", "does not exist"),
-        (["run", "two_link_case1", "--record", tmp_path / "d.csv"], "--record",
+        (["run", "two_link_case1", "--record", tmp_path / "d.mcap"], "--record",
          "an existing directory"),
+        (["run", "two_link_case1", "--record", tmp_path / "run.txt"], "--record",
+         "expected a .mcap file name"),
         (["run", "two_link_case1", "--record", "/proc/run.mcap"], "--record", "writable"),
         (["run", "two_link_case1", "--rerun", tmp_path / "no" / "v.rrd"], "--rerun",
          "does not exist"),
@@ -356,7 +359,7 @@ def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
         assert msg.startswith(f"flexarm: error: {flag}: got '"), msg
         assert why in msg, msg
         assert time.perf_counter() - t0 < 5.0, argv
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv", "f"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv", "d.mcap", "f"]
     code = main(["replay", str(bag), "--rerun", str(tmp_path / "no" / "v.rrd")])
     assert code == 2 and "--rerun" in capsys.readouterr().err
 

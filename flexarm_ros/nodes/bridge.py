@@ -25,8 +25,9 @@ source rule (:mod:`~flexarm_ros.nodes._wire`) knows the other process's publishe
 once: DDS discovery between two processes took up to several seconds here, and a rule
 that waited for it (0.5 s per unknown GID and topic) stalled the receiving side for
 ~6 s in about half of the split realtime runs — the driver answered no state until the
-run was over (found in session 11 from a stack dump during the stall). A reader thread per process takes the records and posts the messages
-on its bus (waking its executor); the socket's end (the other process ended) stops it.
+run was over (found in session 11 from a stack dump during the stall). A reader thread
+per process takes the records and posts the messages on its bus (waking its executor);
+the socket's end (the other process ended) stops it.
 """
 
 from __future__ import annotations

@@ -277,15 +277,6 @@ class Plant:
                                        tuple(names), rows)
         return due
 
-    def _sample_due(self, acc_row=None, t=None, x=None) -> list[Sample]:
-        """The sensors due at grid index self.k as :class:`Sample` objects
-        (:meth:`_read_due`)."""
-        row = self._read_due(acc_row, t, x)
-        if row is None:
-            return []
-        t, names, vals, trues = row
-        return [Sample(n, t, v, tr) for n, v, tr in zip(names, vals, trues)]
-
     def _read_due(self, acc_row=None, t=None, x=None) -> tuple | None:
         """The sensors due at grid index self.k, at (t, x) (default: now): ``(t, names,
         measured values, true values)``, or None when none is due; ``acc_row``: the

@@ -115,12 +115,10 @@ class SimulatorCore:
     def t(self) -> float:
         return self.plant.t
 
-    def _encoder_angles(self, q=None) -> list:
+    def _encoder_angles(self, q: list) -> list:
         """Joint angles as the controller sees them: from the encoder counts where an
         encoder is declared (quantized), else the model's angle (``q``: the link-side
-        joint angles now, when already at hand). A list of floats."""
-        if q is None:
-            q = self.plant.joint_state()[0].tolist()
+        joint angles now). A list of floats."""
         ang = list(q)
         for link, q0, gain in self._enc_zero:
             ang[link] = q0 + self.counts[link] / gain

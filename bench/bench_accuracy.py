@@ -13,7 +13,15 @@ against the same model by DOP853 at rtol 1e-12; a scene with a wall against its 
 by RK4 at a fixed 62.5 µs), the cost (RHS evaluations and wall time, pilot runs
 included) — the error must stay ≤ TOL and the cost fall as TOL loosens.
 
+Part 3, ``--part basis`` (not in ``both``): the modal basis of a chain on
+``two_link_free`` — each modal rung with the tip-loaded (old) and the chain-loaded
+(default) modes, cubic, fem 2 and ``--rung auto`` at 1e-6 m, tip error against FEM 8
+(RK4 at its automatic step, 1 s) and integration real-time factor, best of ``BASIS_REPEATS``
+with the candidates alternating in one run (docs/accuracy.md, *The modal basis of a
+chain*).
+
     python bench/bench_accuracy.py [--quick] [--json] [--markdown docs/accuracy_table.md]
+        [--part defaults|tolerance|both|basis]
 """
 
 from __future__ import annotations
@@ -130,6 +138,49 @@ def tolerance_table(quick=False) -> list[dict]:
     return rows
 
 
+BASIS_REPEATS = 5
+#: (label, fidelity overrides) of part 3
+BASIS_CANDIDATES = [("cubic (default)", {})]
+BASIS_CANDIDATES += [(f"modal {n} {b}", {"rung": "modal", "refine": n, "modal_basis": b})
+                     for n in (2, 3, 4) for b in ("tip_loaded", "chain_loaded")]
+BASIS_CANDIDATES += [("fem 2", {"rung": "fem", "refine": 2}),
+                     ("auto, TOL 1e-6 m", {"rung": "auto", "tolerance": 1e-6})]
+
+
+def basis_table(quick=False) -> list[dict]:
+    """Part 3: the modal basis of a chain on two_link_free (module docstring)."""
+    sc = load_scene("two_link_free")
+    T = 0.3 if quick else 1.0
+    ref = _tip(simulate(sc.with_fidelity(rung="fem", refine=8), T))
+    scenes = [(label, sc.with_fidelity(**kw)) for label, kw in BASIS_CANDIDATES]
+    for _, s in scenes:
+        simulate(s, 0.05)                                   # compile outside the timing
+    best = {label: math.inf for label, _ in scenes}
+    rows = {}
+    for _ in range(2 if quick else BASIS_REPEATS):
+        for label, s in scenes:
+            res = simulate(s, T)
+            summ = res.summary()
+            best[label] = min(best[label], summ["wall_time_s"])
+            err = float(np.max(np.linalg.norm(_tip(res) - ref, axis=1)))
+            rows[label] = {"candidate": label, "duration_s": T, "rung": summ["rung"],
+                           "refine": summ["refine"], "step_s": summ["step_s"],
+                           "tip_max_error_m": err}
+    for label in rows:
+        rows[label]["real_time_factor"] = T / best[label]
+    return list(rows.values())
+
+
+def basis_markdown(rows) -> str:
+    out = ["| two_link_free | s | model | step (s) | tip error vs FEM 8 (m) | RTF |",
+           "|" + "---|" * 6]
+    for r in rows:
+        out.append(f"| {r['candidate']} | {r['duration_s']:g} | {r['rung']} {r['refine']} | "
+                   f"{r['step_s']:.3g} | {r['tip_max_error_m']:.2g} | "
+                   f"{r['real_time_factor']:.0f} |")
+    return "\n".join(out) + "\n"
+
+
 def markdown(dflt, tol) -> str:
     out = ["| scene | s | rung | step (s) | RTF (integration) | RTF (whole call) | target | "
            "tip error (m) | impact error (s) | reference |", "|" + "---|" * 10]
@@ -158,8 +209,16 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="short runs, three scenes")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--markdown", metavar="FILE", help="write both tables as Markdown")
-    ap.add_argument("--part", choices=("defaults", "tolerance", "both"), default="both")
+    ap.add_argument("--part", choices=("defaults", "tolerance", "both", "basis"),
+                    default="both")
     a = ap.parse_args()
+    if a.part == "basis":
+        rows = basis_table(a.quick)
+        print(json.dumps(rows, indent=1, default=float) if a.json else basis_markdown(rows))
+        if a.markdown:
+            with open(a.markdown, "w") as fh:
+                fh.write(basis_markdown(rows))
+        return
     dflt = defaults(a.quick) if a.part in ("defaults", "both") else []
     tol = tolerance_table(a.quick) if a.part in ("tolerance", "both") else []
     if a.json:

@@ -29,7 +29,7 @@ def _err(res, ref) -> float:
 @pytest.mark.parametrize("name,duration,tol,truth", [
     # seed 001 link with tip mass: auto takes 2 modes for 1 s at the default 1e-5 m
     ("link_tipmass", 1.0, 0.0, {"rung": "fem", "refine": 8}),
-    # seed 000 two-link arm: cubic (its heavy tip bodies make the cubic shape nearly exact)
+    # seed 000 two-link arm: modal 2 (chain-loaded modes; cubic misses TOL/2 by a little)
     ("two_link_free", 1.0, 0.0, {"rung": "fem", "refine": 6}),
     # a tighter tolerance on the flexible-joint link
     ("link_flexjoint", 1.0, 1e-7, {"rung": "fem", "refine": 6, "integrator": "dop853",
@@ -47,7 +47,8 @@ def test_auto_meets_its_tolerance_against_a_converged_reference(name, duration, 
     # auto is no worse than the scene's own rung where that rung also meets auto's own
     # admission margin, TOL/2 (docs/accuracy.md). Between TOL/2 and TOL auto takes a finer
     # model by design: two_link_free with the derived seed 000 geometry, cubic 5.8e-6 m
-    # measured against FEM 6 (auto's estimate 6.6e-6 m) at TOL = 1e-5 m, takes fem 2.
+    # measured against FEM 6 (auto's estimate 6.6e-6 m) at TOL = 1e-5 m, takes modal 2
+    # (chain-loaded modes, 3.1e-6 m; fem 2 before session 12).
     own = simulate(sc, duration)
     if _err(own, ref) <= 0.5 * s["tolerance_m"]:
         assert res.run.rhs_evaluations <= own.run.rhs_evaluations * 1.01
@@ -108,7 +109,7 @@ def test_explain_says_what_was_chosen_and_why(capsys):
 
 def test_a_wall_scene_gets_a_rung_and_keeps_the_contact_steppers_step():
     """The rung from the free flight (with the derived seed 000 geometry cubic's estimate,
-    6.6e-6 m, is above TOL/2: fem 2), the step the contact stepper takes for that named
+    6.6e-6 m, is above TOL/2: modal 2), the step the contact stepper takes for that named
     rung."""
     sc = load_scene("two_link_case1")
     res = simulate(sc.with_fidelity(rung="auto"), 0.3)

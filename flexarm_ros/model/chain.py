@@ -138,7 +138,7 @@ class Chain:
         self.links: list[_LinkModel] = []
         names: list[str] = []
         units: list[str] = []                     # SI unit of each coordinate
-        for lk in scene.links:
+        for k, lk in enumerate(scene.links):
             i_motor = -1
             if lk.joint.flexibility is not None or lk.joint.backlash is not None:
                 i_motor = len(names)
@@ -147,7 +147,9 @@ class Chain:
             i_joint = len(names)
             names.append(f"{lk.name}_joint")
             units.append("rad")
-            disc = beams.discretize(lk.beam, lk.tip, self.fidelity)
+            disc = beams.discretize(
+                lk.beam, beams.modal_load(scene.links, k, self.fidelity.modal_basis),
+                self.fidelity)
             start = len(names)
             names.extend(f"{lk.name}_{s}" for s in disc.coord_suffixes)
             units.extend(disc.coord_units)

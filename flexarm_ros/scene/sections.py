@@ -513,8 +513,11 @@ class Fidelity:
                           "step estimated to meet fidelity.tolerance (docs/accuracy.md)")
     refine: int = param(0, ge=0, doc="modes / elements / FD segments (0 → rung default; "
                                      "0 with rung auto, which chooses it)")
-    modal_basis: str = param("tip_loaded", choices=("tip_loaded", "clamped_free"),
-                             doc="modal rung: modes of the beam with or without its tip body")
+    modal_basis: str = param("chain_loaded", choices=("chain_loaded", "tip_loaded",
+                                                      "clamped_free"),
+                             doc="modal rung: modes of the beam carrying its tip body and "
+                                 "the links outboard of it (locked at their initial "
+                                 "angles), its tip body only, or nothing")
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
                                            "(geometric stiffening) terms")
     integrator: str = param("rk4", choices=INTEGRATORS, doc="time integrator")

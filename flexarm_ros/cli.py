@@ -98,6 +98,8 @@ def _overrides(args) -> dict:
              "tolerance")}
     if getattr(args, "no_foreshortening", False):
         over["foreshortening"] = False
+    if getattr(args, "estimate", False):
+        over["estimate"] = True
     return over
 
 
@@ -172,6 +174,9 @@ def cmd_simulate(args):
                   f"{summ['step_s']:.3g} s, estimated tip error "
                   f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
+        elif summ.get("assessment"):
+            print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "
+                  f"({summ['estimate'].split(':')[0]}; --json: how)")
     if summ.get("warning"):
         print(f"flexarm: warning: {summ['warning']}", file=sys.stderr)
     return 0
@@ -443,6 +448,10 @@ def build_parser():
     s.add_argument("--quiet", action="store_true",
                    help="no progress on stderr (the summary is still printed)")
     _fidelity_args(s)
+    s.add_argument("--estimate", action="store_true",
+                   help="estimate the run's tip error as --rung auto does, for the named "
+                        "rung (rk4): a-priori analysis, then a check with a finer model; "
+                        "0.1-1 s more (fidelity.estimate; docs/accuracy.md)")
     s.set_defaults(func=cmd_simulate)
 
     m = sub.add_parser("modes", help="natural frequencies of the linearized chain")

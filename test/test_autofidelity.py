@@ -188,3 +188,47 @@ def test_the_block_recurrence_equals_the_step_by_step_one():
     for k in range(len(keys)):
         x = P[keys[k]] @ x + G[k]
         np.testing.assert_allclose(X[k + 1], x, rtol=1e-12, atol=1e-12)
+
+
+# ------------------------------------------ fidelity.estimate: a named rung's error
+@pytest.mark.parametrize("name,over,truth", [
+    # the seed's cubic on the two-link arm (measured 5.8e-6 m, estimated 1.1e-5 m)
+    ("two_link_free", {}, {"rung": "fem", "refine": 6}),
+    # chain-loaded modes (3.1e-6 / 6.2e-6 m)
+    ("two_link_free", {"rung": "modal", "refine": 2}, {"rung": "fem", "refine": 6}),
+    # seed 002's two modes against the converged modal family (5.8e-5 / 1.3e-4 m)
+    ("hydraulic_2kg", {}, {"rung": "modal", "refine": 12}),
+])
+def test_the_estimate_of_a_named_rung_covers_its_error(name, over, truth):
+    sc = load_scene(name)
+    T = 1.0
+    res = simulate(sc.with_fidelity(estimate=True, **over), T)
+    ref = simulate(sc.with_fidelity(**truth), T)
+    s = res.summary()
+    err = _err(res, ref)
+    # an upper bound, and an informative one (measured 1.9–2.2× the error)
+    assert err <= s["estimated_tip_error_m"] <= 8 * err, (err, s["estimated_tip_error_m"])
+    assert s["estimate"].startswith("a posteriori, spatial + temporal")
+    assert s["assessment"]["check"]["status"] == "ok"
+    assert s["tolerance_m"] is None and s["tolerance_met"] is None and "warning" not in s
+    assert s["rung"] == (over.get("rung") or sc.fidelity.rung)
+    # the estimate only watches: the run is the one without it
+    plain = simulate(sc.with_fidelity(**over), T)
+    np.testing.assert_array_equal(_tip(plain), _tip(res))
+
+
+def test_estimate_from_the_cli_and_its_refusals(tmp_path, capsys):
+    code = main(["simulate", "two_link_free", "--estimate", "--duration", "0.5", "--json",
+                 "--quiet", "--out", str(tmp_path / "x.npz")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["rung"] == "cubic" and out["estimated_tip_error_m"] > 0
+    assert out["assessment"]["finer"] is not None
+    code = main(["simulate", "link_flexjoint", "--estimate", "--integrator", "dop853",
+                 "--duration", "0.1", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "fidelity.estimate: got true with integrator 'dop853'" in err
+    code = main(["simulate", "two_link_position", "--estimate", "--duration", "0.1",
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "fidelity.estimate: got true for a scene whose arm only its " \
+                         "controller moves" in err

@@ -82,7 +82,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.model.beams import MAX_ELASTIC_COORDINATES, elastic_coordinates
+from flexarm_ros.model.beams import (DEFAULT_REFINE, MAX_ELASTIC_COORDINATES,
+                                     elastic_coordinates)
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.linear import (RK4_AUTO, RK4_STABILITY, grid_step, highest_rate,
@@ -283,6 +284,19 @@ def resolve(scene, duration=None, output_dt=None):
         return scene, None
     choice = choose(scene, duration, output_dt)
     return scene.with_fidelity(**choice.fidelity_overrides()), choice
+
+
+def assess(scene, duration=None, output_dt=None) -> AutoChoice:
+    """``fidelity.estimate`` / ``flexarm simulate --estimate``: the error of the scene's
+    own named rung and step over ``duration`` — the same a-priori analysis as rung auto
+    (spatial against the converged linear reference, temporal of RK4 at the run's step)
+    for that one model, and the plan of the same check after the run
+    (:func:`~flexarm_ros.sim.accuracy.posterior_check`). The returned :class:`AutoChoice`
+    holds that model (``tolerance_m`` is the scene's fidelity.tolerance, 0 when none)."""
+    from flexarm_ros.model.sensors import output_period
+    T = scene.duration if duration is None else float(duration)
+    out_dt = output_period(scene) if output_dt is None else float(output_dt)
+    return _Analysis(scene, T, out_dt).assess()
 
 
 def check_window(chain, T: float) -> float:
@@ -511,8 +525,10 @@ class _Analysis:
     def _fits(self, rung, refine) -> bool:
         return elastic_coordinates(rung, refine) * self.n_beams <= MAX_ELASTIC_COORDINATES
 
-    def run(self) -> AutoChoice:
-        t0 = time.perf_counter()
+    def _reference(self, key="fidelity.rung", got="'auto'"):
+        """The converged linear reference (y_ref, its own error e_ref, the FEM cross-check);
+        SceneError for a scene only its controller moves (``key``/``got`` name the setting
+        that asked for the analysis)."""
         nm = REFERENCE_MODES
         while not self._fits("modal", nm) and nm > 4:
             nm -= 2
@@ -532,10 +548,16 @@ class _Analysis:
         mode = self.scene.control.mode
         if mode != "open_loop" and not np.any(self.y_ref != self.y_ref[0]):
             raise SceneError(
-                f"fidelity.rung: got 'auto' for a scene whose arm only its controller moves "
-                f"(control.mode {mode!r}, no input program moves it), expected a named rung: "
-                f"auto weighs the candidates by the response to the scene's input programs, "
+                f"{key}: got {got} for a scene whose arm only its controller moves "
+                f"(control.mode {mode!r}, no input program moves it), expected "
+                + ("a named rung: auto weighs the candidates" if key == "fidelity.rung"
+                   else "it off: the estimate weighs the model's error")
+                + " by the response to the scene's input programs, "
                 f"and the controller's commands are known only during the run")
+
+    def run(self) -> AutoChoice:
+        t0 = time.perf_counter()
+        self._reference()
         budget_s = SPATIAL_SHARE * self.tol
         best = None
         cands: list[Candidate] = []
@@ -586,6 +608,49 @@ class _Analysis:
             finer=None if finer is None else (finer[0].rung, finer[0].refine,
                                               finer[1].stable_step, finer[0].spatial_m),
             window_s=window, growth=growth, wall=self.wall,
+            analysis_s=time.perf_counter() - t0)
+
+    def assess(self) -> AutoChoice:
+        """The scene's own (named) rung judged as auto judges a candidate, at the step the
+        run takes: spatial and temporal estimates, the finer model and window of the check
+        after the run, the growth (:func:`assess`)."""
+        t0 = time.perf_counter()
+        fid = self.fid
+        if fid.integrator != "rk4":
+            raise SceneError(
+                f"fidelity.estimate: got true with integrator {fid.integrator!r}, expected "
+                f"rk4 (the temporal estimate follows RK4's steps; the adaptive integrators "
+                f"hold their own error to --rtol/--atol, the trapezoid rule's has no "
+                f"estimate yet, docs/accuracy.md)")
+        self._reference("fidelity.estimate", "true")
+        rung = fid.rung
+        n = fid.refine or (0 if rung in ("rigid", "cubic") else DEFAULT_REFINE[rung])
+        chain = self._chain(rung, n)
+        lin = _Linear(chain, self.input_memo)
+        c = Candidate(rung, n, coordinates=chain.n, stable_step_s=lin.stable_step)
+        dense = not self.wall and smooth_rhs(chain)
+        h = grid_step(fid.dt, self.out_dt, dense) if fid.dt > 0 else self._auto_step(lin)
+        c.step_s = h
+        c.steps = int(math.ceil(self.T / h - 1e-9))
+        c.work_s = c.steps * lin.cost_us * 1e-6
+        lin.y_exact = lin.exact(self.grid, self.bps)
+        c.spatial_m = float(np.max(np.linalg.norm(lin.y_exact - self.y_ref, axis=1))) + \
+            self.e_ref
+        if not self.wall:
+            c.temporal_m = self._temporal(lin, h)
+        c.verdict = "the scene's model, assessed"
+        cands = [c]
+        finer = self._finer(c, {(rung, n): (c, lin)}, cands)
+        window = check_window(chain, self.T)
+        return AutoChoice(
+            tolerance_m=fid.tolerance, tolerance_given=fid.tolerance > 0, duration_s=self.T,
+            rung=rung, refine=n, step_s=h, dt_request=fid.dt, spatial_m=c.spatial_m,
+            temporal_m=math.nan if self.wall else c.temporal_m, candidates=cands,
+            reference=self.reference, reference_error_m=self.e_ref,
+            cross_check_m=self.cross_check,
+            finer=None if finer is None else (finer[0].rung, finer[0].refine,
+                                              finer[1].stable_step, finer[0].spatial_m),
+            window_s=window, growth=self._growth(lin, c, window), wall=self.wall,
             analysis_s=time.perf_counter() - t0)
 
     def _auto_step(self, lin) -> float:

@@ -531,6 +531,10 @@ class Fidelity:
                                  "chosen from a step-halving estimate (0: off; the step from dt). With "
                                  "rung auto: the bound the rung, refinement and step are "
                                  "chosen for (0: the default 1e-5 m)")
+    estimate: bool = param(False, doc="batch run with a named rung (rk4): estimate its tip "
+                                      "error as rung auto does (the a-priori analysis "
+                                      "before, the check on a finer model after; 0.1-1 s "
+                                      "more) and report it in the run summary")
     motor_current: str = param("dynamic", choices=("dynamic", "quasi_static"),
                                doc="dc_motor with inductance: integrate the current as a "
                                    "state, or take it quasi-static (L/R far below the step)")

@@ -267,8 +267,10 @@ def posterior_check(scene, auto, columns, run_step, T) -> PosteriorCheck:
                           time.perf_counter() - t0)
 
 
-def auto_summary(auto, check) -> dict:
-    """The run summary's keys of a rung-auto run: the choice, the estimate and its basis."""
+def auto_summary(auto, check, key="auto") -> dict:
+    """The run summary's keys of a rung-auto run (``key`` "auto": the choice) or of a named
+    rung assessed (``key`` "assessment", fidelity.estimate): the estimate and its basis;
+    without a tolerance (an assessment of a scene with none) only the estimate."""
     ok = check is not None and check.status == "ok"
     est = check.estimate_m if ok else auto.estimated_m
     if ok:
@@ -289,10 +291,14 @@ def auto_summary(auto, check) -> dict:
                            "step_s": check.step_s, "observed_m": _num(check.observed_m),
                            "growth": check.growth, "estimate_m": _num(check.estimate_m),
                            "wall_s": check.wall_s, "status": check.status}
+    if not auto.tolerance_m > 0:
+        return {"tolerance_m": None, "estimated_tip_error_m": est,
+                "a_priori_tip_error_m": auto.estimated_m, "estimate": basis,
+                "tolerance_met": None, key: detail}
     met = bool(est <= auto.tolerance_m)
     out = {"tolerance_m": auto.tolerance_m, "estimated_tip_error_m": est,
            "a_priori_tip_error_m": auto.estimated_m, "estimate": basis,
-           "tolerance_met": met, "auto": detail}
+           "tolerance_met": met, key: detail}
     if not met:
         out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
                           f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}); tighten "

@@ -35,7 +35,8 @@ class SimResult:
     contact: object = None       # contact.ContactRun of a scene with a wall
     accuracy: object = None      # accuracy.StepChoice when fidelity.tolerance chose the step
     auto: object = None          # autofidelity.AutoChoice when the scene said rung auto
-    check: object = None         # accuracy.PosteriorCheck of an auto run
+    check: object = None         # accuracy.PosteriorCheck of an auto or assessed run
+    assessed: object = None      # autofidelity.AutoChoice of fidelity.estimate (named rung)
 
     def summary(self) -> dict:
         r = self.run
@@ -60,6 +61,12 @@ class SimResult:
         if self.auto is not None:
             from flexarm_ros.sim.accuracy import auto_summary
             out.update(auto_summary(self.auto, self.check))
+        elif self.assessed is not None:
+            from flexarm_ros.sim.accuracy import auto_summary
+            out.update(auto_summary(self.assessed, self.check, key="assessment"))
+            if self.accuracy:
+                out["tolerance_m"] = self.accuracy.tolerance_m
+                out["step_halving_estimate_m"] = self.accuracy.estimated_tip_error_m
         return out
 
 
@@ -95,6 +102,11 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     check_output(T, fid.output_dt, out_dt, chain)
     contact = build_contact(chain)
     choice = _step_for_tolerance(chain, contact, x0, T, out_dt) if fid.tolerance else None
+    assessed = None
+    if fid.estimate and auto is None:      # rung auto estimates anyway
+        from flexarm_ros.model.autofidelity import assess
+        assessed = assess(scene.with_fidelity(dt=choice.step_s) if choice else scene, T,
+                          out_dt)
     if contact is None:
         run = integrate(chain, x0, T, fid.integrator, choice.step_s if choice else fid.dt,
                         fid.rtol, fid.atol, out_dt, fid.max_deflection_ratio, progress)
@@ -115,10 +127,11 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     if crun is not None:
         cols.update(contact_columns(crun, every))
     check = None
-    if auto is not None:
+    if auto is not None or assessed is not None:
         from flexarm_ros.sim.accuracy import posterior_check
-        check = posterior_check(scene, auto, cols, run.dt, T)
-    return SimResult(scene.name, chain, run, cols, tables, crun, choice, auto, check)
+        check = posterior_check(scene, auto or assessed, cols, run.dt, T)
+    return SimResult(scene.name, chain, run, cols, tables, crun, choice, auto, check,
+                     assessed)
 
 
 def _step_for_tolerance(chain, contact, x0, T, out_dt):

@@ -478,6 +478,20 @@ class _Linear:
         return ((2 * t3 - 3 * t2 + 1) * Y[j] + (t3 - 2 * t2 + th) * hj[:, None] * Yd[j]
                 + (3 * t2 - 2 * t3) * Y[j + 1] + (t3 - t2) * hj[:, None] * Yd[j + 1])
 
+    def trapezoid(self, h, T) -> np.ndarray:
+        """Tip deviation at the ends of the steps of the implicit trapezoidal rule at step h
+        over [0, T] (T a multiple of h), as the compiled loop steps it (Newmark average
+        acceleration = the trapezoidal rule on ẋ = Ax + Bu): x₁ = (I − hA/2)⁻¹[(I + hA/2)x₀
+        + h/2·B(u_a + u_b)], the input at the first stage just inside the step (its right
+        limit at a jump on the step grid) and at the last one just before its end."""
+        n = int(round(T / h))
+        ts = np.arange(n) * h
+        L = np.eye(self.ns) - 0.5 * h * self.A
+        P = np.linalg.solve(L, np.eye(self.ns) + 0.5 * h * self.A)
+        Q = np.linalg.solve(L, 0.5 * h * self.B)
+        U = self.inputs(ts + STAGE_EPS * h) + self.inputs(ts + (1.0 - STAGE_EPS) * h)
+        return self.tip(_recur({h: P}, np.full(n, h), U @ Q.T, self.ns))
+
     def _rk4_maps(self, h):
         A, B, ns, m = self.A, self.B, self.ns, self.m
 

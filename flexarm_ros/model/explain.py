@@ -18,8 +18,11 @@ def explain(scene) -> str:
              + "), integrator "
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else
                                     f", the step chosen for a tip tolerance of "
-                                    f"{fid.tolerance:g} m by step-halving pilot runs when "
-                                    f"the run starts (flexarm simulate)"
+                                    f"{fid.tolerance:g} m by "
+                                    + ("the linearized model stepped by the rule"
+                                       if fid.integrator == "trapezoid" else
+                                       "step-halving pilot runs")
+                                    + " when the run starts (flexarm simulate)"
                                     if fid.tolerance and chain.auto is None else
                                     ", automatic step")
              + (" — chosen by rung auto" if chain.auto is not None else "")]

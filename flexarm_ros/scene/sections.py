@@ -527,8 +527,9 @@ class Fidelity:
     output_dt: float = param(1e-3, unit="s", gt=0.0, doc="sample period of the output")
     tolerance: float = param(0.0, unit="m", ge=0.0,
                              doc="tip-position error bound of a batch run. With a named "
-                                 "rung (rk4; with a wall the contact stepper's): the step is "
-                                 "chosen from a step-halving estimate (0: off; the step from dt). With "
+                                 "rung: the step is chosen from a step-halving estimate (rk4; "
+                                 "with a wall the contact stepper's) or the linearized "
+                                 "model (trapezoid) (0: off; the step from dt). With "
                                  "rung auto: the bound the rung, refinement and step are "
                                  "chosen for (0: the default 1e-5 m)")
     estimate: bool = param(False, doc="batch run with a named rung (rk4): estimate its tip "

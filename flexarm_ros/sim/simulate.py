@@ -56,8 +56,13 @@ class SimResult:
         if self.accuracy:
             how = ("the contact stepper's, pilots over the whole run" if self.contact is not None
                    else f"{self.chain.fidelity.integrator}'s")
-            out["estimate"] = (f"a priori: step halving ({how}; temporal only, the rung's "
-                               f"own spatial error not included)")
+            if self.accuracy.method == "linear":
+                out["estimate"] = ("a priori: the linearized model stepped by the trapezoidal "
+                                   "rule against its exact response (temporal only, the "
+                                   "rung's own spatial error not included)")
+            else:
+                out["estimate"] = (f"a priori: step halving ({how}; temporal only, the "
+                                   f"rung's own spatial error not included)")
         if self.auto is not None:
             from flexarm_ros.sim.accuracy import auto_summary
             out.update(auto_summary(self.auto, self.check))
@@ -140,12 +145,13 @@ def _step_for_tolerance(chain, contact, x0, T, out_dt):
     from flexarm_ros.sim.accuracy import step_for_tolerance
     fid = chain.fidelity
     tol = fid.tolerance
-    if fid.integrator != "rk4":
+    if fid.integrator not in ("rk4", "trapezoid"):
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
-                         f"{fid.integrator!r}, expected integrator rk4 (the adaptive "
-                         f"integrators take --rtol/--atol; the trapezoid rule's step-halving "
-                         f"estimate undershoots on the ladder's stiff rungs, "
-                         f"docs/accuracy.md)")
+                         f"{fid.integrator!r}, expected integrator rk4 or trapezoid (the "
+                         f"adaptive integrators take --rtol/--atol)")
+    if fid.integrator == "trapezoid" and contact is not None:
+        raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator 'trapezoid' "
+                         f"and a wall, expected integrator rk4 (the contact stepper is RK4's)")
     if chain.backlash:
         k = next(i for i, lk in enumerate(chain.scene.links) if lk.joint.backlash is not None)
         raise SceneError(f"fidelity.tolerance: got {tol:g} m for a model with backlash "
@@ -156,6 +162,9 @@ def _step_for_tolerance(chain, contact, x0, T, out_dt):
     if fid.dt > 0:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m together with fidelity.dt = "
                          f"{fid.dt:g} s, expected one of them (the tolerance chooses the step)")
+    if fid.integrator == "trapezoid":
+        from flexarm_ros.sim.accuracy import trapezoid_step_for_tolerance
+        return trapezoid_step_for_tolerance(chain, T, tol, out_dt)
     return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio, contact)
 
 

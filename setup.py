@@ -34,7 +34,11 @@ setup(
     ],
     python_requires=">=3.10",
     install_requires=["numpy>=1.24", "scipy>=1.10", "PyYAML>=6", "matplotlib>=3.6", "mcap>=1.1",
-                      "mcap-ros2-support>=0.5"],
+                      "mcap-ros2-support>=0.5",
+                      # one BLAS thread around the linear analyses of rung auto,
+                      # --estimate and the trapezoid's tolerance (small matrices: the
+                      # threads only wait on each other, 1.6x measured)
+                      "threadpoolctl>=3.1"],
     extras_require={
         "ros": ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-geometry-msgs",
                 "ros-rmw-fastrtps-cpp"],

@@ -82,8 +82,8 @@ def _fidelity_args(p):
     g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
     g.add_argument("--tolerance", type=number, metavar="M",
                    help="tip-position error bound, m: with --rung auto the model and step "
-                        "are chosen for it; with a named rung (rk4) the step, also "
-                        "the contact stepper's with a wall (simulate)")
+                        "are chosen for it; with a named rung the step (simulate): rk4's "
+                        "(the contact stepper's with a wall) or the trapezoid's")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",
@@ -174,9 +174,16 @@ def cmd_simulate(args):
                   f"{summ['step_s']:.3g} s, estimated tip error "
                   f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
-        elif summ.get("assessment"):
-            print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "
-                  f"({summ['estimate'].split(':')[0]}; --json: how)")
+        else:
+            if summ.get("tolerance_m"):        # the tolerance chose the step
+                step_est = summ.get("step_halving_estimate_m",
+                                    summ["estimated_tip_error_m"])
+                print(f"  step {summ['step_s']:.4g} s chosen for a tip tolerance of "
+                      f"{summ['tolerance_m']:.2g} m, its estimated time error "
+                      f"{step_est:.2g} m (temporal only: --estimate adds the rung's own)")
+            if summ.get("assessment"):
+                print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "
+                      f"({summ['estimate'].split(':')[0]}; --json: how)")
     if summ.get("warning"):
         print(f"flexarm: warning: {summ['warning']}", file=sys.stderr)
     return 0
@@ -450,8 +457,9 @@ def build_parser():
     _fidelity_args(s)
     s.add_argument("--estimate", action="store_true",
                    help="estimate the run's tip error as --rung auto does, for the named "
-                        "rung (rk4): a-priori analysis, then a check with a finer model; "
-                        "0.1-1 s more (fidelity.estimate; docs/accuracy.md)")
+                        "rung (rk4; rung auto always does): a-priori analysis, then a check "
+                        "with a finer model; 0.1-1 s more, up to a few s on a busy machine "
+                        "(fidelity.estimate; docs/accuracy.md)")
     s.set_defaults(func=cmd_simulate)
 
     m = sub.add_parser("modes", help="natural frequencies of the linearized chain")

@@ -250,6 +250,19 @@ class AutoChoice:
         return "\n".join(lines)
 
 
+def one_blas_thread():
+    """A context with BLAS on one thread: the linear analyses here multiply and
+    exponentiate matrices of a few to ~100 rows, where a threaded BLAS only makes its
+    threads wait on each other (two_link_free's assessment 0.25–0.32 s threaded, 0.16–0.19 s
+    on one thread, alternating in one run on 2 cores). A no-op without threadpoolctl."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:                   # a declared dependency; never fatal
+        import contextlib
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def tolerance_of(fidelity) -> float:
     return fidelity.tolerance if fidelity.tolerance > 0 else DEFAULT_TOLERANCE_M
 
@@ -268,13 +281,15 @@ def choose(scene, duration=None, output_dt=None) -> AutoChoice:
     try:
         hash(scene)
     except TypeError:                      # an unhashable scene (built by hand): no memo
-        return _Analysis(scene, T, out_dt).run()
+        with one_blas_thread():
+            return _Analysis(scene, T, out_dt).run()
     return _choose(scene, T, out_dt)
 
 
 @functools.lru_cache(maxsize=16)
 def _choose(scene, T, out_dt) -> AutoChoice:
-    return _Analysis(scene, T, out_dt).run()
+    with one_blas_thread():
+        return _Analysis(scene, T, out_dt).run()
 
 
 def resolve(scene, duration=None, output_dt=None):
@@ -296,7 +311,8 @@ def assess(scene, duration=None, output_dt=None) -> AutoChoice:
     from flexarm_ros.model.sensors import output_period
     T = scene.duration if duration is None else float(duration)
     out_dt = output_period(scene) if output_dt is None else float(output_dt)
-    return _Analysis(scene, T, out_dt).assess()
+    with one_blas_thread():
+        return _Analysis(scene, T, out_dt).assess()
 
 
 def check_window(chain, T: float) -> float:
@@ -641,6 +657,7 @@ class _Analysis:
         n = fid.refine or (0 if rung in ("rigid", "cubic") else DEFAULT_REFINE[rung])
         chain = self._chain(rung, n)
         lin = _Linear(chain, self.input_memo)
+        n = chain.links[0].beam.refine      # as the run summary names it (cubic: 1)
         c = Candidate(rung, n, coordinates=chain.n, stable_step_s=lin.stable_step)
         dense = not self.wall and smooth_rhs(chain)
         h = grid_step(fid.dt, self.out_dt, dense) if fid.dt > 0 else self._auto_step(lin)

@@ -15,6 +15,7 @@ def explain(scene) -> str:
     lines = [f"scene {scene.name}: {scene.description.strip()}".rstrip(": "),
              f"rung {fid.rung} (refine {chain.links[0].beam.refine}"
              + (": the rung's default, as fidelity.refine is 0" if fid.refine == 0 else "")
+             + (f"; {fid.modal_basis} modes" if fid.rung == "modal" else "")
              + "), integrator "
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else
                                     f", the step chosen for a tip tolerance of "
@@ -22,7 +23,8 @@ def explain(scene) -> str:
                                     + ("the linearized model stepped by the rule"
                                        if fid.integrator == "trapezoid" else
                                        "step-halving pilot runs")
-                                    + " when the run starts (flexarm simulate)"
+                                    + " when the run starts (flexarm simulate; its "
+                                    "--json names the step and the estimate)"
                                     if fid.tolerance and chain.auto is None else
                                     ", automatic step")
              + (" — chosen by rung auto" if chain.auto is not None else "")]

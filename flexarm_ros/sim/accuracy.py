@@ -200,8 +200,7 @@ def trapezoid_step_for_tolerance(chain, t_end: float, tol: float,
     assumption: measured against the nonlinear runs (DOP853 at rtol 1e-12 of the same
     model), its error equals the trapezoid's to 1 % on the seed 001 links (modal, fd, fem)
     and within 0.98–1.29× on two_link_free (docs/accuracy.md)."""
-    from flexarm_ros.model.autofidelity import _Linear
-    from flexarm_ros.sim.integrate import input_breakpoints
+    from flexarm_ros.model.autofidelity import _Linear, one_blas_thread
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
         raise SceneError(f"fidelity.tolerance: got {tol!r}, expected a tip-position error "
                          f"bound > 0 m")
@@ -209,7 +208,12 @@ def trapezoid_step_for_tolerance(chain, t_end: float, tol: float,
         raise SceneError(f"fidelity.tolerance: got {tol:g} m, expected at least "
                          f"{MIN_TOLERANCE_M:g} m (for a converged reference use "
                          f"--integrator dop853 --rtol 1e-12)")
-    lin = _Linear(chain)
+    with one_blas_thread():
+        return _trapezoid_step(_Linear(chain), chain, t_end, tol, output_dt)
+
+
+def _trapezoid_step(lin, chain, t_end, tol, output_dt) -> StepChoice:
+    from flexarm_ros.sim.integrate import input_breakpoints
     n_out = int(math.floor(t_end / output_dt + 1e-9))
     T = n_out * output_dt
     # the exact response on the output grid (and every input jump; inputs held at the
@@ -355,6 +359,10 @@ def auto_summary(auto, check, key="auto") -> dict:
     if auto.wall:
         basis += "; with a wall: free flight only, the impacts are not covered"
     detail = auto.as_dict()
+    if key == "assessment":              # a named rung: no tolerance chose anything
+        detail["tolerance_m"] = auto.tolerance_m if auto.tolerance_m > 0 else None
+        detail["tolerance_source"] = ("fidelity.tolerance (it chose the step only)"
+                                      if auto.tolerance_m > 0 else "none")
     if check is not None:
         detail["check"] = {"finer": check.finer, "window_s": check.window_s,
                            "step_s": check.step_s, "observed_m": _num(check.observed_m),
@@ -368,7 +376,14 @@ def auto_summary(auto, check, key="auto") -> dict:
     out = {"tolerance_m": auto.tolerance_m, "estimated_tip_error_m": est,
            "a_priori_tip_error_m": auto.estimated_m, "estimate": basis,
            "tolerance_met": met, key: detail}
-    if not met:
+    if not met and key == "assessment":
+        # the tolerance chose the step; the rung's own (spatial) error it cannot reduce
+        out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
+                          f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}; the rung's "
+                          f"own error is about {auto.spatial_m:.2g} m, which a shorter "
+                          f"step does not reduce); name a finer rung (--rung/--refine) or "
+                          f"let --rung auto choose one")
+    elif not met:
         out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
                           f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}); tighten "
                           f"--tolerance or name a finer rung")

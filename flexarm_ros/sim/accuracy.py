@@ -355,7 +355,9 @@ def auto_summary(auto, check, key="auto") -> dict:
             "" if auto.wall else " + temporal") + (
             f"; the check did not run: {check.status}" if check is not None else "")
     if auto.wall:
-        basis += "; with a wall: free flight only, the impacts are not covered"
+        basis += ("; with a wall the check covers the whole run, impacts included (the "
+                  "a-priori part the free flight only)" if ok else
+                  "; with a wall: free flight only, the impacts are not covered")
     detail = auto.as_dict()
     if key == "assessment":              # a named rung: no tolerance chose anything
         detail["tolerance_m"] = auto.tolerance_m if auto.tolerance_m > 0 else None
@@ -381,6 +383,13 @@ def auto_summary(auto, check, key="auto") -> dict:
                           f"own error is about {auto.spatial_m:.2g} m, which a shorter "
                           f"step does not reduce); name a finer rung (--rung/--refine) or "
                           f"let --rung auto choose one")
+    elif not met and auto.wall:
+        out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
+                          f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}, the impacts "
+                          f"included; rung auto chose {auto.label} from the free flight "
+                          f"alone, and a strike multiplies a coarse model's error); name a "
+                          f"finer rung and check it with --estimate (docs/accuracy.md, "
+                          f"'Through the impacts')")
     elif not met:
         out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
                           f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}); tighten "

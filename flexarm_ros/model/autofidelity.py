@@ -82,8 +82,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.model.beams import (DEFAULT_REFINE, MAX_ELASTIC_COORDINATES,
-                                     elastic_coordinates)
+from flexarm_ros.model.beams import MAX_ELASTIC_COORDINATES, elastic_coordinates
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.linear import (RK4_AUTO, RK4_STABILITY, grid_step, highest_rate,
@@ -654,12 +653,11 @@ class _Analysis:
             raise SceneError(
                 f"fidelity.estimate: got true with integrator {fid.integrator!r}, expected "
                 f"rk4 (the temporal estimate follows RK4's steps; the adaptive integrators "
-                f"hold their own error to --rtol/--atol, the trapezoid rule's has no "
-                f"estimate yet, docs/accuracy.md)")
+                f"hold their own error to --rtol/--atol, and the trapezoid's step gets its "
+                f"estimate from --tolerance, docs/accuracy.md)")
         self._reference("fidelity.estimate", "true")
         rung = fid.rung
-        n = fid.refine or (0 if rung in ("rigid", "cubic") else DEFAULT_REFINE[rung])
-        chain = self._chain(rung, n)
+        chain = self._chain(rung, fid.refine)
         lin = _Linear(chain, self.input_memo)
         n = chain.links[0].beam.refine      # as the run summary names it (cubic: 1)
         c = Candidate(rung, n, coordinates=chain.n, stable_step_s=lin.stable_step)

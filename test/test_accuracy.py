@@ -152,3 +152,18 @@ def test_the_trapezoid_rule_meets_a_tolerance(name, over, tol):
     assert s["integrator"] == "trapezoid" and s["tolerance_m"] == tol
     assert s["estimate"].startswith("a priori: the linearized model stepped by the "
                                     "trapezoidal rule")
+
+
+def test_a_tolerance_the_trapezoid_cannot_afford_is_refused(monkeypatch):
+    """Past TRAPEZOID_MAX_PER steps per output interval the search stops with one line
+    naming the tolerance, the integrator and the best it found (the bound lowered here to
+    4 so that link at 1e-7 m, which needs 157 steps per interval, reaches it)."""
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.sim import accuracy
+    monkeypatch.setattr(accuracy, "TRAPEZOID_MAX_PER", 4)
+    sc = load_scene("link").with_fidelity(integrator="trapezoid", tolerance=1e-7)
+    with pytest.raises(SceneError) as err:
+        simulate(sc, 0.2)
+    msg = str(err.value)
+    assert msg.startswith("fidelity.tolerance: got 1e-07 m with integrator 'trapezoid'")
+    assert "at most 4 steps per output interval" in msg and "--integrator rk4" in msg

@@ -176,7 +176,7 @@ def cmd_simulate(args):
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
         else:
             if summ.get("tolerance_m"):        # the tolerance chose the step
-                step_est = summ.get("step_halving_estimate_m",
+                step_est = summ.get("step_estimate_m",
                                     summ["estimated_tip_error_m"])
                 print(f"  step {summ['step_s']:.4g} s chosen for a tip tolerance of "
                       f"{summ['tolerance_m']:.2g} m, its estimated time error "

@@ -358,39 +358,38 @@ def auto_summary(auto, check, key="auto") -> dict:
         basis += ("; with a wall the check covers the whole run, impacts included (the "
                   "a-priori part the free flight only)" if ok else
                   "; with a wall: free flight only, the impacts are not covered")
+    tol = auto.tolerance_m if auto.tolerance_m > 0 else None
     detail = auto.as_dict()
     if key == "assessment":              # a named rung: no tolerance chose anything
-        detail["tolerance_m"] = auto.tolerance_m if auto.tolerance_m > 0 else None
-        detail["tolerance_source"] = ("fidelity.tolerance (it chose the step only)"
-                                      if auto.tolerance_m > 0 else "none")
+        detail["tolerance_m"] = tol
+        detail["tolerance_source"] = ("none" if tol is None else
+                                      "fidelity.tolerance (it chose the step only)")
     if check is not None:
         detail["check"] = {"finer": check.finer, "window_s": check.window_s,
                            "step_s": check.step_s, "observed_m": _num(check.observed_m),
                            "growth": check.growth, "estimate_m": _num(check.estimate_m),
                            "wall_s": check.wall_s, "status": check.status}
-    if not auto.tolerance_m > 0:
-        return {"tolerance_m": None, "estimated_tip_error_m": est,
-                "a_priori_tip_error_m": auto.estimated_m, "estimate": basis,
-                "tolerance_met": None, key: detail}
-    met = bool(est <= auto.tolerance_m)
-    out = {"tolerance_m": auto.tolerance_m, "estimated_tip_error_m": est,
+    met = None if tol is None else bool(est <= tol)
+    out = {"tolerance_m": tol, "estimated_tip_error_m": est,
            "a_priori_tip_error_m": auto.estimated_m, "estimate": basis,
            "tolerance_met": met, key: detail}
-    if not met and key == "assessment":
+    if met is not False:
+        return out
+    if key == "assessment":
         # the tolerance chose the step; the rung's own (spatial) error it cannot reduce
         out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
                           f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}; the rung's "
                           f"own error is about {auto.spatial_m:.2g} m, which a shorter "
                           f"step does not reduce); name a finer rung (--rung/--refine) or "
                           f"let --rung auto choose one")
-    elif not met and auto.wall:
+    elif auto.wall:
         out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
                           f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}, the impacts "
                           f"included; rung auto chose {auto.label} from the free flight "
                           f"alone, and a strike multiplies a coarse model's error); name a "
                           f"finer rung and check it with --estimate (docs/accuracy.md, "
                           f"'Through the impacts')")
-    elif not met:
+    else:
         out["warning"] = (f"the estimated tip error {est:.2g} m exceeds the tolerance "
                           f"{auto.tolerance_m:.2g} m ({basis.split(':')[0]}); tighten "
                           f"--tolerance or name a finer rung")

@@ -54,24 +54,24 @@ class SimResult:
                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
                                          if self.accuracy else None)}
         if self.accuracy:
-            how = ("the contact stepper's, pilots over the whole run" if self.contact is not None
-                   else f"{self.chain.fidelity.integrator}'s")
             if self.accuracy.method == "linear":
-                out["estimate"] = ("a priori: the linearized model stepped by the trapezoidal "
-                                   "rule against its exact response (temporal only, the "
-                                   "rung's own spatial error not included)")
+                how = "the linearized model stepped by the trapezoidal rule against its " \
+                      "exact response ("
             else:
-                out["estimate"] = (f"a priori: step halving ({how}; temporal only, the "
-                                   f"rung's own spatial error not included)")
-        if self.auto is not None:
+                how = "step halving (" + (
+                    "the contact stepper's, pilots over the whole run; "
+                    if self.contact is not None else
+                    f"{self.chain.fidelity.integrator}'s; ")
+            out["estimate"] = (f"a priori: {how}temporal only, the rung's own spatial error "
+                               f"not included)")
+        if self.auto is not None or self.assessed is not None:
             from flexarm_ros.sim.accuracy import auto_summary
-            out.update(auto_summary(self.auto, self.check))
-        elif self.assessed is not None:
-            from flexarm_ros.sim.accuracy import auto_summary
-            out.update(auto_summary(self.assessed, self.check, key="assessment"))
-            if self.accuracy:
+            out.update(auto_summary(self.auto or self.assessed, self.check,
+                                    key="auto" if self.auto is not None else "assessment"))
+            if self.assessed is not None and self.accuracy:
+                # the tolerance chose the step: its own (temporal) figure beside the estimate
                 out["tolerance_m"] = self.accuracy.tolerance_m
-                out["step_halving_estimate_m"] = self.accuracy.estimated_tip_error_m
+                out["step_estimate_m"] = self.accuracy.estimated_tip_error_m
         return out
 
 

@@ -69,6 +69,70 @@ def test_the_tolerance_is_met_and_the_step_grows_as_it_loosens(name, duration, t
         assert steps[-1] < steps[0]
 
 
+@pytest.mark.parametrize("name,duration,over", [
+    ("two_link_free", 1.0, {}),                                  # cubic: 15.7 ms, 9.97 stable
+    ("two_link_free", 1.0, {"rung": "modal", "refine": 3}),      # 7.3 ms, 4.62 stable
+    ("link_tipmass", 1.0, {}),                                   # 1.07 ms, 0.678 stable
+])
+def test_a_loose_tolerance_steps_above_the_stable_step_and_is_still_met(name, duration,
+                                                                       over):
+    """Above the stable step (ω·h > 1.5 for the highest mode) the step is measured, not
+    extrapolated: the tolerance takes it, stays below the stability limit with its margin,
+    and the tip error against DOP853 is below TOL and below twice the estimate."""
+    from flexarm_ros.sim.accuracy import ABOVE_STABLE_SHARE
+    from flexarm_ros.sim.step import RK4_AUTO, RK4_STABILITY
+    sc = load_scene(name).with_fidelity(**over)
+    ref = _tip(_reference(sc, duration))
+    res = simulate(sc.with_fidelity(tolerance=1e-3), duration)
+    a = res.accuracy
+    assert a.method == "pilot above the stable step", a
+    limit = a.stable_step_s / RK4_AUTO * RK4_STABILITY
+    assert a.stable_step_s * 1.01 < res.run.dt <= ABOVE_STABLE_SHARE * limit * (1 + 1e-12)
+    err = np.max(np.linalg.norm(_tip(res) - ref, axis=1))
+    assert err <= 1e-3 and err <= 2 * a.estimated_tip_error_m, (err, a)
+    assert "above the stable step" in a.explain()
+    assert "pilot run at the step" in res.summary()["estimate"]
+
+
+def _fake_pilots(monkeypatch, law):
+    """tip_history replaced by a tip that is off by law(h) m at every output sample."""
+    import flexarm_ros.sim.accuracy as acc
+    taken = []
+
+    def fake(chain, x0, t_end, h, output_dt, max_ratio, contact=None):
+        taken.append(h)
+        return np.full((11, 2), [law(h), 0.0]), h
+    monkeypatch.setattr(acc, "tip_history", fake)
+    return acc, taken
+
+
+@pytest.mark.parametrize("law,expect", [
+    # the error grows as h⁶ above h1: the first candidate (the h⁴ extrapolation) misses,
+    # the second, on the line through (h1, E1) and it, is measured and taken
+    (lambda h: 1e3 * h ** 6, "second"),
+    # the error jumps past the stable step (a mode near its stability limit): neither
+    # candidate is taken and the stable step stays
+    (lambda h: 1e3 * h ** 4 if h <= 1e-2 else 1.0, None),
+])
+def test_above_the_stable_step_only_a_measured_step_is_taken(monkeypatch, law, expect):
+    acc, taken = _fake_pilots(monkeypatch, law)
+    h_top, rate = 1e-2, acc.RK4_AUTO / 1e-2
+    h1, h2 = h_top / 2, h_top / 4
+    fine = np.full((11, 2), [law(h2), 0.0])
+    e1 = (law(h1) - law(h2)) / (1 - 0.5 ** 4)
+    tol = e1 * 3.2 ** 4 / acc.SAFETY       # the h⁴ extrapolation wants 3.2·h1 = 1.6·h_top
+    h_want = h1 * (acc.SAFETY * tol / e1) ** 0.25
+    got = acc._above_stable(None, None, 0.1, tol, 1e-3, 0.5, rate, h_top, h_want, fine,
+                            (h1, e1), h2, 4, 1.0)
+    if expect is None:
+        assert got is None and 1 <= len(taken) <= 2, taken
+        return
+    assert len(taken) == 2 and taken[1] < taken[0] and got.step_s == taken[1]
+    measured = law(got.step_s) - law(h2) + e1 * (h2 / h1) ** 4
+    assert got.estimated_tip_error_m == pytest.approx(measured)
+    assert measured <= acc.SAFETY * tol and got.step_s > h_top
+
+
 @pytest.mark.parametrize("name", ["two_link_case1", "two_link_case2"])
 def test_the_tolerance_with_a_wall_is_met_through_the_impacts(name):
     """The contact stepper's step for a tolerance (pilots over the whole run, assumed order

@@ -22,6 +22,10 @@ from flexarm_ros.model.differentiate import REL_STEP, jacobian
 RK4_STABILITY = 2.78
 #: h·|λ|max of the automatic RK4 step (re-exported by sim.step)
 RK4_AUTO = 1.5
+#: the ceiling of an RK4 step above the stable one RK4_AUTO/|λ|max that a tolerance may
+#: take (measured there, never extrapolated), as a share of the stability limit
+#: RK4_STABILITY/|λ|max: |λ|max moves with the configuration during a run, hence a margin
+ABOVE_STABLE_SHARE = 0.85
 #: largest difference step of :func:`highest_rate` with backlash (the dead zone's kink)
 BACKLASH_MAX_STEP = 1e-9
 #: a mode is rigid when its ω² is within this fraction of ‖K_t‖₂·‖v‖² (:func:`rigid_modes`)

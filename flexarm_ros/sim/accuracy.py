@@ -8,8 +8,11 @@ Method (Richardson's step-halving estimate of the global error, Hairer, Nørsett
 Two pilot runs over a window [0, T_w] at the steps h₁ and h₂ ≈ h₁/2 give the tip error
 of the coarser one as E₁ ≈ max|tip(h₁) − tip(h₂)| / (1 − (h₂/h₁)⁴) (16/15 at h₁/2). For an oscillating arm the phase
 error, which dominates, grows linearly with time, so the run of length T at step h is
-estimated at E(h) = E₁·(h/h₁)⁴·T/T_w. The step is the largest with E(h) ≤ SAFETY·TOL,
-never above the stable automatic step RK4_AUTO/|λ|max. The outputs, sampled inside steps
+estimated at E(h) = E₁·(h/h₁)⁴·T/T_w. The step is the largest with E(h) ≤ SAFETY·TOL
+up to the stable automatic step RK4_AUTO/|λ|max. Where the tolerance allows more, a step
+above it (up to ABOVE_STABLE_SHARE of the stability limit) is taken only as measured by
+a pilot at that step (:func:`_above_stable`: outside the asymptotic range of the highest
+modes the h⁴ law is not assumed). The outputs, sampled inside steps
 by the cubic Hermite dense output (third order, like the step), are part of what the pilot
 runs compare, so the estimate covers them too.
 
@@ -57,8 +60,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.model.linear import highest_rate
-from flexarm_ros.sim.step import RK4_AUTO
+from flexarm_ros.model.linear import ABOVE_STABLE_SHARE, highest_rate
+from flexarm_ros.sim.step import RK4_AUTO, RK4_STABILITY
 
 SAFETY = 0.5            # the estimate aims at half the tolerance
 WINDOW_FRACTION = 0.1   # the pilot window: this share of the run ...
@@ -81,7 +84,9 @@ class StepChoice:
     pilot_error_m: float        # E₁: the pilot's tip error at its coarse step
     stable_step_s: float        # the ceiling: RK4_AUTO/|λ|max or the automatic contact step
     order: float = 4.0          # the order the estimate used
-    method: str = "step halving"    # or "linear" (the trapezoid rule's)
+    #: "step halving", "pilot above the stable step" (RK4 above RK4_AUTO/|λ|max) or
+    #: "linear" (the trapezoid rule's)
+    method: str = "step halving"
 
     def explain(self) -> str:
         if self.method == "linear":
@@ -90,6 +95,12 @@ class StepChoice:
                     f"stepped by the trapezoidal rule against its exact response over "
                     f"{self.pilot_window_s:.3g} s; {self.pilot_error_m:.3g} m at the output "
                     f"period {self.pilot_step_s:.4g} s)")
+        if self.method == "pilot above the stable step":
+            return (f"step {self.step_s:.4g} s for a tip tolerance of {self.tolerance_m:.3g} "
+                    f"m, above the stable step {self.stable_step_s:.4g} s (estimated "
+                    f"{self.estimated_tip_error_m:.3g} m: a pilot run at this step over "
+                    f"{self.pilot_window_s:.3g} s against one at a quarter of the stable "
+                    f"step, the difference grown linearly to the run's length)")
         return (f"step {self.step_s:.4g} s for a tip tolerance of {self.tolerance_m:.3g} m "
                 f"(estimated {self.estimated_tip_error_m:.3g} m: pilot runs over "
                 f"{self.pilot_window_s:.3g} s at {self.pilot_step_s:.4g} s and about half of it "
@@ -158,15 +169,18 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
     if contact is None and smooth(chain):
         # e(h1) − e(h2) = C·(h1^p − h2^p)  →  e(h1) = difference / (1 − (h2/h1)^p)
         e1 = d12 / (1 - (h2 / h1) ** order)
-        if e1 <= 0.0:
-            h = h_top
-        else:
-            # (1 − 1e-12): the estimate below then stays at or under SAFETY·tol despite
-            # the round-off of the root and power (it came out 1 ulp above)
-            h = min(h_top, h1 * (SAFETY * tol / (e1 * growth)) ** (1 / order)
-                    * (1.0 - 1e-12))
+        # (1 − 1e-12): the estimate below then stays at or under SAFETY·tol despite the
+        # round-off of the root and power (it came out 1 ulp above)
+        h_want = (h1 * (SAFETY * tol / (e1 * growth)) ** (1 / order) * (1.0 - 1e-12)
+                  if e1 > 0.0 else math.inf)
+        h = min(h_top, h_want)
         est = e1 * (h / h1) ** order * growth
         base = (h1, e1)
+        if h_want > h_top:          # the stable step binds, not the tolerance: try above it
+            above = _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate,
+                                  h_top, h_want, fine, (h1, e1), h2, order, growth)
+            if above is not None:
+                return above
     else:
         # events or a right-hand side with kinks (the hydraulic orifice; backlash is
         # refused before this): a third pilot shows the order, and the estimate rests on
@@ -182,6 +196,40 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                          f"can reach with a step above {MIN_STEP_S:g} s (it would need "
                          f"{h:.3g} s); loosen it or use --integrator dop853 with --rtol")
     return StepChoice(h, est, tol, base[0], window, base[1], h_top, order)
+
+
+def _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate, h_top, h_want,
+                  fine, base, h2, order, growth) -> StepChoice | None:
+    """A step above the stable step h_top, up to ABOVE_STABLE_SHARE of the stability
+    limit, *measured* at that step, or None (keep h_top).
+
+    Above h_top the highest modes are outside RK4's asymptotic range (ω·h > 1.5), where
+    the error need not fall as h⁴, so the step is not extrapolated there: a third pilot
+    over the same window at the candidate step h_c gives E_c = max|tip(h_c) − tip(h₂)| +
+    E₂ (the fine pilot's own error, E₁·(h₂/h₁)⁴; the triangle inequality, no order
+    assumed above h₁) and h_c is taken when E_c·T/T_w ≤ SAFETY·TOL. Otherwise one more
+    candidate, where the line through (h₁, E₁) and (h_c, E_c) on log-log axes meets the
+    target, is measured the same way; failing both, the stable step stays."""
+    h1, e1 = base
+    e2 = e1 * (h2 / h1) ** order
+    target = SAFETY * tol / growth
+    h_cap = ABOVE_STABLE_SHARE * RK4_STABILITY / rate if rate > 0 else math.inf
+    if not math.isfinite(h_cap) or h_cap <= h_top * (1 + 1e-9):
+        return None
+    h_c = min(h_want, h_cap)
+    for _ in range(2):
+        trial, h_c = tip_history(chain, x0, window, h_c, output_dt, max_ratio)
+        e_c = float(np.max(np.linalg.norm(trial - fine, axis=1))) + e2
+        if e_c <= target:
+            return StepChoice(h_c, e_c * growth, tol, h1, window, e1, h_top, order,
+                              "pilot above the stable step")
+        if e1 <= 0.0 or e_c <= e1:
+            return None
+        q = math.log(e_c / e1) / math.log(h_c / h1)         # the order seen up to h_c
+        h_c = h1 * (target / e1) ** (1 / q) * (1.0 - 1e-12)
+        if h_c <= h_top * 1.05:                 # not worth a pilot: the stable step stays
+            return None
+    return None
 
 
 #: most steps per output interval the trapezoid's step is searched over (the rule needs a

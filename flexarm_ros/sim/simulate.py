@@ -57,6 +57,8 @@ class SimResult:
             if self.accuracy.method == "linear":
                 how = "the linearized model stepped by the trapezoidal rule against its " \
                       "exact response ("
+            elif self.accuracy.method == "pilot above the stable step":
+                how = "a pilot run at the step above the stable one against a finer one ("
             else:
                 how = "step halving (" + (
                     "the contact stepper's, pilots over the whole run; "

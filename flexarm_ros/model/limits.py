@@ -19,6 +19,8 @@ limits; where the scene does not state one, the default below applies and says s
   no-load speed, the largest the drive draws unless the load drives the motor beyond its
   no-load speed (the motor driver never publishes beyond it: its torque is held there).
 * torque of a ``hydraulic`` joint: η_t·D_m·P_s (the load pressure stays within ±P_s).
+  Its effort on the wire is the valve current (the plant integrates the actuator,
+  :mod:`flexarm_ros.sim.plant`), within the command limit.
 """
 
 from __future__ import annotations
@@ -43,9 +45,13 @@ class JointLimits:
     torque_from: str
 
     def text(self) -> str:
+        effort = (f"effort: the valve current within the same ±{self.command_limit:.6g} A "
+                  f"(the simulator integrates the actuator; its torque stays within "
+                  f"±{self.torque_limit:.6g} N·m, {self.torque_from})"
+                  if self.command == "current" else
+                  f"effort within ±{self.torque_limit:.6g} N·m ({self.torque_from})")
         return (f"{self.joint}: {self.command} command within ±{self.command_limit:.6g} "
-                f"{self.command_unit} ({self.command_from}); effort within "
-                f"±{self.torque_limit:.6g} N·m ({self.torque_from})")
+                f"{self.command_unit} ({self.command_from}); {effort}")
 
 
 def joint_limits(scene) -> list[JointLimits]:

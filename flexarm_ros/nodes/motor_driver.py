@@ -4,8 +4,9 @@ Subscribes (node-relative): ``motor_driver/commands`` (std_msgs/Float64MultiArra
 joint; A for a valve) and ``ground_truth/joint_states`` (the drive coordinates' angles
 and rates, ``<link>_drive``, of the current tick). Publishes, once per tick:
 ``effort_controller/commands`` (N·m at the gearbox outputs, held by the simulator over
-the next period) and ``motor_driver/motor_states`` (motor-shaft angle/speed, armature
-current or load pressure in ``effort``).
+the next period; for a hydraulic joint the servovalve current, A above the null bias, to
+the actuator the simulator integrates) and ``motor_driver/motor_states`` (motor-shaft
+angle/speed, armature current or load pressure in ``effort``).
 
 Commands are validated where they enter: a message is taken only from the topic's source
 (the ``command_source`` node, ``controller``, when it is on the graph, else the first
@@ -172,7 +173,7 @@ class MotorDriverNode(Node):
                 self.core.accept(t, self.commands.popleft())
             angles = list(gt.position[self.n:2 * self.n])
             rates = list(gt.velocity[self.n:2 * self.n])
-            tau = self.core.update(t, self.period, rates)
+            tau = self.core.update(t, self.period, rates, list(gt.effort[self.n:2 * self.n]))
             self.pub_eff.publish(self._cdr.float64_multiarray(tau, ("joint",)))
             self.pub_ms.publish(self.core.motor_states(t_ns, angles, rates, build=self._cdr))
             self.published[T.EFFORTS] += 1

@@ -5,12 +5,14 @@ Publishes (node-relative, reliable keep_last 1000): ``/clock``, ``joint_states``
 ``potentiometer/batch`` (scenes with such sensors), ``tool/contact`` and ``tool/wrench``
 (scenes with a wall), ``ground_truth/joint_states``, ``ground_truth/tip`` — the state of
 one control tick, in that order. Subscribes: ``effort_controller/commands`` (N·m per
-joint, held over the next control period).
+joint — for a hydraulic joint the servovalve current, A above the null bias, to the
+actuator the plant integrates — held over the next control period).
 
 Efforts are validated where they enter: a message is taken only from the topic's source
 (the ``command_source`` node, ``motor_driver``, when it is on the graph, else the first
 publisher; :mod:`flexarm_ros.nodes._wire`) and only when it holds one finite value per
-joint within the joint's torque limit (:mod:`flexarm_ros.model.limits`). Anything else is
+joint within the joint's torque limit (a servovalve's rated current;
+:mod:`flexarm_ros.model.limits`). Anything else is
 rejected: counted by reason, logged (throttled), and it changes nothing — it neither
 steps the plant nor replaces the held torque.
 

@@ -1,11 +1,21 @@
 """The arm alone, stepped from outside: the ROS simulator node's core and the batch
 co-simulation's plant (ros2_control habit: time is an argument, ``step(dt)``).
 
-Inputs are joint torques at the gearbox outputs (N·m), held constant over each step
-(zero-order hold, as a real amplifier between control ticks). The scene's drives are left
-out — the motor driver turns voltage or valve-current commands into these torques — while
-the mechanics of the drive train stay in the plant: reflected inertia J_eq, viscous C_eq,
-backlash, joint flexibility; prescribed motions stay too.
+Inputs are held constant over each step (zero-order hold, as a real amplifier between
+control ticks): joint torques at the gearbox outputs (N·m) for a joint with a DC motor or
+none — the motor driver turns voltage commands into these torques, and the electrical
+drive is left out of the plant — and the servovalve current (A above the null bias) for a
+hydraulic joint, whose actuator stays in the plant: its load pressure is integrated with
+the arm. The mechanics of the drive train stay in the plant too (reflected inertia J_eq,
+viscous C_eq, backlash, joint flexibility), as do prescribed motions.
+
+Why the hydraulic actuator is in the plant (session 13): its oil column is a spring,
+k_h = η D_m² 4β/V_t ≈ 3.2e4 N·m/rad on seed 002's arm, against ~0.3 kg·m² at the joint:
+ω_h·T ≈ 1.9 at the 6 ms control period. A torque computed by the driver with the joint
+rate held over the period and then held by the plant is a zero-order-hold coupling across
+that spring, and it diverged (the load pressure reached the supply within three ticks of
+the valve step, t = 0.133 s). On the bench the valve current is what the amplifier
+holds; the pressure answers the arm continuously — as here.
 
 Sensors are sampled on their own grids inside a step (the step is cut at every sample
 time), from the model at that instant (see :mod:`sensors`); contact is integrated through
@@ -21,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from flexarm_ros.model import drives
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.compiled import loops as kloops
@@ -39,17 +50,28 @@ from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, tr
 from flexarm_ros.model.statics import initial_state
 
 
+def in_plant(drive) -> bool:
+    """Whether a joint's drive is integrated by the plant (a hydraulic actuator; see the
+    module text) rather than by the motor driver (a DC motor)."""
+    return drive is not None and drive.type == "hydraulic"
+
+
 def plant_scene(scene):
-    """The scene with drives removed and every non-prescribed joint taking a torque input
-    (constant 0 until :meth:`Plant.set_torques`)."""
+    """The scene with the motor driver's drives removed: every non-prescribed joint takes a
+    held input (constant 0 until :meth:`Plant.set_inputs`) — a torque (N·m), or for a
+    hydraulic joint, whose actuator stays, the servovalve current (A above the null
+    bias)."""
     links = []
     for lk in scene.links:
-        jt = dataclasses.replace(lk.joint, drive=None)
-        links.append(dataclasses.replace(lk, joint=jt))
+        if not in_plant(lk.joint.drive):
+            lk = dataclasses.replace(lk, joint=dataclasses.replace(lk.joint, drive=None))
+        links.append(lk)
     motions = {inp.joint: inp for inp in scene.inputs if inp.motion is not None}
     inputs = []
-    for j in range(1, len(links) + 1):
-        inputs.append(motions.get(j) or Input(joint=j, torque=Program(type="constant")))
+    for j, lk in enumerate(links, start=1):
+        held = (Input(joint=j, current=Program(type="constant")) if in_plant(lk.joint.drive)
+                else Input(joint=j, torque=Program(type="constant")))
+        inputs.append(motions.get(j) or held)
     return dataclasses.replace(scene, links=tuple(links), inputs=tuple(inputs))
 
 
@@ -75,9 +97,9 @@ class Plant:
         resolved, self.auto = resolve(scene)
         self.chain = ch = Chain(plant_scene(resolved))
         self.contact = build_contact(ch)
-        q0, qd0, _ = initial_state(ch)
+        q0, qd0, z0 = initial_state(ch)       # a hydraulic actuator's holding pressure
         self.q_initial = q0.copy()
-        self.x = np.concatenate([q0[ch.free], qd0[ch.free]])
+        self.x = np.concatenate([q0[ch.free], qd0[ch.free], z0])
         self.t = 0.0
         self.k = 0                                   # grid index of self.t
         self.sensors = build_sensors(ch, scene)
@@ -100,7 +122,10 @@ class Plant:
             self._acc = ksensors.pack(ch, self.sensors)
             self._acc_out = np.empty(len(self._acc[0]))
             self._acc_row = {int(j): r for r, j in enumerate(self._acc[0])}
-        self.torques = np.zeros(len(ch.links))
+        # the links whose held input is a valve current (their actuator is in the plant)
+        self._valve = {a.link: j for j, a in enumerate(ch.actuators)
+                       if a.kind == drives.HYDRAULIC}
+        self.inputs = np.zeros(len(ch.links))
         fid = ch.fidelity
         # the step of a batch run (fidelity.dt checked against the stability limit)
         self.h = h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt, contact=self.contact)
@@ -122,17 +147,42 @@ class Plant:
             self.contact_sample = self.stepper.sample()
 
     # ------------------------------------------------------------------- inputs
-    def set_torques(self, torques) -> None:
-        """Joint torques (N·m, joint order) held from now until the next call."""
-        tau = np.asarray(torques, float)
-        if tau.shape != (len(self.chain.links),) or not np.all(np.isfinite(tau)):
-            raise SceneError(f"torques: got {tau!r}, expected {len(self.chain.links)} finite "
-                             f"values (N·m, joint order)")
-        self.torques = tau.copy()
+    def set_inputs(self, inputs) -> None:
+        """The held inputs, joint order, from now until the next call: N·m, or A above
+        the null bias for a hydraulic joint (:func:`plant_scene`)."""
+        u = np.asarray(inputs, float)
+        if u.shape != (len(self.chain.links),) or not np.all(np.isfinite(u)):
+            raise SceneError(f"inputs: got {u!r}, expected {len(self.chain.links)} finite "
+                             f"values (N·m, or A for a servovalve; joint order)")
+        self.inputs = u.copy()
         prog_par = self.chain.model.prog_par
         for link, j in self._act.items():
-            prog_par[j, 0] = tau[link]                     # a constant program's value
-            self.chain.actuators[j].enc[1][0] = tau[link]   # the numpy path's copy
+            prog_par[j, 0] = u[link]                     # a constant program's value
+            self.chain.actuators[j].enc[1][0] = u[link]   # the numpy path's copy
+
+    set_torques = set_inputs
+
+    @property
+    def torques(self) -> np.ndarray:
+        """The joint torques acting now (N·m, joint order): the held input, or a
+        hydraulic actuator's η_t D_m P_L from the pressure in the state."""
+        if not self._valve:
+            return self.inputs
+        tau = self.inputs.copy()
+        ch = self.chain
+        nf = len(ch.free)
+        q, qd = ch.full_state(self.t, self.x)
+        for link, j in self._valve.items():
+            a = ch.actuators[j]
+            tau[link] = drives.actuator_torque(a.kind, a.par, self.inputs[link],
+                                               float(qd[a.coord]), float(self.x[2 * nf
+                                                                              + a.state]))
+        return tau
+
+    def held(self) -> str:
+        """The held inputs with their units, for messages."""
+        return ", ".join(f"{v:.4g} {'A' if k in self._valve else 'N·m'}"
+                         for k, v in enumerate(self.inputs))
 
     # --------------------------------------------------------------------- stepping
     def step(self, dt: float) -> list[Sample]:

@@ -202,16 +202,16 @@ class SimulatorCore:
         return encoders, groups
 
     def step(self, torques) -> None:
-        """Hold ``torques`` (N·m, joint order) over one control period."""
-        self.plant.set_torques(torques)
+        """Hold ``torques`` (joint order: N·m, or A for a hydraulic joint's servovalve,
+        whose actuator is in the plant) over one control period."""
+        self.plant.set_inputs(torques)
         try:
             rows = self.plant.step_rows(self.period)
         except SimulationDiverged as exc:           # name the input held over the period
-            held = np.array2string(self.plant.torques, precision=4)
             raise SimulationDiverged(
                 exc.quantity, exc.time, exc.last_value,
-                f"check the joint torques (held {held} N·m from t = {self.t:.6g} s); "
-                f"else {exc.suggestion}", detail=exc.detail) from None
+                f"check the joint inputs (held [{self.plant.held()}] from t = "
+                f"{self.t:.6g} s); else {exc.suggestion}", detail=exc.detail) from None
         isfinite = math.isfinite
         for t, names, vals, trues in rows:               # one per grid instant, in order
             if not (all(map(isfinite, vals)) and all(map(isfinite, trues))):
@@ -219,8 +219,7 @@ class SimulatorCore:
                            if not (isfinite(v) and isfinite(tr)))
                 raise SimulationDiverged(
                     f"sensor {bad}", t, float("nan"),
-                    f"check the joint torques (held "
-                    f"{np.array2string(self.plant.torques, precision=4)} N·m); reduce the "
+                    f"check the joint inputs (held [{self.plant.held()}]); reduce the "
                     f"step (fidelity.dt)", detail="a sensor reading became non-finite")
             plan = self._plans.get(names)
             if plan is None:
@@ -236,13 +235,16 @@ class SimulatorCore:
 # ============================================================================== driver
 class DriverCore:
     """The motor driver of every joint: DC motor + gearbox (seed 000 Eq. 5.11 with the
-    armature current, seed 001 Sec. 4) or hydraulic servovalve (seed 002), turning commands
-    (V, A; N·m for a joint without a drive) into joint torques held over the next period.
+    armature current, seed 001 Sec. 4) or the servo-amplifier of a hydraulic servovalve
+    (seed 002), turning commands (V, A; N·m for a joint without a drive) into the efforts
+    held over the next period: joint torques, or a servovalve's current, whose actuator
+    (load pressure) the plant integrates with the arm (:mod:`flexarm_ros.sim.plant`: a
+    torque held across the oil column's stiffness diverged).
 
-    The electrical / hydraulic state is advanced over the period with the command and the
+    A DC motor's armature current is advanced over the period with the command and the
     drive rate held (zero-order hold) by :func:`drives.advance_state`, which integrates the
-    plant's own :func:`drives.actuator_rate` (the current exactly, the pressure by RK4
-    sub-steps). A command older than ``control.watchdog_s`` drops to 0 V (closed valve). A command
+    plant's own :func:`drives.actuator_rate` exactly; a hydraulic joint's load pressure
+    is the plant's, read back from its torque for ``motor_states``. A command older than ``control.watchdog_s`` drops to 0 V (closed valve). A command
     is validated where it enters (``accept``, :class:`~flexarm_ros.twin.validation.Validator`):
     wrong length, NaN/inf or beyond the joint's command limit (V, A or N·m,
     :mod:`flexarm_ros.model.limits`) is rejected (counted by reason) and changes nothing.
@@ -303,22 +305,36 @@ class DriverCore:
         return self.command
 
     def _torque(self, k, w, u):
+        if self.kind[k] == drives.HYDRAULIC:     # the valve current: the plant's actuator
+            return u
         return drives.actuator_torque(self.kind[k], self.par[k], u, w, self.z[k])
 
-    def update(self, t: float, dt: float, drive_rates) -> np.ndarray:
-        """Joint torques (N·m) to hold over (t, t + dt], given the drive-coordinate rates
-        now; advances the drive states to t + dt."""
+    def update(self, t: float, dt: float, drive_rates, drive_torques=None) -> np.ndarray:
+        """The efforts to hold over (t, t + dt] — joint torques (N·m), or for a hydraulic
+        joint the valve current (A above the null bias: the servo-amplifier's output; the
+        plant integrates the actuator, :mod:`flexarm_ros.sim.plant`) — given the
+        drive-coordinate rates now; advances the DC drives' states to t + dt. A hydraulic
+        joint's load pressure is read back from its torque now, ``drive_torques`` (the
+        ground truth's drive efforts, N·m): P_L = τ / (η_t D_m)."""
         self.t_now = t
         u = self._effective(t)
         w = np.asarray(drive_rates, float)
         tau = np.zeros(self.n)
+        valve = np.zeros(self.n, bool)
         for k in range(self.n):
             tau[k] = self._torque(k, w[k], u[k])
+            if self.kind[k] == drives.HYDRAULIC:
+                valve[k] = True
+                if drive_torques is not None:
+                    p = self.par[k]
+                    self.z[k] = float(drive_torques[k]) / (
+                        p[drives.HYD_TORQUE_EFFICIENCY] * p[drives.HYD_DISPLACEMENT])
+                continue
             self.z[k] = drives.advance_state(self.kind[k], self.par[k], u[k], w[k], self.z[k],
                                              dt)
-        if np.any(np.abs(tau) > self.torque_limit):       # never beyond the wire limit
+        if np.any((np.abs(tau) > self.torque_limit) & ~valve):   # never beyond the limit
             self.held += 1
-            tau = np.clip(tau, -self.torque_limit, self.torque_limit)
+            tau = np.where(valve, tau, np.clip(tau, -self.torque_limit, self.torque_limit))
         self.torque = tau
         return tau
 

@@ -64,7 +64,7 @@ class Lockstep:
         n = len(self.scene.links)
         drive_angles = np.array(gt["position"][n:2 * n])
         drive_rates = np.array(gt["velocity"][n:2 * n])
-        tau = self.drv.update(t, self.period, drive_rates)
+        tau = self.drv.update(t, self.period, drive_rates, gt["effort"][n:2 * n])
         out.append(Message(T.EFFORTS, T.TYPES[T.EFFORTS], t_ns,
                            msg.float64_multiarray(tau, ("joint",))))
         out.append(Message(T.MOTOR_STATES, T.TYPES[T.MOTOR_STATES], t_ns,

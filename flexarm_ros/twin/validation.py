@@ -28,7 +28,8 @@ class Validator:
     (by reason).
 
     ``kind``: ``"command"`` (motor_driver/commands: V, A or N·m by joint) or ``"effort"``
-    (effort_controller/commands: N·m)."""
+    (effort_controller/commands: N·m, or for a hydraulic joint the servovalve current in A,
+    whose actuator the plant integrates: :mod:`flexarm_ros.sim.plant`)."""
 
     def __init__(self, scene, kind: str):
         if kind not in ("command", "effort"):
@@ -39,9 +40,11 @@ class Validator:
         if kind == "command":
             self.limits = [lim.command_limit for lim in lims]
             self.units = [lim.command_unit for lim in lims]
-        else:
-            self.limits = [lim.torque_limit for lim in lims]
-            self.units = ["N·m"] * self.n
+        else:           # a servovalve's current passes the driver to the plant's actuator
+            valve = [lim.command_unit == "A" for lim in lims]
+            self.limits = [lim.command_limit if v else lim.torque_limit
+                           for lim, v in zip(lims, valve)]
+            self.units = ["A" if v else "N·m" for v in valve]
         self.counts: Counter = Counter()
 
     @property

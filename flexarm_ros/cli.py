@@ -178,9 +178,11 @@ def cmd_simulate(args):
             if summ.get("tolerance_m"):        # the tolerance chose the step
                 step_est = summ.get("step_estimate_m",
                                     summ["estimated_tip_error_m"])
-                print(f"  step {summ['step_s']:.4g} s chosen for a tip tolerance of "
-                      f"{summ['tolerance_m']:.2g} m, its estimated time error "
-                      f"{step_est:.2g} m (temporal only: --estimate adds the rung's own)")
+                above = (f" ({res.accuracy.above()})"
+                         if res.accuracy.method == "pilot above the stable step" else "")
+                print(f"  step {summ['step_s']:.4g} s{above} chosen for a tip tolerance of "
+                      f"{summ['tolerance_m']:.2g} m, its estimated temporal error "
+                      f"{step_est:.2g} m (--estimate adds the rung's own spatial error)")
             if summ.get("assessment"):
                 print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "
                       f"({summ['estimate'].split(':')[0]}; --json: how)")
@@ -275,7 +277,15 @@ def cmd_linearize(args):
 
 def cmd_explain(args):
     from flexarm_ros.model.explain import explain
-    print(explain(_load(args)))
+    scene = _load(args)
+    if scene.fidelity.tolerance and scene.fidelity.rung != "auto":
+        # what simulate would refuse is refused here too, before the choice is described
+        from flexarm_ros.model.chain import Chain
+        from flexarm_ros.model.contact import build_contact
+        from flexarm_ros.sim.simulate import check_tolerance_applies
+        chain = Chain(scene)
+        check_tolerance_applies(chain, build_contact(chain) if scene.walls else None)
+    print(explain(scene))
     return 0
 
 

@@ -185,6 +185,38 @@ def test_a_tolerance_where_it_does_not_apply_is_one_line(tmp_path, capsys, argv,
     assert code == 2 and len(err) == 1 and all(w in err[0] for w in words), err
 
 
+@pytest.mark.parametrize("extra,words", [
+    (["--integrator", "dop853"], ("integrator 'dop853'", "rk4")),
+    (["--dt", "0.001"], ("fidelity.dt = 0.001",)),
+    ([], ("1e-12 m", "1e-10 m")),
+])
+def test_explain_refuses_what_simulate_refuses(capsys, extra, words):
+    tol = "1e-12" if not extra else "1e-3"
+    assert main(["explain", "two_link_free", "--tolerance", tol, *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fidelity.tolerance" in err[0] and all(w in err[0]
+                                                                    for w in words), err
+
+
+def test_a_step_above_the_stable_one_is_named_with_both_steps(tmp_path, capsys):
+    """explain names the stable step and the ceiling; simulate's summary the stable step
+    (--json) and, in plain text, that the step is above it and at the ceiling."""
+    assert main(["explain", "two_link_free", "--tolerance", "1e-3"]) == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert "up to the stable step 0.009974 s" in line and "up to 0.01571 s" in line
+    out = str(tmp_path / "x.npz")
+    assert main(["simulate", "two_link_free", "--tolerance", "1e-3", "--duration", "0.5",
+                 "--out", out, "--json", "--quiet"]) == 0
+    summ = json.loads(capsys.readouterr().out)
+    assert summ["stable_step_s"] == pytest.approx(0.009974, rel=1e-3)
+    assert summ["step_s"] > summ["stable_step_s"]
+    assert main(["simulate", "two_link_free", "--tolerance", "1e-3", "--duration", "0.5",
+                 "--out", out]) == 0
+    text = capsys.readouterr().out
+    assert "above the stable step 0.009974 s; the ceiling, 0.85 of RK4's stability " \
+        "limit" in text, text
+
+
 def test_explain_says_the_tolerance_chooses_the_step(capsys):
     assert main(["explain", "two_link_case1", "--tolerance", "1e-7"]) == 0
     line = capsys.readouterr().out.splitlines()[1]

@@ -63,7 +63,8 @@ square root near the supply pressure, backlash (linearized engaged), and contact
 wall the free flight is analysed; the contact stepper keeps its own step, which auto does
 not choose). The check after the run covers what the linearization misses: the run's
 first window is run again one level finer (a candidate whose spatial estimate is at most
-1/:data:`FINER_FACTOR` of the chosen one's, at half the step) and the observed difference,
+1/:data:`FINER_FACTOR` of the chosen one's, at half the step or its own stable step, the
+shorter) and the observed difference,
 extrapolated by the linear model's growth of the error with a margin, is the run's
 reported estimate.
 
@@ -246,8 +247,10 @@ class AutoChoice:
         if self.finer is not None:
             fl = self.finer[0] if self.finer[0] in ("rigid", "cubic") else \
                 f"{self.finer[0]} {self.finer[1]}"
+            h_check = min(0.5 * self.step_s, self.finer[2])     # as posterior_check
             lines.append(f"  after a run: the first {self.window_s:.3g} s again with {fl} at "
-                         f"half the step; the difference × {self.growth:.3g} (the linear "
+                         f"{h_check:.3g} s (half the step or {fl}'s stable step, the "
+                         f"shorter); the difference × {self.growth:.3g} (the linear "
                          f"error's growth to the end) × 2 (margin) + {fl}'s own spatial "
                          f"estimate {self.finer[3]:.2g} m is the run's estimate")
         if self.wall:

@@ -8,6 +8,27 @@ from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import natural_modes
 
 
+def _tolerance_method(chain) -> str:
+    """How ``--tolerance`` will choose this model's step (sim/accuracy.py)."""
+    if chain.fidelity.integrator == "trapezoid":
+        return ("by the linearized model stepped by the rule against its exact response "
+                "(a divisor of the output period)")
+    if chain.scene.walls:
+        return ("by the contact stepper's pilot runs over the whole run, never above its "
+                "automatic contact step")
+    from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, RK4_AUTO, RK4_STABILITY,
+                                          highest_rate)
+    from flexarm_ros.model.statics import initial_state
+    q, qd, z = initial_state(chain)
+    rate = highest_rate(chain, q, qd, z)
+    if not rate > 0:
+        return "by step-halving pilot runs"
+    return (f"by step-halving pilot runs up to the stable step {RK4_AUTO / rate:.4g} s, "
+            f"and above it (up to {ABOVE_STABLE_SHARE * RK4_STABILITY / rate:.4g} s, "
+            f"{ABOVE_STABLE_SHARE:g} of RK4's stability limit) only where a pilot run at "
+            f"that step meets the tolerance")
+
+
 def explain(scene) -> str:
     """A human-readable account of the model: coordinates, rung, forces kept and omitted."""
     chain = Chain(scene)            # rung auto: the choice over the scene's duration
@@ -19,12 +40,10 @@ def explain(scene) -> str:
              + "), integrator "
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else
                                     f", the step chosen for a tip tolerance of "
-                                    f"{fid.tolerance:g} m by "
-                                    + ("the linearized model stepped by the rule"
-                                       if fid.integrator == "trapezoid" else
-                                       "step-halving pilot runs")
-                                    + " when the run starts (flexarm simulate; its "
-                                    "--json names the step and the estimate)"
+                                    f"{fid.tolerance:g} m when the run starts "
+                                    + _tolerance_method(chain)
+                                    + " (flexarm simulate; its --json names the step and "
+                                    "the estimate)"
                                     if fid.tolerance and chain.auto is None else
                                     ", automatic step")
              + (" — chosen by rung auto" if chain.auto is not None else "")]

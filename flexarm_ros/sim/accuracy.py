@@ -87,6 +87,15 @@ class StepChoice:
     #: "step halving", "pilot above the stable step" (RK4 above RK4_AUTO/|λ|max) or
     #: "linear" (the trapezoid rule's)
     method: str = "step halving"
+    #: the ceiling above the stable step (ABOVE_STABLE_SHARE of RK4's stability limit)
+    limit_s: float = math.nan
+
+    def above(self) -> str:
+        """'above the stable step …' and, at the ceiling, why the step is not larger."""
+        at_cap = self.step_s >= self.limit_s * (1 - 1e-9)
+        return (f"above the stable step {self.stable_step_s:.4g} s"
+                + (f"; the ceiling, {ABOVE_STABLE_SHARE:g} of RK4's stability limit"
+                   if at_cap else ""))
 
     def explain(self) -> str:
         if self.method == "linear":
@@ -97,7 +106,7 @@ class StepChoice:
                     f"period {self.pilot_step_s:.4g} s)")
         if self.method == "pilot above the stable step":
             return (f"step {self.step_s:.4g} s for a tip tolerance of {self.tolerance_m:.3g} "
-                    f"m, above the stable step {self.stable_step_s:.4g} s (estimated "
+                    f"m, {self.above()} (estimated "
                     f"{self.estimated_tip_error_m:.3g} m: a pilot run at this step over "
                     f"{self.pilot_window_s:.3g} s against one at a quarter of the stable "
                     f"step, the difference grown linearly to the run's length)")
@@ -222,7 +231,7 @@ def _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate, h_top, h_w
         e_c = float(np.max(np.linalg.norm(trial - fine, axis=1))) + e2
         if e_c <= target:
             return StepChoice(h_c, e_c * growth, tol, h1, window, e1, h_top, order,
-                              "pilot above the stable step")
+                              "pilot above the stable step", h_cap)
         if e1 <= 0.0 or e_c <= e1:
             return None
         q = math.log(e_c / e1) / math.log(h_c / h1)         # the order seen up to h_c

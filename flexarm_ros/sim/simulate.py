@@ -66,6 +66,8 @@ class SimResult:
                     f"{self.chain.fidelity.integrator}'s; ")
             out["estimate"] = (f"a priori: {how}temporal only, the rung's own spatial error "
                                f"not included)")
+            if self.accuracy.method != "linear" and self.contact is None:
+                out["stable_step_s"] = self.accuracy.stable_step_s     # RK4_AUTO/|λ|max
         if self.auto is not None or self.assessed is not None:
             from flexarm_ros.sim.accuracy import auto_summary
             out.update(auto_summary(self.auto or self.assessed, self.check,
@@ -145,8 +147,24 @@ def _step_for_tolerance(chain, contact, x0, T, out_dt):
     """fidelity.tolerance → the step of RK4 or of the contact stepper
     (:mod:`flexarm_ros.sim.accuracy`), or a SceneError where the estimate does not apply."""
     from flexarm_ros.sim.accuracy import step_for_tolerance
+    check_tolerance_applies(chain, contact)
     fid = chain.fidelity
     tol = fid.tolerance
+    if fid.integrator == "trapezoid":
+        from flexarm_ros.sim.accuracy import trapezoid_step_for_tolerance
+        return trapezoid_step_for_tolerance(chain, T, tol, out_dt)
+    return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio, contact)
+
+
+def check_tolerance_applies(chain, contact) -> None:
+    """SceneError (one line: key, value, expectation) where fidelity.tolerance cannot choose
+    this model's step: with an adaptive integrator, the trapezoid with a wall, backlash,
+    together with fidelity.dt, or a bound outside (MIN_TOLERANCE_M, ∞). ``flexarm
+    explain`` asks the same before it describes the choice."""
+    from flexarm_ros.sim.accuracy import _check_tolerance
+    fid = chain.fidelity
+    tol = fid.tolerance
+    _check_tolerance(tol, "the estimate is round-off")
     if fid.integrator not in ("rk4", "trapezoid"):
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
                          f"{fid.integrator!r}, expected integrator rk4 or trapezoid (the "
@@ -164,10 +182,6 @@ def _step_for_tolerance(chain, contact, x0, T, out_dt):
     if fid.dt > 0:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m together with fidelity.dt = "
                          f"{fid.dt:g} s, expected one of them (the tolerance chooses the step)")
-    if fid.integrator == "trapezoid":
-        from flexarm_ros.sim.accuracy import trapezoid_step_for_tolerance
-        return trapezoid_step_for_tolerance(chain, T, tol, out_dt)
-    return step_for_tolerance(chain, x0, T, tol, out_dt, fid.max_deflection_ratio, contact)
 
 
 def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, accelerometers=None,

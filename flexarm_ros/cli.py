@@ -83,7 +83,9 @@ def _fidelity_args(p):
     g.add_argument("--tolerance", type=number, metavar="M",
                    help="tip-position error bound, m: with --rung auto the model and step "
                         "are chosen for it; with a named rung the step (simulate): rk4's "
-                        "(the contact stepper's with a wall) or the trapezoid's")
+                        "(the contact stepper's with a wall) or the trapezoid's; 0: none "
+                        "(the automatic step; rung auto's default 1e-5 m), e.g. to clear a "
+                        "scene's fidelity.tolerance")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",

@@ -160,8 +160,6 @@ class Plant:
             prog_par[j, 0] = u[link]                     # a constant program's value
             self.chain.actuators[j].enc[1][0] = u[link]   # the numpy path's copy
 
-    set_torques = set_inputs
-
     @property
     def torques(self) -> np.ndarray:
         """The joint torques acting now (N·m, joint order): the held input, or a

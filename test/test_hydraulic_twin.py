@@ -74,3 +74,19 @@ def test_a_hydraulic_effort_is_the_valve_current_and_is_validated_in_amperes():
     assert drv.update(0.0, PERIOD, [0.0])[0] == 0.004
     late = drv.update(1.0, PERIOD, [0.0])[0]                 # past the watchdog
     assert drv.tripped and late == -drv.par[0][drives.HYD_VALVE_BIAS] and abs(late) < rated
+
+
+def test_explain_says_what_a_hydraulic_joint_takes_on_the_wire(capsys):
+    """The control period, the watchdog and the null bias the wire value is taken from."""
+    from flexarm_ros.cli import main
+    from flexarm_ros.model.chain import Chain
+    assert main(["explain", "hydraulic_2kg"]) == 0
+    text = capsys.readouterr().out
+    from flexarm_ros.model.statics import initial_state
+    chain = Chain(load_scene("hydraulic_2kg"))
+    initial_state(chain)                               # the null bias that holds the start
+    bias = chain.actuators[0].par[drives.HYD_VALVE_BIAS]
+    assert bias > 0
+    assert "control every 6 ms (166.667 Hz)" in text and "older than 0.05 s" in text
+    assert f"minus the null bias I0 = {bias * 1e3:.4g} mA" in text
+    assert "effort: the valve current within the same ±0.01 A" in text

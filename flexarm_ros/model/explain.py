@@ -121,8 +121,24 @@ def explain(scene) -> str:
     lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
                  f"{m.frequencies_hz[-1]:.4g} Hz sets the explicit step)")
     from flexarm_ros.model.limits import joint_limits
+    lines.append(f"ROS twin: control every {1e3 / scene.control.rate_hz:.4g} ms "
+                 f"({scene.control.rate_hz:.6g} Hz), efforts held over it; commands older "
+                 f"than {scene.control.watchdog_s:g} s trip the driver to 0 "
+                 f"(V, N·m; a servovalve to closed)")
     lines.append("wire limits (ROS twin: commands and efforts beyond them are rejected):")
     lines.extend(f"  {lim.text()}" for lim in joint_limits(scene))
+    from flexarm_ros.model import drives
+    from flexarm_ros.model.statics import initial_state
+    if any(a.kind == drives.HYDRAULIC for a in chain.actuators):
+        initial_state(chain)            # sets the null bias (drive.null_bias)
+    for a in chain.actuators:
+        if a.kind == drives.HYDRAULIC:
+            bias = a.par[drives.HYD_VALVE_BIAS]
+            lines.append(f"  {chain.links[a.link].name}: the wire carries the valve current "
+                         f"minus the null bias I0 = {bias * 1e3:.4g} mA (0 holds the start; "
+                         f"a closed valve is {-bias:.4g} A; positive current turns the joint "
+                         f"positive); the simulate CSV's {chain.links[a.link].name}"
+                         f"_valve_current includes I0")
     for a in scene.assumptions:
         lines.append(f"assumption {a.key}: {a.note}")
     return "\n".join(lines)

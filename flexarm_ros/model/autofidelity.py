@@ -40,11 +40,12 @@ A priori, on the linearized model
     automatic (stable) step RK4_AUTO/|λ|max when E_t there is ≤ TOL − E_s, else the
     largest step that meets it (E_t ∝ h⁴, checked). Where E_t at the stable step leaves
     room, a step above it up to ABOVE_STABLE_SHARE of RK4's stability limit is taken if E_t
-    evaluated there meets the budget (``_above_stable``; no h⁴ law assumed above the
-    stable step, where the highest modes leave RK4's asymptotic range). The candidate chosen is the admissible
-    one of least predicted integration work: steps × a per-step cost fitted on this
-    machine (:data:`COST_US`: µs per RK4 step ≈ 9 + 0.11·n·P, n coordinates, P mass
-    points; within 20 % for modal 1/3/4/6, fem 2/4/6, fd 10 and cubic on link_tipmass).
+    evaluated there meets half the budget (``_above_stable``; no h⁴ law assumed above the
+    stable step, where the highest modes leave RK4's asymptotic range). The candidate
+    chosen is the admissible one of least predicted integration work: steps × a per-step
+    cost fitted on this machine (:data:`COST_US`: µs per RK4 step ≈ 9 + 0.11·n·P, n
+    coordinates, P mass points; within 20 % for modal 1/3/4/6, fem 2/4/6, fd 10 and cubic
+    on link_tipmass).
     Families are walked upward in refinement and left once their predicted work at the
     largest step exceeds the best found (more modes or elements only cost more), so most
     candidates are never built. Integrators other than RK4 are not candidates: the

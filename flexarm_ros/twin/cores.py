@@ -244,7 +244,8 @@ class DriverCore:
     A DC motor's armature current is advanced over the period with the command and the
     drive rate held (zero-order hold) by :func:`drives.advance_state`, which integrates the
     plant's own :func:`drives.actuator_rate` exactly; a hydraulic joint's load pressure
-    is the plant's, read back from its torque for ``motor_states``. A command older than ``control.watchdog_s`` drops to 0 V (closed valve). A command
+    is the plant's, read back from its torque for ``motor_states``. A command older than
+    ``control.watchdog_s`` drops to 0 V (a closed valve: minus the null bias). A command
     is validated where it enters (``accept``, :class:`~flexarm_ros.twin.validation.Validator`):
     wrong length, NaN/inf or beyond the joint's command limit (V, A or N·m,
     :mod:`flexarm_ros.model.limits`) is rejected (counted by reason) and changes nothing.

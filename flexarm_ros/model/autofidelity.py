@@ -149,6 +149,12 @@ class Candidate:
     def label(self) -> str:
         return self.rung if self.rung in ("rigid", "cubic") else f"{self.rung} {self.refine}"
 
+    def take_step(self, h: float, duration: float, cost_us: float) -> None:
+        """Step h over ``duration`` s: the steps and their predicted work."""
+        self.step_s = h
+        self.steps = int(math.ceil(duration / h - 1e-9))
+        self.work_s = self.steps * cost_us * 1e-6
+
     def as_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and math.isnan(v) else v)
                 for k, v in dataclasses.asdict(self).items()}
@@ -676,9 +682,7 @@ class _Analysis:
         c = Candidate(rung, n, coordinates=chain.n, stable_step_s=lin.stable_step)
         dense = not self.wall and smooth_rhs(chain)
         h = grid_step(fid.dt, self.out_dt, dense) if fid.dt > 0 else self._auto_step(lin)
-        c.step_s = h
-        c.steps = int(math.ceil(self.T / h - 1e-9))
-        c.work_s = c.steps * lin.cost_us * 1e-6
+        c.take_step(h, self.T, lin.cost_us)
         lin.y_exact = lin.exact(self.grid, self.bps)
         c.spatial_m = float(np.max(np.linalg.norm(lin.y_exact - self.y_ref, axis=1))) + \
             self.e_ref
@@ -738,9 +742,7 @@ class _Analysis:
             h = grid_step(self.fid.dt, self.out_dt, dense)
         else:
             h = self._auto_step(lin)
-        c.step_s = h
-        c.steps = int(math.ceil(self.T / h - 1e-9))
-        c.work_s = c.steps * lin.cost_us * 1e-6
+        c.take_step(h, self.T, lin.cost_us)
         least = c.work_s         # the least work it could take: at its largest step
         if self.fid.dt == 0 and dense:
             if math.isfinite(lin.limit):
@@ -767,17 +769,13 @@ class _Analysis:
                 c.temporal_m = self._temporal(lin, h)
                 if c.temporal_m <= budget_t:
                     break
-            c.step_s = h
-            c.steps = int(math.ceil(self.T / h - 1e-9))
-            c.work_s = c.steps * lin.cost_us * 1e-6
+            c.take_step(h, self.T, lin.cost_us)
         elif self.fid.dt == 0 and dense and c.temporal_m <= budget_t:
             # above the stable step at half the budget (as --tolerance aims at half TOL):
             # the check after the run doubles its observed difference
             # (POSTERIOR_SAFETY), and at the full budget it flagged runs that met TOL
             h, c.temporal_m = self._above_stable(lin, h, c.temporal_m, 0.5 * budget_t)
-            c.step_s = h
-            c.steps = int(math.ceil(self.T / h - 1e-9))
-            c.work_s = c.steps * lin.cost_us * 1e-6
+            c.take_step(h, self.T, lin.cost_us)
         if c.temporal_m > budget_t:
             c.verdict = f"temporal estimate above TOL - spatial at {h:.3g} s"
             c.work_s = math.inf

@@ -91,7 +91,8 @@ from flexarm_ros.model.beams import MAX_ELASTIC_COORDINATES, elastic_coordinates
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, RK4_AUTO, RK4_STABILITY,
-                                      grid_step, highest_rate, smooth_rhs)
+                                      grid_step, highest_rate, search_above_stable,
+                                      smooth_rhs)
 from flexarm_ros.model.programs import eval_motion, eval_torque, torque_breakpoints
 
 #: the tip tolerance of rung auto when fidelity.tolerance is 0, m: 10 µm, the issue's
@@ -793,17 +794,11 @@ class _Analysis:
         if not math.isfinite(cap) or cap <= 1.05 * h:
             return h, e_h
         kept = (lin.y_rk4, lin.h_rk4)      # RK4's response at h: the check's growth uses it
-        h_c = cap if e_h <= 0.0 else min(cap, h * (0.9 * budget / e_h) ** 0.25)
-        for _ in range(2):
-            if h_c <= 1.05 * h:
-                break
-            e_c = self._temporal(lin, h_c)
-            if e_c <= budget:
-                return h_c, e_c
-            if not 0.0 < e_h < e_c:
-                break
-            q = math.log(e_c / e_h) / math.log(h_c / h)
-            h_c = h * (0.9 * budget / e_h) ** (1 / q)
+        first = cap if e_h <= 0.0 else min(cap, h * (0.9 * budget / e_h) ** 0.25)
+        got = search_above_stable(h, first, (h, e_h), budget, 0.9 * budget,
+                                  lambda h_c: (h_c, self._temporal(lin, h_c)))
+        if got is not None:
+            return got
         lin.y_rk4, lin.h_rk4 = kept
         return h, e_h
 

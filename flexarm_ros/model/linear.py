@@ -11,6 +11,8 @@ whose ω² is at the round-off of K_t is rigid (0 Hz, :func:`rigid_modes`).
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +28,31 @@ RK4_AUTO = 1.5
 #: take (measured there, never extrapolated), as a share of the stability limit
 #: RK4_STABILITY/|λ|max: |λ|max moves with the configuration during a run, hence a margin
 ABOVE_STABLE_SHARE = 0.85
+
+
+def search_above_stable(h_stable, h_first, anchor, accept, aim, evaluate, tries=2,
+                        first_floor=1.05):
+    """(step, error) of the first candidate above the stable step ``h_stable`` whose
+    *evaluated* error is at most ``accept``, or None: no law of the error in h is assumed
+    there (the highest modes are outside RK4's asymptotic range). The first candidate is
+    ``h_first``; after a miss, the next is where the line through ``anchor`` = (h_a, E_a)
+    (a step below with its error) and the miss meets ``aim`` (≤ accept) on log-log axes.
+    A later candidate within 5 % of h_stable is not tried (the first not within
+    ``first_floor``·h_stable). ``evaluate(h)`` → (the step taken, its error). Used by
+    ``--tolerance`` (pilot runs) and rung auto (RK4 on the linear model)."""
+    h_a, e_a = anchor
+    h_c = h_first
+    for k in range(tries):
+        if h_c <= (first_floor if k == 0 else 1.05) * h_stable:
+            return None
+        h_c, e_c = evaluate(h_c)
+        if e_c <= accept:
+            return h_c, e_c
+        if not 0.0 < e_a < e_c:
+            return None
+        q = math.log(e_c / e_a) / math.log(h_c / h_a)     # the order seen up to h_c
+        h_c = h_a * (aim / e_a) ** (1 / q)
+    return None
 #: largest difference step of :func:`highest_rate` with backlash (the dead zone's kink)
 BACKLASH_MAX_STEP = 1e-9
 #: a mode is rigid when its ω² is within this fraction of ‖K_t‖₂·‖v‖² (:func:`rigid_modes`)

@@ -60,7 +60,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.model.linear import ABOVE_STABLE_SHARE, highest_rate
+from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, highest_rate,
+                                      search_above_stable)
 from flexarm_ros.sim.step import RK4_AUTO, RK4_STABILITY
 
 SAFETY = 0.5            # the estimate aims at half the tolerance
@@ -225,20 +226,16 @@ def _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate, h_top, h_w
     h_cap = ABOVE_STABLE_SHARE * RK4_STABILITY / rate if rate > 0 else math.inf
     if not math.isfinite(h_cap) or h_cap <= h_top * (1 + 1e-9):
         return None
-    h_c = min(h_want, h_cap)
-    for _ in range(2):
-        trial, h_c = tip_history(chain, x0, window, h_c, output_dt, max_ratio)
-        e_c = float(np.max(np.linalg.norm(trial - fine, axis=1))) + e2
-        if e_c <= target:
-            return StepChoice(h_c, e_c * growth, tol, h1, window, e1, h_top, order,
-                              "pilot above the stable step", h_cap)
-        if e1 <= 0.0 or e_c <= e1:
-            return None
-        q = math.log(e_c / e1) / math.log(h_c / h1)         # the order seen up to h_c
-        h_c = h1 * (target / e1) ** (1 / q) * (1.0 - 1e-12)
-        if h_c <= h_top * 1.05:                 # not worth a pilot: the stable step stays
-            return None
-    return None
+
+    def pilot(h):
+        trial, h = tip_history(chain, x0, window, h, output_dt, max_ratio)
+        return h, float(np.max(np.linalg.norm(trial - fine, axis=1))) + e2
+    got = search_above_stable(h_top, min(h_want, h_cap), (h1, e1), target,
+                              target * (1.0 - 1e-12), pilot, first_floor=1.0)
+    if got is None:
+        return None
+    return StepChoice(got[0], got[1] * growth, tol, h1, window, e1, h_top, order,
+                      "pilot above the stable step", h_cap)
 
 
 #: most steps per output interval the trapezoid's step is searched over (the rule needs a

@@ -280,6 +280,7 @@ def cmd_linearize(args):
 def cmd_explain(args):
     from flexarm_ros.model.explain import explain
     scene = _load(args)
+    chain = None
     if scene.fidelity.tolerance and scene.fidelity.rung != "auto":
         # what simulate would refuse is refused here too, before the choice is described
         from flexarm_ros.model.chain import Chain
@@ -287,7 +288,7 @@ def cmd_explain(args):
         from flexarm_ros.sim.simulate import check_tolerance_applies
         chain = Chain(scene)
         check_tolerance_applies(chain, build_contact(chain) if scene.walls else None)
-    print(explain(scene))
+    print(explain(scene, chain))
     return 0
 
 

@@ -8,8 +8,9 @@ from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import natural_modes
 
 
-def _tolerance_method(chain) -> str:
-    """How ``--tolerance`` will choose this model's step (sim/accuracy.py)."""
+def _tolerance_method(chain, state) -> str:
+    """How ``--tolerance`` will choose this model's step (sim/accuracy.py); ``state``: the
+    initial (q, q̇, z)."""
     if chain.fidelity.integrator == "trapezoid":
         return ("by the linearized model stepped by the rule against its exact response "
                 "(a divisor of the output period)")
@@ -18,9 +19,7 @@ def _tolerance_method(chain) -> str:
                 "automatic contact step")
     from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, RK4_AUTO, RK4_STABILITY,
                                           highest_rate)
-    from flexarm_ros.model.statics import initial_state
-    q, qd, z = initial_state(chain)
-    rate = highest_rate(chain, q, qd, z)
+    rate = highest_rate(chain, *state)
     if not rate > 0:
         return "by step-halving pilot runs"
     return (f"by step-halving pilot runs up to the stable step {RK4_AUTO / rate:.4g} s, "
@@ -29,9 +28,13 @@ def _tolerance_method(chain) -> str:
             f"that step meets the tolerance")
 
 
-def explain(scene) -> str:
-    """A human-readable account of the model: coordinates, rung, forces kept and omitted."""
-    chain = Chain(scene)            # rung auto: the choice over the scene's duration
+def explain(scene, chain=None) -> str:
+    """A human-readable account of the model: coordinates, rung, forces kept and omitted
+    (``chain``: the scene's model when the caller has built it)."""
+    from flexarm_ros.model.statics import initial_state
+    if chain is None:
+        chain = Chain(scene)        # rung auto: the choice over the scene's duration
+    state = initial_state(chain)    # (q, q̇, z); sets a hydraulic drive's null bias
     fid = chain.fidelity
     lines = [f"scene {scene.name}: {scene.description.strip()}".rstrip(": "),
              f"rung {fid.rung} (refine {chain.links[0].beam.refine}"
@@ -41,7 +44,7 @@ def explain(scene) -> str:
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else
                                     f", the step chosen for a tip tolerance of "
                                     f"{fid.tolerance:g} m when the run starts "
-                                    + _tolerance_method(chain)
+                                    + _tolerance_method(chain, state)
                                     + " (flexarm simulate; its --json names the step and "
                                     "the estimate)"
                                     if fid.tolerance and chain.auto is None else
@@ -114,8 +117,7 @@ def explain(scene) -> str:
         omitted.append("sensors (none declared)")
     lines.append("modelled: " + "; ".join(kept))
     lines.append("left out: " + "; ".join(omitted))
-    from flexarm_ros.model.statics import initial_state
-    m = natural_modes(chain, initial_state(chain)[0], joints="locked")
+    m = natural_modes(chain, state[0], joints="locked")
     f = ", ".join(f"{v:.4g}" for v in m.frequencies_hz[:4])
     where = " at the static deflection" if scene.initial.static_equilibrium else ""
     lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
@@ -128,9 +130,6 @@ def explain(scene) -> str:
     lines.append("wire limits (ROS twin: commands and efforts beyond them are rejected):")
     lines.extend(f"  {lim.text()}" for lim in joint_limits(scene))
     from flexarm_ros.model import drives
-    from flexarm_ros.model.statics import initial_state
-    if any(a.kind == drives.HYDRAULIC for a in chain.actuators):
-        initial_state(chain)            # sets the null bias (drive.null_bias)
     for a in chain.actuators:
         if a.kind == drives.HYDRAULIC:
             bias = a.par[drives.HYD_VALVE_BIAS]

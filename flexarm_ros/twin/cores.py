@@ -269,6 +269,8 @@ class DriverCore:
         for k, lk in enumerate(scene.links):      # a quasi-static motor keeps no state
             if lk.joint.drive is not None and self.kind[k] == drives.IDEAL:
                 self.kind[k], self.par[k], _ = drives.encode(lk.joint.drive, "dynamic")
+        # joints whose effort is the valve current (the plant integrates their actuator)
+        self.valve = np.array([kd == drives.HYDRAULIC for kd in self.kind], bool)
         self.command = np.zeros(self.n)
         self.t_command = 0.0
         self.watchdog = scene.control.watchdog_s
@@ -306,7 +308,7 @@ class DriverCore:
         return self.command
 
     def _torque(self, k, w, u):
-        if self.kind[k] == drives.HYDRAULIC:     # the valve current: the plant's actuator
+        if self.valve[k]:                       # the valve current: the plant's actuator
             return u
         return drives.actuator_torque(self.kind[k], self.par[k], u, w, self.z[k])
 
@@ -321,11 +323,10 @@ class DriverCore:
         u = self._effective(t)
         w = np.asarray(drive_rates, float)
         tau = np.zeros(self.n)
-        valve = np.zeros(self.n, bool)
+        valve = self.valve
         for k in range(self.n):
             tau[k] = self._torque(k, w[k], u[k])
-            if self.kind[k] == drives.HYDRAULIC:
-                valve[k] = True
+            if valve[k]:
                 if drive_torques is not None:
                     p = self.par[k]
                     self.z[k] = float(drive_torques[k]) / (

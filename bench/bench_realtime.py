@@ -17,6 +17,8 @@ at 4 kHz batched four samples per message, wall, recorder on):
    ``processes``): real-time factor, ticks late by more than half a period, lateness
    p50/p99/max, and the messages the recorder lost (published minus recorded, per topic);
    ``--rate 2000`` repeats it at 2 kHz control;
+   Each realtime row runs with the pacing thread under SCHED_FIFO 50 (the default) and
+   at normal priority (``--thread-priority 0``), so the two are measured in one run;
 4. the host's floor (``--floor``, on by default): the simulator's own pacing
    (:class:`~flexarm_ros.twin.pacing.Pacer`) with nothing but a busy loop of W µs per
    tick in place of the twin (W = 0, 250, 500, 750 at 1 kHz), for ``--floor-seconds``
@@ -39,6 +41,26 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+
+def cpu_times() -> list[int] | None:
+    """The machine's CPU time counters (``/proc/stat``'s ``cpu`` line; None off Linux)."""
+    try:
+        with open("/proc/stat") as f:
+            return [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+
+
+def steal_share(before, after) -> float | None:
+    """The share of CPU time the hypervisor took from this machine between two
+    :func:`cpu_times` (``steal``, the 8th counter): time no scheduling policy inside the
+    machine can get back — a tick due then starts late whatever its priority."""
+    if not before or not after or len(before) < 8:
+        return None
+    d = [a - b for a, b in zip(after, before)]
+    total = sum(d[:8])
+    return d[7] / total if total > 0 else None
 
 
 def plant_only(scene_name: str, ticks: int) -> float:
@@ -131,12 +153,17 @@ def lockstep_run(scene_name: str, duration: float, record: Path | None,
         g.close()
 
 
-def realtime_run(scene, seconds: float, record: Path, layout: str) -> dict:
-    """``flexarm run SCENE --mode realtime --layout LAYOUT`` for ``seconds`` of simulated
-    time: the run summary plus the recorder's losses per topic (published − recorded)."""
+def realtime_run(scene, seconds: float, record: Path, layout: str,
+                 thread_priority: int | None = None) -> dict:
+    """``flexarm run SCENE --mode realtime --layout LAYOUT --thread-priority P`` for
+    ``seconds`` of simulated time: the run summary plus the recorder's losses per topic
+    (published − recorded)."""
     from flexarm_ros.run import run
-    res = run(scene, seconds, "realtime", record=record, layout=layout,
-              progress=False).to_json()
+    before = cpu_times()
+    res = run(scene, seconds, "realtime", record=record, layout=layout, progress=False,
+              simulator={"thread_priority": thread_priority}).to_json()
+    res["steal_share"] = steal_share(before, cpu_times())
+    res["thread_priority"] = thread_priority
     lost = {}
     for topic, n in (res["published"] or {}).items():      # absolute names, as recorded
         got = (res["recorded"] or {}).get(topic, 0)
@@ -147,24 +174,39 @@ def realtime_run(scene, seconds: float, record: Path, layout: str) -> dict:
     return res
 
 
-def host_floor(seconds: float, work_us: float, rate_hz: float = 1000.0) -> dict:
+def host_floor(seconds: float, work_us: float, rate_hz: float = 1000.0,
+               thread_priority: int = 0) -> dict:
     """The twin's pacing loop with a busy loop of ``work_us`` µs per tick in place of the
-    twin's tick (no ROS, no allocation): lateness statistics as in a realtime run."""
-    from flexarm_ros.twin.pacing import Pacer
-    pacer = Pacer(1.0 / rate_hz, late_bound=0.1, late_policy="slow")
-    n = int(round(seconds * rate_hz))
-    clock = time.perf_counter
-    pacer.start()
-    t0 = time.monotonic()
-    for _ in range(n):
-        pacer.wait()
-        end = clock() + work_us * 1e-6
-        while clock() < end:
-            pass
-    wall = time.monotonic() - t0
-    out = pacer.summary()
-    out.update({"work_us": work_us, "rate_hz": rate_hz, "real_time_factor": n / rate_hz / wall,
-                "on_time_share": 1.0 - out["late_ticks"] / max(out["ticks"], 1)})
+    twin's tick (no ROS, no allocation), in a thread of its own scheduled as the
+    simulator's pacing thread is at ``thread_priority``: lateness statistics as in a
+    realtime run."""
+    import threading
+    from flexarm_ros.twin.pacing import Pacer, realtime_scheduling
+    out = {}
+
+    def loop():
+        granted, how = realtime_scheduling(thread_priority)
+        pacer = Pacer(1.0 / rate_hz, late_bound=0.1, late_policy="slow")
+        n = int(round(seconds * rate_hz))
+        clock = time.perf_counter
+        pacer.start()
+        t0 = time.monotonic()
+        for _ in range(n):
+            pacer.wait()
+            end = clock() + work_us * 1e-6
+            while clock() < end:
+                pass
+        wall = time.monotonic() - t0
+        out.update(pacer.summary())
+        out.update({"work_us": work_us, "rate_hz": rate_hz, "scheduling": how,
+                    "thread_priority": thread_priority,
+                    "real_time_factor": n / rate_hz / wall,
+                    "on_time_share": 1.0 - out["late_ticks"] / max(out["ticks"], 1)})
+    th = threading.Thread(target=loop, name="floor")
+    before = cpu_times()
+    th.start()
+    th.join()
+    out["steal_share"] = steal_share(before, cpu_times())
     return out
 
 
@@ -179,6 +221,11 @@ def scene_at_rate(scene_name: str, rate_hz: float, tmp: Path) -> str:
     return str(path)
 
 
+def _steal(r) -> str:
+    return "" if r.get("steal_share") is None else \
+        f"; hypervisor steal {100 * r['steal_share']:.1f} %"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0,
@@ -191,6 +238,10 @@ def main(argv=None) -> int:
                          "then 2000)")
     ap.add_argument("--layout", action="append", choices=("one", "split", "processes"),
                     help="the realtime runs' layouts (default: split, one, processes)")
+    ap.add_argument("--thread-priority", type=int, action="append", default=None,
+                    help="the pacing thread's SCHED_FIFO priorities to run each realtime "
+                         "and floor row with (default 50, the twin's default, then 0: "
+                         "normal scheduling)")
     ap.add_argument("--no-lockstep", action="store_true", help="realtime runs only")
     ap.add_argument("--floor-seconds", type=float, default=10.0,
                     help="seconds of each host-floor run (0: none; default 10)")
@@ -202,8 +253,11 @@ def main(argv=None) -> int:
     from flexarm_ros.nodes import environment
     env = environment.private_graph()
     lockstep, realtime, floor = [], [], []
-    for work in (args.floor_work or [0.0, 250.0, 500.0, 750.0]) if args.floor_seconds else ():
-        floor.append(host_floor(args.floor_seconds, work))
+    priorities = args.thread_priority or [50, 0]
+    for prio in priorities:
+        for work in ((args.floor_work or [0.0, 250.0, 500.0, 750.0]) if args.floor_seconds
+                     else ()):
+            floor.append(host_floor(args.floor_seconds, work, thread_priority=prio))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
@@ -216,9 +270,10 @@ def main(argv=None) -> int:
         for rate in args.rate or [None, 2000.0]:
             scene = args.scene if rate is None else scene_at_rate(args.scene, rate, tmp)
             for layout in args.layout or ["split", "one", "processes"]:
-                r = realtime_run(scene, args.seconds, tmp / "realtime.mcap", layout)
-                r["rate_hz"] = rate or "scene"
-                realtime.append(r)
+                for prio in priorities:
+                    r = realtime_run(scene, args.seconds, tmp / "realtime.mcap", layout, prio)
+                    r["rate_hz"] = rate or "scene"
+                    realtime.append(r)
     out = {"scene": args.scene, "ros_domain_id": env["ROS_DOMAIN_ID"],
            "plant_only_ticks_per_s": plant, "simulator_tick_us": budget,
            "lockstep": lockstep, "realtime": realtime, "host_floor": floor}
@@ -233,10 +288,11 @@ def main(argv=None) -> int:
           f"({b['messages_per_tick']} messages; the former dicts + encode: "
           f"{b['messages']:.0f} + {b['encode']:.0f})")
     for r in floor:
-        print(f"  host floor, {r['work_us']:4.0f} µs busy per 1 ms tick: RTF "
+        print(f"  host floor, {r['scheduling'].split(' (')[0]:<13}, {r['work_us']:4.0f} µs busy "
+              f"per 1 ms tick: RTF "
               f"{r['real_time_factor']:.3f}, {100 * r['on_time_share']:.1f} % on time, lateness "
               f"p50 {r['lateness_p50_s'] * 1e3:.3f} / p99 {r['lateness_p99_s'] * 1e3:.2f} / max "
-              f"{r['lateness_max_s'] * 1e3:.2f} ms")
+              f"{r['lateness_max_s'] * 1e3:.2f} ms" + _steal(r))
     for r in lockstep:
         print(f"  lockstep, {r['executor']:<6} executor, "
               f"{'bus' if r['intraprocess'] else 'DDS'}, "
@@ -245,11 +301,14 @@ def main(argv=None) -> int:
     for r in realtime:
         how = r["layout"]
         lost = sum(r["lost"].values())
-        print(f"  realtime {r['rate_hz']} Hz, {how:<12}: RTF {r['real_time_factor']:.3f}, "
+        sched = (r.get("scheduling") or "?").split(" (")[0]
+        print(f"  realtime {r['rate_hz']} Hz, {how:<9}, {sched:<13}: RTF "
+              f"{r['real_time_factor']:.3f}, "
               f"{r['late_ticks']} of {r['ticks']} ticks late "
               f"({100 * (1 - r['late_ticks'] / r['ticks']):.1f} % on time), lateness p50 "
               f"{r['lateness_p50_s'] * 1e3:.2f} / p99 {r['lateness_p99_s'] * 1e3:.2f} / max "
-              f"{r['lateness_max_s'] * 1e3:.2f} ms, {lost} messages lost by the recorder")
+              f"{r['lateness_max_s'] * 1e3:.2f} ms, {lost} messages lost by the recorder"
+              + _steal(r))
     return 0
 
 

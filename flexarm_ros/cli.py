@@ -345,15 +345,18 @@ def _check_pacing_flags(args) -> None:
     flags' names (the simulator node checks the same values as its parameters)."""
     from flexarm_ros.errors import SceneError
     from flexarm_ros.scene import load_scene
-    from flexarm_ros.twin.pacing import check_settings
+    from flexarm_ros.twin.pacing import THREAD_PRIORITY, check_settings
     period = 1.0 / load_scene(args.scene or DEFAULT_SCENE).control.rate_hz
     try:
         check_settings(period, args.late_policy or "slow",
                        0.1 if args.late_bound is None else args.late_bound,
-                       0.0 if args.ground_truth_rate is None else args.ground_truth_rate)
+                       0.0 if args.ground_truth_rate is None else args.ground_truth_rate,
+                       THREAD_PRIORITY if args.thread_priority is None else
+                       args.thread_priority)
     except SceneError as exc:
         raise SceneError(str(exc).replace("parameter late_bound", "--late-bound").replace(
-            "parameter ground_truth_rate_hz", "--ground-truth-rate")) from None
+            "parameter ground_truth_rate_hz", "--ground-truth-rate").replace(
+            "parameter thread_priority", "--thread-priority")) from None
 
 
 def cmd_run(args):
@@ -367,7 +370,8 @@ def cmd_run(args):
                          f"simulate (the twin's plant steps within its control tick with "
                          f"the held efforts, which the step-halving pilots cannot "
                          f"replay; set --dt)")
-    if args.late_bound is not None or args.ground_truth_rate is not None:
+    if (args.late_bound is not None or args.ground_truth_rate is not None
+            or args.thread_priority is not None):
         _check_pacing_flags(args)
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
@@ -395,7 +399,8 @@ def cmd_run(args):
               namespace=namespace, progress=not args.quiet,
               fidelity={k: v for k, v in _overrides(args).items() if k != "tolerance"},
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
-                         "ground_truth_rate_hz": args.ground_truth_rate})
+                         "ground_truth_rate_hz": args.ground_truth_rate,
+                         "thread_priority": args.thread_priority})
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
         from flexarm_ros.run import run_with_view
         from flexarm_ros.viz.rerun_view import RerunUnavailable
@@ -569,6 +574,11 @@ def build_parser():
     r.add_argument("--late-bound", type=number, metavar="S",
                    help="realtime: seconds of lateness before --late-policy acts "
                         "(default 0.1)")
+    r.add_argument("--thread-priority", type=int, metavar="N",
+                   help="realtime: SCHED_FIFO priority of the simulator's pacing thread "
+                        "(1..99, default 50 as ros2_control's; 0: normal scheduling). "
+                        "Where the kernel refuses it the run goes on at normal priority "
+                        "and says so")
     r.add_argument("--ground-truth-rate", type=number, metavar="HZ",
                    help="rate of ground_truth/tip and ground_truth/coordinates (default: "
                         "every control tick; 100 Hz in realtime; 0: every tick)")

@@ -101,6 +101,7 @@ class RunResult:
                 "lateness_p99_s": p.get("lateness_p99_s"),
                 "lateness_max_s": p.get("lateness_max_s"),
                 "late_policy": p.get("late_policy"), "skipped_ticks": p.get("skipped_ticks"),
+                "scheduling": p.get("scheduling"),
                 "slowed_s": p.get("slowed_s"),
                 "effort_waits": p.get("effort_waits"),
                 "effort_wait_timeouts": p.get("effort_wait_timeouts"),
@@ -131,7 +132,9 @@ class RunResult:
                   + f"(real-time factor {self.real_time_factor:.3g}")
             p = self.pacing
             s += (f", {p['late_ticks']} of {p['ticks']} ticks late, lateness p99 "
-                  f"{p['lateness_p99_s'] * 1e3:.3g} ms)" if p else ")")
+                  f"{p['lateness_p99_s'] * 1e3:.3g} ms" + (
+                      f"; pacing thread {p['scheduling'].split(' (')[0]}"
+                      if p.get("scheduling") else "") + ")" if p else ")")
         else:
             s += f", {self.wall_s:.3g} s wall"
         if self.first_command_s is not None and self.first_command_s > 0:
@@ -615,7 +618,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     check_settings(control_period(loaded), **{k: v for k, v in (simulator or {}).items()
                                               if v is not None and k in (
                                                   "late_policy", "late_bound",
-                                                  "ground_truth_rate_hz")})
+                                                  "ground_truth_rate_hz", "thread_priority")})
     record = Path(record) if record else None
     stop = StopFlag()
     t0 = time.monotonic()
@@ -761,6 +764,7 @@ def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:
                                           "lateness_p99_s", "lateness_max_s", "late_policy",
                                           "late_bound_s", "skipped_ticks", "slowed_s",
                                           "effort_waits", "effort_wait_timeouts")}
+        res.pacing["scheduling"] = sim.get("scheduling")
         res.overruns = sim["late_ticks"]
 
 

@@ -6,6 +6,7 @@ statistics against exact order statistics."""
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -121,3 +122,60 @@ def test_lateness_percentiles_bracket_the_exact_order_statistics(seed):
         got = st.percentile(p)
         assert exact <= got <= exact * width * (1 + 1e-12), (p, exact, got)
     assert st.percentile(1) == 0.0          # the zeros
+
+
+def test_thread_priority_is_checked_with_its_name():
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.twin.pacing import check_settings
+    for bad in (-1, 100, 2.5, True, "50"):
+        with pytest.raises(SceneError, match=r"parameter thread_priority: got .*expected an "
+                                             r"integer SCHED_FIFO priority 1\.\.99, or 0"):
+            check_settings(1e-3, thread_priority=bad)
+    check_settings(1e-3, thread_priority=0)
+    check_settings(1e-3, thread_priority=99)
+
+
+def _in_a_thread(fn):
+    import threading
+    out = {}
+    th = threading.Thread(target=lambda: out.update(value=fn()))
+    th.start()
+    th.join()
+    return out["value"]
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="no SCHED_FIFO here")
+def test_realtime_scheduling_applies_to_the_calling_thread_only():
+    """What the kernel reports back (sched_getscheduler) is the truth: the thread that
+    asked runs SCHED_FIFO at the priority (where the kernel grants it), the caller's own
+    thread keeps its policy."""
+    from flexarm_ros.twin.pacing import realtime_scheduling
+    before = os.sched_getscheduler(0)
+
+    def ask():
+        granted, how = realtime_scheduling(7)
+        return granted, how, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+    granted, how, policy, prio = _in_a_thread(ask)
+    if granted:
+        assert (how, policy, prio) == ("SCHED_FIFO 7", os.SCHED_FIFO, 7)
+    else:                                   # a host that refuses: the thread is unchanged
+        assert how.startswith("SCHED_OTHER (SCHED_FIFO 7 refused: ") and policy == before
+    assert os.sched_getscheduler(0) == before
+    granted, how, policy, _ = _in_a_thread(lambda: (*realtime_scheduling(0),
+                                                    os.sched_getscheduler(0), None))
+    assert (granted, how, policy) == (False, "SCHED_OTHER (thread_priority 0)", before)
+
+
+def test_a_refused_priority_says_why_and_how_to_grant_it(monkeypatch):
+    from flexarm_ros.twin import pacing
+
+    def refuse(pid, policy, param):
+        raise PermissionError(1, "Operation not permitted")
+    monkeypatch.setattr(os, "sched_setscheduler", refuse, raising=False)
+    monkeypatch.setattr(os, "SCHED_FIFO", 1, raising=False)
+    monkeypatch.setattr(os, "sched_param", lambda p: p, raising=False)
+    granted, how = pacing.realtime_scheduling(50)
+    assert not granted
+    assert how.startswith("SCHED_OTHER (SCHED_FIFO 50 refused: Operation not permitted; ")
+    assert "ulimit -r 50" in how and "thread_priority 0" in how

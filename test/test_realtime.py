@@ -47,6 +47,18 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
     for topic in (T.COMMANDS, T.EFFORTS, T.MOTOR_STATES):
         assert rec[T.resolve(NS, topic)] in (ticks, ticks + 1), topic
     assert s["rejected_commands"] == 0
+    assert s["scheduling"] == _granted(50)
+
+
+def _granted(priority: int) -> str:
+    """What this host's kernel gives a thread that asks for SCHED_FIFO ``priority``."""
+    import threading
+    from flexarm_ros.twin.pacing import realtime_scheduling
+    out = []
+    th = threading.Thread(target=lambda: out.append(realtime_scheduling(priority)[1]))
+    th.start()
+    th.join()
+    return out[0]
 
 
 @pytest.mark.parametrize("argv,gt_every,layout", [
@@ -109,7 +121,44 @@ def test_ground_truth_at_a_set_rate_keeps_the_values_of_every_tick(tmp_path, cap
     assert s["recorded"][T.resolve(NS, T.GT_TIP)] == 11
 
 
+def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path, capsys):
+    """The kernel's own answer for the pacing thread (sched_getscheduler of its thread id,
+    polled while it runs in this process), at the default priority and with
+    ``--thread-priority 0``."""
+    import os
+    import threading
+    if not hasattr(os, "sched_getscheduler"):
+        pytest.skip("no SCHED_FIFO here")
+    for argv, want in (([], os.SCHED_FIFO if _granted(50) == "SCHED_FIFO 50" else
+                        os.SCHED_OTHER), (["--thread-priority", "0"], os.SCHED_OTHER)):
+        seen, done = set(), threading.Event()
+
+        def watch():
+            while not done.is_set():
+                for th in threading.enumerate():
+                    if th.name == "realtime-pacer" and th.native_id is not None:
+                        try:
+                            seen.add(os.sched_getscheduler(th.native_id))
+                        except OSError:             # ended between the two calls
+                            pass
+                done.wait(0.01)
+        w = threading.Thread(target=watch)
+        w.start()
+        try:
+            s = _run_json(capsys, "link", "--mode", "realtime", "--duration", "0.3",
+                          "--no-record", *argv)
+        finally:
+            done.set()
+            w.join()
+        assert seen == {want}, (argv, seen)
+        assert s["scheduling"] == (_granted(50) if not argv else
+                                   "SCHED_OTHER (thread_priority 0)")
+
+
 @pytest.mark.parametrize("argv,key", [(["--late-bound", "0"], "--late-bound: got 0.0 s"),
+                                      (["--thread-priority", "100"],
+                                       "--thread-priority: got 100, expected an integer "
+                                       "SCHED_FIFO priority 1..99"),
                                       (["--ground-truth-rate", "-5"],
                                        "--ground-truth-rate: got -5.0")])
 def test_bad_pacing_settings_are_one_line(tmp_path, capsys, argv, key):

@@ -75,7 +75,8 @@ from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.io.progress import ProgressLine
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
-from flexarm_ros.twin.pacing import REALTIME_GT_HZ, Pacer, check_settings, ground_truth_rate
+from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, check_settings,
+                                     ground_truth_rate, realtime_scheduling)
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
@@ -94,6 +95,10 @@ class SimulatorNode(Node):
                               "clock (due ticks stepped with the held effort, the last "
                               "published)"),
               "late_bound": (0.1, "realtime: s of lateness before late_policy acts"),
+              "thread_priority": (THREAD_PRIORITY, "realtime: SCHED_FIFO priority of the "
+                                  "pacing thread (1..99; 0: normal scheduling); refused by "
+                                  "the kernel, the thread runs at normal priority and the "
+                                  "node warns"),
               "effort_lag": (3, "realtime: the most ticks the plant runs ahead of the "
                              "efforts (the source answers every joint state, as the twin's "
                              "driver does) before it waits for the next one (at most "
@@ -169,7 +174,9 @@ class SimulatorNode(Node):
         self._last_report = self._last_log = 0.0
         self._line = ProgressLine(0)
         rate = ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode)
-        check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate)
+        check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate,
+                       self.p["thread_priority"])
+        self.scheduling = None                      # realtime: what the pacing thread got
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1
         self._thread = None
@@ -331,6 +338,10 @@ class SimulatorNode(Node):
             wait_s = self.core.scene.control.watchdog_s
             if self._bus is not None:
                 self._bus.self_delivering.add(threading.current_thread())
+            granted, self.scheduling = realtime_scheduling(self.p["thread_priority"])
+            if not granted and self.p["thread_priority"]:
+                self.get_logger().warning(f"realtime pacing thread: {self.scheduling}; "
+                                          f"other processes can delay its ticks")
             with C.profiled("simulator-pacer"):
                 while not self.finished:
                     ticks = self.pacer.wait()
@@ -417,7 +428,7 @@ class SimulatorNode(Node):
                "stalled": self.stalled}
         if self.mode == "realtime":
             out.update(self.pacer.summary())
-            out.update({"effort_waits": self.waited_ticks,
+            out.update({"scheduling": self.scheduling, "effort_waits": self.waited_ticks,
                         "effort_wait_timeouts": self.stale_ticks})
         return out
 

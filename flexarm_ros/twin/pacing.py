@@ -21,6 +21,17 @@ Past ``late_bound`` seconds of lateness, the policy decides (``late_policy``):
   away (measured: a 0.5 s stall at start-up made ``two_link_case1`` diverge) — use it
   with a bound of a few periods, where a held effort is what the bench would see.
 
+The pacing thread asks the kernel for realtime scheduling (``SCHED_FIFO`` at
+``thread_priority``, default :data:`THREAD_PRIORITY`; ros2_control's controller manager
+does the same for its update loop, with the same default): a runnable process of normal
+priority can then not delay a deadline on the simulator's CPU, only the GIL and the
+kernel can. Where the kernel refuses (no ``CAP_SYS_NICE`` and no ``RLIMIT_RTPRIO``), the
+thread runs at normal priority and the node warns once; ``thread_priority`` 0 does not
+ask. The run summary says which (``scheduling``). A FIFO thread never runs back to back
+for longer than ``late_bound``: past it, either policy moves the next deadline a period
+after now, so the thread sleeps again (and the kernel's realtime throttling keeps 5 % of
+every second for the rest in any case).
+
 Either way the run never drifts silently: the statistics (:class:`Lateness`) go into the
 run summary, and the node warns when the bound is crossed.
 
@@ -31,6 +42,7 @@ clock (``test/test_pacing.py``).
 from __future__ import annotations
 
 import math
+import os
 import time
 from typing import Callable
 
@@ -39,6 +51,8 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 
 LATE_POLICIES = ("skip", "slow")
+#: the pacing thread's SCHED_FIFO priority by default (ros2_control's ``thread_priority``)
+THREAD_PRIORITY = 50
 
 
 class Lateness:
@@ -102,8 +116,13 @@ def ground_truth_rate(rate: float, mode: str) -> float:
 
 
 def check_settings(period: float, late_policy: str = "slow", late_bound: float = 0.1,
-                   ground_truth_rate_hz: float = 0.0) -> None:
+                   ground_truth_rate_hz: float = 0.0,
+                   thread_priority: int = THREAD_PRIORITY) -> None:
     """The simulator's pacing parameters, or a SceneError naming the one that is wrong."""
+    if isinstance(thread_priority, bool) or not isinstance(thread_priority, int) or not (
+            0 <= thread_priority <= 99):
+        raise SceneError(f"parameter thread_priority: got {thread_priority!r}, expected an "
+                         f"integer SCHED_FIFO priority 1..99, or 0 for normal scheduling")
     if late_policy not in LATE_POLICIES:
         raise SceneError(f"parameter late_policy: got {late_policy!r}, expected one of "
                          f"{LATE_POLICIES}")
@@ -115,6 +134,24 @@ def check_settings(period: float, late_policy: str = "slow", late_bound: float =
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
         raise SceneError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 (every "
                          f"tick), -1 (the mode's default) or a positive rate in Hz")
+
+
+def realtime_scheduling(priority: int) -> tuple[bool, str]:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (1..99; 0: leave it).
+    Returns (granted, what the thread runs under — or why not, and how to grant it).
+    Linux applies ``sched_setscheduler(0, ...)`` to the calling thread only."""
+    if priority == 0:
+        return False, "SCHED_OTHER (thread_priority 0)"
+    if not hasattr(os, "sched_setscheduler"):
+        return False, "SCHED_OTHER (this platform has no SCHED_FIFO)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        return False, (f"SCHED_OTHER (SCHED_FIFO {priority} refused: "
+                       f"{exc.strerror or exc}; grant it with CAP_SYS_NICE or an rtprio "
+                       f"limit, e.g. 'ulimit -r {priority}' or rtprio in "
+                       f"/etc/security/limits.conf; thread_priority 0 stops asking)")
+    return True, f"SCHED_FIFO {priority}"
 
 
 class Pacer:

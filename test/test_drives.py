@@ -776,3 +776,20 @@ def test_kernel_matches_numpy_reference_with_drives(case):
             assert ref[2 * nf] != 0.0
     if case == "backlash":
         assert inside >= 3 and outside >= 3
+
+
+@pytest.mark.parametrize("name", ["two_link_case1", "hydraulic_2kg", "link_tipmass",
+                                  "link_motor", "two_link_position"])
+def test_input_series_is_the_per_sample_program_bit_for_bit(name):
+    """The output's actuator columns take the programs over the whole time grid in one
+    call: the same floats as the program at each instant (steps, pulses and ramps cross
+    the grid)."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.scene import load_scene
+    ch = Chain(load_scene(name))
+    ts = np.linspace(0.0, 3.0, 3001)
+    want = np.array([ch.actuator_inputs(t) for t in ts]).reshape(len(ts), -1)
+    got = ch.actuator_input_series(ts)
+    assert got.shape == want.shape and np.array_equal(got, want)
+    if name in ("link_tipmass", "hydraulic_2kg", "link_motor"):   # a pulse, a step
+        assert np.ptp(got) > 0

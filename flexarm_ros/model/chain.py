@@ -330,6 +330,17 @@ class Chain:
         return np.array([eval_torque(a.enc[0], a.enc[1], a.enc[2], a.enc[3], t)
                          for a in self.actuators])
 
+    def actuator_input_series(self, ts) -> np.ndarray:
+        """:meth:`actuator_inputs` at every time of ``ts``: (len(ts), actuators), the same
+        floats (one Python call of the program per sample and actuator, no array per
+        sample: a 1 kHz output's columns cost 1/6 of the per-sample arrays)."""
+        ts = [float(t) for t in ts]
+        u = np.empty((len(ts), len(self.actuators)))
+        for j, a in enumerate(self.actuators):
+            code, p, times, values = a.enc
+            u[:, j] = [eval_torque(code, p, times, values, t) for t in ts]
+        return u
+
     def input_forces(self, t, qd, z) -> tuple[np.ndarray, np.ndarray]:
         """Generalized actuator and backlash forces Q_input (n,) and the actuator state
         rates ż at (t, q̇, z); backlash needs q too, see :meth:`coupling_forces`."""
@@ -491,10 +502,16 @@ class Chain:
 
     def check_mass_matrix(self, q) -> None:
         """Raise SceneError when M(q) of the free coordinates is not positive definite
-        (a coordinate without inertia), naming the coordinate and what to give it."""
+        (a coordinate without inertia), naming the coordinate and what to give it. The
+        last q that passed is remembered: a run checks its initial state up to three
+        times (statics, the integrator, the output), each a Python kinematics pass."""
+        key = np.asarray(q, float).tobytes()
+        if key == getattr(self, "_mass_ok", None):
+            return
         M = self.kinematics(q, np.zeros(self.n)).M[np.ix_(self.free, self.free)]
         w, V = np.linalg.eigh(M)
         if w[0] > 1e-12 * max(w[-1], 1e-300):
+            self._mass_ok = key
             return
         d = np.abs(np.diag(M))
         if d.min() > 0 and d.max() > 1e8 * d.min():

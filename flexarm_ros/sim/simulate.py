@@ -267,7 +267,7 @@ def actuator_columns(chain: Chain, run: Integration) -> dict:
     ``<link>_drive_torque`` (N·m) and the state (``<link>_current`` A / ``<link>_pressure``
     Pa; a quasi-static motor's current is reported too)."""
     cols = {}
-    u = np.array([chain.actuator_inputs(t) for t in run.t]).reshape(len(run.t), -1)
+    u = chain.actuator_input_series(run.t)
     for j, a in enumerate(chain.actuators):
         name = chain.links[a.link].name
         w = run.qd[:, a.coord]

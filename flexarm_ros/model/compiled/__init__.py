@@ -4,12 +4,66 @@ it unchanged, so every compiled function also runs as plain Python."""
 
 from __future__ import annotations
 
+import hashlib
 import os
+import shutil
+from pathlib import Path
+
+#: the files whose functions numba compiles (the programs are compiled in chain.py)
+_SOURCES = ("compiled/__init__.py", "compiled/chain.py", "compiled/contact.py",
+            "compiled/layout.py", "compiled/loops.py", "compiled/sensors.py", "drives.py",
+            "programs.py")
+
+
+def source_key() -> str:
+    """A digest of every compiled source file and the option that changes the code
+    (``FLEXARM_KERNEL_NRT``).
+
+    Why: numba's cache keys a function on its own file's time stamp only. An entry point
+    in ``loops.py`` inlines the kernel of ``chain.py``; edit ``chain.py`` alone and
+    ``loops.py``'s cached entry points go on running the old kernel (met in session 14: a
+    probe of the kernel measured the unchanged code). One cache directory per digest
+    (:func:`cache_dir`) makes a changed source a fresh compile."""
+    h = hashlib.sha256(os.environ.get("FLEXARM_KERNEL_NRT", "").encode())
+    root = Path(__file__).resolve().parents[1]
+    for name in _SOURCES:
+        h.update(name.encode())
+        h.update((root / name).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cache_dir(base: str | None = None) -> Path:
+    """``<base>/flexarm-<source_key()>``: ``base`` is ``NUMBA_CACHE_DIR`` when set, else
+    this package's ``__pycache__`` where it is writable, else ``~/.cache/flexarm_ros``.
+    Other ``flexarm-*`` directories under the same base (older sources) are removed when
+    a new one is made."""
+    if base is None:
+        base = os.environ.get("NUMBA_CACHE_DIR")
+    if not base:
+        here = Path(__file__).resolve().parent / "__pycache__"
+        try:
+            here.mkdir(exist_ok=True)
+            writable = os.access(here, os.W_OK)
+        except OSError:
+            writable = False
+        base = here if writable else Path(os.environ.get(
+            "XDG_CACHE_HOME", Path.home() / ".cache")) / "flexarm_ros"
+    base = Path(base)
+    path = base / f"flexarm-{source_key()}"
+    if not path.is_dir():
+        try:
+            for old in base.glob("flexarm-*"):
+                shutil.rmtree(old, ignore_errors=True)
+        except OSError:
+            pass
+    return path
+
 
 try:  # pragma: no cover - exercised by whichever environment runs the tests
     if os.environ.get("FLEXARM_NO_NUMBA"):
         raise ImportError("disabled by FLEXARM_NO_NUMBA")
     import numba
+    numba.config.CACHE_DIR = str(cache_dir())
     HAVE_NUMBA = True
     # fast-math without 'nnan'/'ninf': the divergence checks must still see NaN and inf;
     # and without 'reassoc': with it a process that compiled the kernel and one that loaded

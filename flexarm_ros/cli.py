@@ -575,8 +575,9 @@ def build_parser():
                    help="realtime: seconds of lateness before --late-policy acts "
                         "(default 0.1)")
     r.add_argument("--thread-priority", type=int, metavar="N",
-                   help="realtime: SCHED_FIFO priority of the simulator's pacing thread "
-                        "(1..99, default 50 as ros2_control's; 0: normal scheduling). "
+                   help="realtime only (lockstep and fast ignore it): SCHED_FIFO priority "
+                        "of the simulator's pacing thread (1..99, default 50 as "
+                        "ros2_control's; 0: normal scheduling). "
                         "Where the kernel refuses it the run goes on at normal priority "
                         "and says so")
     r.add_argument("--ground-truth-rate", type=number, metavar="HZ",

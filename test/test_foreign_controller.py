@@ -206,3 +206,75 @@ def test_a_run_for_your_own_nodes_says_which_ros_domain_to_join(monkeypatch, cap
     chosen = os.environ["ROS_DOMAIN_ID"]
     assert f"ROS domain {chosen} (chosen for this run; start your own nodes with " \
            f"ROS_DOMAIN_ID={chosen} " in err
+
+
+AMPLIFIER = '''
+import sys
+import rclpy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                 reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+rclpy.init(args=sys.argv)
+node = rclpy.create_node("foreign_amplifier")
+pub = node.create_publisher(Float64MultiArray, "effort_controller/commands", QOS)
+
+
+def on_command(msg):                  # a torque amplifier: 0.05 N*m per volt
+    pub.publish(Float64MultiArray(data=[0.05 * v for v in msg.data]))
+
+
+node.create_subscription(Float64MultiArray, "motor_driver/commands", on_command, QOS)
+# a drive amplifier's input by the contract (the joint rates for back-EMF); this one
+# ignores it, but the twin starts once its driver's inputs are subscribed
+node.create_subscription(JointState, "ground_truth/joint_states", lambda m: None, QOS)
+print("ready", flush=True)
+try:
+    rclpy.spin(node)
+except (KeyboardInterrupt, Exception):
+    pass
+'''
+
+
+@pytest.mark.parametrize("layout", ["one", "split"])
+def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
+        tmp_path, layout):
+    """``--without motor_driver`` with an amplifier in its own process (plain rclpy): the
+    simulator steps on each of its efforts in lockstep, and the run ends only when the
+    recorder has taken every one of them (session 13 found the last one missing from
+    1 bag in 5: the graph waited for its own nodes' messages only)."""
+    script = tmp_path / "amplifier.py"
+    script.write_text(AMPLIFIER)
+    log = open(tmp_path / "amplifier.log", "w")
+    proc = subprocess.Popen([sys.executable, str(script), "--ros-args", "-r", f"__ns:={NS}"],
+                            stdout=log, stderr=subprocess.STDOUT)
+    try:
+        res = run("two_link_case1", 0.3, "lockstep", record=tmp_path / "run.mcap",
+                  namespace=NS, progress=False, nodes=("simulator", "controller"),
+                  layout=layout)
+    finally:
+        proc.terminate()
+        proc.wait(30)
+        log.close()
+    s = res.to_json()
+    assert not res.diverged and not res.stalled and s["ticks"] == 300, s
+    bag = read_bag(tmp_path / "run.mcap")
+    efforts = bag[f"{NS}/{T.EFFORTS}"]
+    # one effort per tick the simulator stepped, every one in the bag, each the
+    # amplifier's answer to the command of the same tick
+    assert len(efforts) == s["ticks"] == s["recorded"][f"{NS}/{T.EFFORTS}"], s
+    cmds = bag[f"{NS}/{T.COMMANDS}"]
+    for (_, e), (_, c) in zip(efforts, cmds):
+        assert list(e.data) == [0.05 * v for v in c.data]
+
+
+def test_the_end_waits_for_what_the_nodes_accepted_not_only_what_they_sent():
+    from flexarm_ros.run import _all_arrived
+    sent = {T.JOINT_STATES: 301, T.COMMANDS: 300}          # no driver of the twin's own
+    got = {T.JOINT_STATES: 301, T.COMMANDS: 300, T.EFFORTS: 299}
+    assert not _all_arrived(got, sent, {T.EFFORTS: 300})    # the outside driver's last
+    assert _all_arrived({**got, T.EFFORTS: 300}, sent, {T.EFFORTS: 300})
+    # an outside controller's commands the twin's driver accepted, likewise
+    assert not _all_arrived({T.COMMANDS: 4}, {}, {T.COMMANDS: 5}, {T.EFFORTS: 0})
+    assert _all_arrived({T.COMMANDS: 5, T.EFFORTS: 0}, {}, {T.COMMANDS: 5}, {T.EFFORTS: 0})

@@ -179,3 +179,28 @@ def test_a_refused_priority_says_why_and_how_to_grant_it(monkeypatch):
     assert not granted
     assert how.startswith("SCHED_OTHER (SCHED_FIFO 50 refused: Operation not permitted; ")
     assert "ulimit -r 50" in how and "thread_priority 0" in how
+
+
+def test_the_summary_line_tells_asked_from_refused():
+    from flexarm_ros.twin.pacing import short_scheduling
+    assert short_scheduling("SCHED_FIFO 50") == "SCHED_FIFO 50"
+    assert short_scheduling("SCHED_OTHER (thread_priority 0)") == \
+        "SCHED_OTHER (--thread-priority 0)"
+    assert short_scheduling("SCHED_OTHER (SCHED_FIFO 50 refused: Operation not permitted; "
+                            "grant it ...)") == "SCHED_OTHER (SCHED_FIFO refused)"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="Linux only")
+def test_the_pacing_thread_is_named_for_the_kernel():
+    import threading
+    from flexarm_ros.twin.pacing import name_thread
+    got = []
+
+    def run():
+        name_thread("flexarm-pacer-and-more")
+        with open(f"/proc/self/task/{threading.get_native_id()}/comm") as f:
+            got.append(f.read().strip())
+    th = threading.Thread(target=run)
+    th.start()
+    th.join()
+    assert got == ["flexarm-pacer-a"]           # the kernel keeps 15 bytes

@@ -83,6 +83,7 @@ class MotorDriverNode(Node):
             self._subscribe_states()
         self.rejections = Rejections(self)
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
+        self.accepted = {T.COMMANDS: 0}
         self._started = False                   # the start barrier passed
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
@@ -112,6 +113,7 @@ class MotorDriverNode(Node):
             v.check(data)
             self.rejections.invalid(self.source.topic, "command", data, why, v.expectation())
             return
+        self.accepted[T.COMMANDS] += 1      # the recorder takes them too (run's end waits)
         if self.lockstep:
             self.commands.append(list(data))
             self._drain()

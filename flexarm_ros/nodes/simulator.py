@@ -76,7 +76,7 @@ from flexarm_ros.io.progress import ProgressLine
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, check_settings,
-                                     ground_truth_rate, realtime_scheduling)
+                                     ground_truth_rate, name_thread, realtime_scheduling)
 from flexarm_ros.twin.validation import FOREIGN
 from flexarm_ros.nodes import _common as C
 from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
@@ -170,6 +170,7 @@ class SimulatorNode(Node):
         self.published = {t: 0 for t in pubs}
         self.torque = np.zeros(len(scene.links))
         self.finished = self.started = False
+        self.accepted = {T.EFFORTS: 0}              # valid efforts from the source, started
         self.t_wall0 = self.t_wall_end = None
         self._last_report = self._last_log = 0.0
         self._line = ProgressLine(0)
@@ -338,6 +339,7 @@ class SimulatorNode(Node):
             wait_s = self.core.scene.control.watchdog_s
             if self._bus is not None:
                 self._bus.self_delivering.add(threading.current_thread())
+            name_thread("flexarm-pacer")
             granted, self.scheduling = realtime_scheduling(self.p["thread_priority"])
             if not granted and self.p["thread_priority"]:
                 self.get_logger().warning(f"realtime pacing thread: {self.scheduling}; "
@@ -376,6 +378,10 @@ class SimulatorNode(Node):
             self.rejections.invalid(self.source.topic, "effort", data, why, v.expectation())
             return
         tau = np.array(data, float)
+        if self.started:
+            # the recorder takes these too (same validation, reliable QoS): the graph's
+            # end waits until it has them all, including an outside node's last effort
+            self.accepted[T.EFFORTS] += 1
         if self.mode != "lockstep":
             with self._answer:
                 self.torque = tau
@@ -423,6 +429,7 @@ class SimulatorNode(Node):
         efforts, messages published per topic, rejected efforts by reason."""
         out = {"mode": self.mode, "sim_time_s": self.core.t, "ticks": self.core.k,
                "real_time_factor": self.rtf(), "published": dict(self.published),
+               "accepted": dict(self.accepted),
                "rejected_efforts": dict(self.core.validator.counts),
                "diverged": str(self.diverged) if self.diverged else None,
                "stalled": self.stalled}
@@ -469,8 +476,9 @@ class SimulatorNode(Node):
                         f"{st['lateness_p99_s'] * 1e3:.3g} ms, max "
                         f"{st['lateness_max_s'] * 1e3:.2f} ms)")
                 if st["skipped_ticks"] or st["slowed_s"]:
-                    pace += (f"; late beyond {st['late_bound_s']:g} s {self.pacer.crossings}"
-                             f" times: " + (f"{st['skipped_ticks']} ticks stepped without "
+                    n = self.pacer.crossings
+                    pace += (f"; late beyond {st['late_bound_s']:g} s {n} "
+                             f"time{'' if n == 1 else 's'}: " + (f"{st['skipped_ticks']} ticks stepped without "
                                             f"publishing (late_policy skip)"
                                             if st["skipped_ticks"] else
                                             f"{st['slowed_s']:.3f} s behind the wall clock "

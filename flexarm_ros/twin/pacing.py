@@ -136,6 +136,29 @@ def check_settings(period: float, late_policy: str = "slow", late_bound: float =
                          f"tick), -1 (the mode's default) or a positive rate in Hz")
 
 
+def name_thread(name: str) -> None:
+    """Give the calling thread ``name`` (≤ 15 bytes) as the kernel knows it, for ``ps -L``,
+    ``top -H`` and ``chrt -p`` (Python 3.11 names its threads for itself only). Linux
+    ``prctl(PR_SET_NAME)``; a no-op elsewhere."""
+    try:
+        import ctypes
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return
+    PR_SET_NAME = 15                # linux/prctl.h
+    prctl(PR_SET_NAME, ctypes.c_char_p(name.encode()[:15]), 0, 0, 0)
+
+
+def short_scheduling(how: str) -> str:
+    """:func:`realtime_scheduling`'s text for a summary line: the policy and, for normal
+    scheduling, whether it was asked for or refused."""
+    if how.startswith("SCHED_OTHER (SCHED_FIFO"):
+        return "SCHED_OTHER (SCHED_FIFO refused)"
+    if how.startswith("SCHED_OTHER (thread_priority 0)"):
+        return "SCHED_OTHER (--thread-priority 0)"
+    return how.split(" (")[0]
+
+
 def realtime_scheduling(priority: int) -> tuple[bool, str]:
     """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (1..99; 0: leave it).
     Returns (granted, what the thread runs under — or why not, and how to grant it).
@@ -150,7 +173,8 @@ def realtime_scheduling(priority: int) -> tuple[bool, str]:
         return False, (f"SCHED_OTHER (SCHED_FIFO {priority} refused: "
                        f"{exc.strerror or exc}; grant it with CAP_SYS_NICE or an rtprio "
                        f"limit, e.g. 'ulimit -r {priority}' or rtprio in "
-                       f"/etc/security/limits.conf; thread_priority 0 stops asking)")
+                       f"/etc/security/limits.conf; thread_priority 0 (flexarm run "
+                       f"--thread-priority 0) stops asking)")
     return True, f"SCHED_FIFO {priority}"
 
 

@@ -148,8 +148,10 @@ def cmd_simulate(args):
     scene = _load(args)
     progress = _Progress(scene.duration if args.duration is None else args.duration,
                          args.quiet or args.json)
+    from flexarm_ros.io.progress import CompileNotice
     try:
-        res = simulate(scene, args.duration, progress=progress.callback)
+        with CompileNotice(enabled=not args.quiet):
+            res = simulate(scene, args.duration, progress=progress.callback)
     finally:
         progress.clear()
     summ = res.summary()

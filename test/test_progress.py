@@ -35,3 +35,28 @@ def test_in_a_log_file_each_update_is_a_line_of_its_own_at_most_once_per_period(
     line.clear()
     assert out.getvalue() == "t = 1\nt = 3\nt = 4\n"
     assert "\r" not in out.getvalue()
+
+
+def test_a_compile_notice_comes_once_and_only_from_inside_numbas_compiler(tmp_path):
+    """The notice looks at the entering thread's stack: a frame of numba's compiler.py
+    (here a stand-in compiled with that file name) makes it speak once; the same wait
+    elsewhere keeps it silent."""
+    import io
+    import os
+    import time
+    from flexarm_ros.io.progress import NUMBA_COMPILER, CompileNotice
+    ns = {"time": time}
+    fake = os.path.join(str(tmp_path), *NUMBA_COMPILER)
+    exec(compile("def compile_extra():\n    time.sleep(0.4)\n", fake, "exec"), ns)
+    out = io.StringIO()
+    with CompileNotice(after=0.05, period=0.02, stream=out) as n:
+        ns["compile_extra"]()
+    assert n.said and out.getvalue().count("compiling the numba kernels") == 1
+    quiet = io.StringIO()
+    with CompileNotice(after=0.05, period=0.02, stream=quiet) as n:
+        time.sleep(0.4)
+    assert not n.said and quiet.getvalue() == ""
+    off = io.StringIO()
+    with CompileNotice(after=0.05, period=0.02, stream=off, enabled=False) as n:
+        ns["compile_extra"]()
+    assert not n.said and off.getvalue() == ""

@@ -46,3 +46,71 @@ class ProgressLine:
         if self.tty and self.drawn:
             print("\r" + " " * self.width + "\r", end="", file=self.stream, flush=True)
             self.drawn = False
+
+
+#: a frame in this file is numba compiling (not loading from its cache, which does not
+#: pass through it)
+NUMBA_COMPILER = ("numba", "core", "compiler.py")
+
+
+class CompileNotice:
+    """``with CompileNotice():`` — when the thread that entered has been inside numba's
+    compiler for ``after`` s, say once on ``stream`` that the kernels are being compiled
+    (the first run after an install or an update compiles for tens of seconds, silently
+    otherwise), and where the result is cached. A daemon thread looks at the entering
+    thread's stack (``sys._current_frames``) every ``period`` s; nothing else is touched."""
+
+    def __init__(self, after: float = 2.0, period: float = 0.5, stream=None,
+                 enabled: bool = True):
+        import threading
+        self.after, self.period = after, period
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = enabled
+        self.said = False
+        self._stop = threading.Event()
+        self._thread = None
+        self._target = None
+
+    def _compiling(self) -> bool:
+        import os
+        frame = sys._current_frames().get(self._target)
+        mark = os.sep + os.sep.join(NUMBA_COMPILER)
+        while frame is not None:
+            if frame.f_code.co_filename.endswith(mark):
+                return True
+            frame = frame.f_back
+        return False
+
+    def _watch(self):
+        if self._stop.wait(self.after):
+            return
+        while not self._stop.is_set():
+            if self._compiling():
+                where = ""
+                try:
+                    import numba
+                    where = f"; cached in {numba.config.CACHE_DIR}" if \
+                        numba.config.CACHE_DIR else ""
+                except ImportError:             # pragma: no cover - only numba compiles
+                    pass
+                print("flexarm: compiling the numba kernels (once after an install or an "
+                      f"update of flexarm_ros, up to a minute{where}) ...", file=self.stream,
+                      flush=True)
+                self.said = True
+                return
+            self._stop.wait(self.period)
+
+    def __enter__(self):
+        import threading
+        if self.enabled:
+            self._target = threading.get_ident()
+            self._thread = threading.Thread(target=self._watch, name="compile-notice",
+                                            daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        return False

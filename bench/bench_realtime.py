@@ -17,8 +17,9 @@ at 4 kHz batched four samples per message, wall, recorder on):
    ``processes``): real-time factor, ticks late by more than half a period, lateness
    p50/p99/max, and the messages the recorder lost (published minus recorded, per topic);
    ``--rate 2000`` repeats it at 2 kHz control;
-   Each realtime row runs with the pacing thread under SCHED_FIFO 50 (the default) and
-   at normal priority (``--thread-priority 0``), so the two are measured in one run;
+   Each realtime row runs with the pacing thread under SCHED_FIFO 50
+   (``--thread-priority 50``) and at normal priority (the default), so the two are
+   measured in one run;
 4. the host's floor (``--floor``, on by default): the simulator's own pacing
    (:class:`~flexarm_ros.twin.pacing.Pacer`) with nothing but a busy loop of W µs per
    tick in place of the twin (W = 0, 250, 500, 750 at 1 kHz), for ``--floor-seconds``
@@ -240,8 +241,8 @@ def main(argv=None) -> int:
                     help="the realtime runs' layouts (default: split, one, processes)")
     ap.add_argument("--thread-priority", type=int, action="append", default=None,
                     help="the pacing thread's SCHED_FIFO priorities to run each realtime "
-                         "and floor row with (default 50, the twin's default, then 0: "
-                         "normal scheduling)")
+                         "and floor row with (default 50, then 0: normal "
+                         "scheduling, the twin's default)")
     ap.add_argument("--no-lockstep", action="store_true", help="realtime runs only")
     ap.add_argument("--floor-seconds", type=float, default=10.0,
                     help="seconds of each host-floor run (0: none; default 10)")

@@ -578,8 +578,9 @@ def build_parser():
                         "(default 0.1)")
     r.add_argument("--thread-priority", type=int, metavar="N",
                    help="realtime only (lockstep and fast ignore it): SCHED_FIFO priority "
-                        "of the simulator's pacing thread (1..99, default 50 as "
-                        "ros2_control's; 0: normal scheduling). "
+                        "of the simulator's pacing thread (1..99; default 0, normal "
+                        "scheduling: under FIFO the plant takes the CPU from a "
+                        "controller of yours on the same host). "
                         "Where the kernel refuses it the run goes on at normal priority "
                         "and says so")
     r.add_argument("--ground-truth-rate", type=number, metavar="HZ",

@@ -184,8 +184,7 @@ def test_a_refused_priority_says_why_and_how_to_grant_it(monkeypatch):
 def test_the_summary_line_tells_asked_from_refused():
     from flexarm_ros.twin.pacing import short_scheduling
     assert short_scheduling("SCHED_FIFO 50") == "SCHED_FIFO 50"
-    assert short_scheduling("SCHED_OTHER (thread_priority 0)") == \
-        "SCHED_OTHER (--thread-priority 0)"
+    assert short_scheduling("SCHED_OTHER (thread_priority 0)") == "SCHED_OTHER"
     assert short_scheduling("SCHED_OTHER (SCHED_FIFO 50 refused: Operation not permitted; "
                             "grant it ...)") == "SCHED_OTHER (SCHED_FIFO refused)"
 

@@ -47,7 +47,7 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
     for topic in (T.COMMANDS, T.EFFORTS, T.MOTOR_STATES):
         assert rec[T.resolve(NS, topic)] in (ticks, ticks + 1), topic
     assert s["rejected_commands"] == 0
-    assert s["scheduling"] == _granted(50)
+    assert s["scheduling"] == "SCHED_OTHER (thread_priority 0)"      # the default
 
 
 def _granted(priority: int) -> str:
@@ -123,14 +123,15 @@ def test_ground_truth_at_a_set_rate_keeps_the_values_of_every_tick(tmp_path, cap
 
 def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path, capsys):
     """The kernel's own answer for the pacing thread (sched_getscheduler of its thread id,
-    polled while it runs in this process), at the default priority and with
-    ``--thread-priority 0``."""
+    polled while it runs in this process), with ``--thread-priority 50`` and at the
+    default (0: normal scheduling)."""
     import os
     import threading
     if not hasattr(os, "sched_getscheduler"):
         pytest.skip("no SCHED_FIFO here")
-    for argv, want in (([], os.SCHED_FIFO if _granted(50) == "SCHED_FIFO 50" else
-                        os.SCHED_OTHER), (["--thread-priority", "0"], os.SCHED_OTHER)):
+    for argv, want in ((["--thread-priority", "50"], os.SCHED_FIFO
+                        if _granted(50) == "SCHED_FIFO 50" else os.SCHED_OTHER),
+                       ([], os.SCHED_OTHER)):
         seen, done = set(), threading.Event()
 
         def watch():
@@ -151,7 +152,7 @@ def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path,
             done.set()
             w.join()
         assert seen == {want}, (argv, seen)
-        assert s["scheduling"] == (_granted(50) if not argv else
+        assert s["scheduling"] == (_granted(50) if argv else
                                    "SCHED_OTHER (thread_priority 0)")
 
 

@@ -96,9 +96,10 @@ class SimulatorNode(Node):
                               "published)"),
               "late_bound": (0.1, "realtime: s of lateness before late_policy acts"),
               "thread_priority": (THREAD_PRIORITY, "realtime: SCHED_FIFO priority of the "
-                                  "pacing thread (1..99; 0: normal scheduling); refused by "
-                                  "the kernel, the thread runs at normal priority and the "
-                                  "node warns"),
+                                  "pacing thread (1..99; 0, the default: normal "
+                                  "scheduling, which leaves a controller on the same "
+                                  "host its share); refused by the kernel, the thread "
+                                  "runs at normal priority and the node warns"),
               "effort_lag": (3, "realtime: the most ticks the plant runs ahead of the "
                              "efforts (the source answers every joint state, as the twin's "
                              "driver does) before it waits for the next one (at most "

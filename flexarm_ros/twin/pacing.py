@@ -21,14 +21,18 @@ Past ``late_bound`` seconds of lateness, the policy decides (``late_policy``):
   away (measured: a 0.5 s stall at start-up made ``two_link_case1`` diverge) — use it
   with a bound of a few periods, where a held effort is what the bench would see.
 
-The pacing thread asks the kernel for realtime scheduling (``SCHED_FIFO`` at
-``thread_priority``, default :data:`THREAD_PRIORITY`; ros2_control's controller manager
-does the same for its update loop, with the same default): a runnable process of normal
-priority can then not delay a deadline on the simulator's CPU, only the GIL and the
-kernel can. Where the kernel refuses (no ``CAP_SYS_NICE`` and no ``RLIMIT_RTPRIO``), the
-thread runs at normal priority and the node warns once; ``thread_priority`` 0 does not
-ask. The run summary says which (``scheduling``). A FIFO thread never runs back to back
-for longer than ``late_bound``: past it, either policy moves the next deadline a period
+The pacing thread can ask the kernel for realtime scheduling (``SCHED_FIFO`` at
+``thread_priority`` 1..99; ros2_control's controller manager does so for its update loop
+by default): a runnable process of normal priority can then not delay a deadline on the
+simulator's CPU. It is off by default (:data:`THREAD_PRIORITY` 0), measured: on a
+shared 2-core host a FIFO plant takes the CPU from the user's own controller — with the
+example controller in its own process (``--processes``, an overloaded graph here) the
+arm ended 3.5–26 % of its move off target under FIFO 50 against 0.2–1.2 % at normal
+priority, while the gain was only the wake-up latency (p50 0.05 against 0.11 ms;
+docs/design_notes.md, *Session 14*). Where the kernel refuses (no ``CAP_SYS_NICE`` and
+no ``RLIMIT_RTPRIO``), the thread runs at normal priority and the node warns once. The
+run summary says which (``scheduling``). A FIFO thread never runs back to back for
+longer than ``late_bound``: past it, either policy moves the next deadline a period
 after now, so the thread sleeps again (and the kernel's realtime throttling keeps 5 % of
 every second for the rest in any case).
 
@@ -51,8 +55,8 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 
 LATE_POLICIES = ("skip", "slow")
-#: the pacing thread's SCHED_FIFO priority by default (ros2_control's ``thread_priority``)
-THREAD_PRIORITY = 50
+#: the pacing thread's SCHED_FIFO priority by default: 0, normal scheduling (see above)
+THREAD_PRIORITY = 0
 
 
 class Lateness:
@@ -155,7 +159,7 @@ def short_scheduling(how: str) -> str:
     if how.startswith("SCHED_OTHER (SCHED_FIFO"):
         return "SCHED_OTHER (SCHED_FIFO refused)"
     if how.startswith("SCHED_OTHER (thread_priority 0)"):
-        return "SCHED_OTHER (--thread-priority 0)"
+        return "SCHED_OTHER"
     return how.split(" (")[0]
 
 

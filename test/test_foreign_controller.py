@@ -40,6 +40,12 @@ def test_the_example_imports_nothing_of_the_twin():
     assert imported <= {"math", "sys", "time", "rclpy", "sensor_msgs", "std_msgs"}, imported
 
 
+def _stop(proc, log):
+    proc.terminate()
+    proc.wait(30)
+    log.close()
+
+
 def _start_example(tmp_path):
     log = open(tmp_path / "controller.log", "w")
     proc = subprocess.Popen([sys.executable, str(EXAMPLE), "--ros-args", "-r",
@@ -69,9 +75,7 @@ def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode, proces
                   namespace=NS, progress=False, nodes=("simulator", "motor_driver"),
                   processes=processes)
     finally:
-        proc.terminate()
-        proc.wait(30)
-        log.close()
+        _stop(proc, log)
     assert set(res.nodes) == {"recorder", "motor_driver", "simulator"}
     assert not res.diverged and res.to_json()["rejected_commands"] == 0
     bag = read_bag(tmp_path / "run.mcap")
@@ -254,9 +258,7 @@ def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
                   namespace=NS, progress=False, nodes=("simulator", "controller"),
                   layout=layout)
     finally:
-        proc.terminate()
-        proc.wait(30)
-        log.close()
+        _stop(proc, log)
     s = res.to_json()
     assert not res.diverged and not res.stalled and s["ticks"] == 300, s
     bag = read_bag(tmp_path / "run.mcap")

@@ -127,3 +127,19 @@ def test_a_fresh_compile_and_a_cache_load_give_the_same_bits(tmp_path):
         assert r.returncode == 0, r.stderr[-2000:]
     assert any((tmp_path / "numba").rglob("*.nbi")), "the first run wrote no cache"
     assert runs[0].stdout == runs[1].stdout
+
+
+def test_the_cache_digest_covers_every_module_numba_compiles():
+    """numba's cache keys a function on its own file only, so the digest naming the cache
+    directory must cover every file whose functions are compiled: any module using the
+    compiler (``jit``, ``jit_inline``, ``jit_raw`` or ``numba``) is among them."""
+    import re
+    from pathlib import Path
+    from flexarm_ros.model.compiled import cache_dir, compiled_sources, source_key
+    pkg = Path(__file__).resolve().parents[1] / "flexarm_ros"
+    covered = {p.resolve() for p in compiled_sources()}
+    uses = re.compile(r"^\s*@(_?jit\w*)|^\s*\w+ = _?jit\w*\(|^import numba|^\s*@numba\.",
+                      re.M)
+    users = {p.resolve() for p in pkg.rglob("*.py") if uses.search(p.read_text())}
+    assert users and users <= covered, sorted(str(p) for p in users - covered)
+    assert cache_dir("/x").name == f"flexarm-{source_key()}"

@@ -9,10 +9,17 @@ import os
 import shutil
 from pathlib import Path
 
-#: the files whose functions numba compiles (the programs are compiled in chain.py)
-_SOURCES = ("compiled/__init__.py", "compiled/chain.py", "compiled/contact.py",
-            "compiled/layout.py", "compiled/loops.py", "compiled/sensors.py", "drives.py",
-            "programs.py")
+#: files outside this package whose functions numba compiles (the programs are compiled
+#: in chain.py); every module of this package counts as well (:func:`compiled_sources`)
+_OTHER_SOURCES = ("drives.py", "programs.py")
+
+
+def compiled_sources() -> list[Path]:
+    """The files whose functions numba compiles: this package's modules and
+    :data:`_OTHER_SOURCES` of ``flexarm_ros/model`` (``test_kernel`` checks no module
+    elsewhere uses the compiler)."""
+    here = Path(__file__).resolve().parent
+    return sorted(here.glob("*.py")) + [here.parent / n for n in _OTHER_SOURCES]
 
 
 def source_key() -> str:
@@ -25,10 +32,9 @@ def source_key() -> str:
     probe of the kernel measured the unchanged code). One cache directory per digest
     (:func:`cache_dir`) makes a changed source a fresh compile."""
     h = hashlib.sha256(os.environ.get("FLEXARM_KERNEL_NRT", "").encode())
-    root = Path(__file__).resolve().parents[1]
-    for name in _SOURCES:
-        h.update(name.encode())
-        h.update((root / name).read_bytes())
+    for path in compiled_sources():
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 

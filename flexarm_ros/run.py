@@ -325,14 +325,7 @@ class InProcessGraph:
         """Every message published by this process's nodes, and every effort the
         simulator accepted (an outside driver's included), has reached the recorder."""
         rec = self.nodes.get("recorder")
-        if rec is None:
-            return True
-        sent: dict = {}
-        for name, node in self.nodes.items():
-            for topic, n in getattr(node, "published", {}).items():
-                sent[topic] = sent.get(topic, 0) + n
-        return _all_arrived(rec.received, sent, *(getattr(node, "accepted", {})
-                                                   for node in self.nodes.values()))
+        return rec is None or _all_arrived(rec.received, self.nodes.values())
 
     def remove(self, name):
         """Take a node out of the graph (what a crash does), without closing the others."""
@@ -543,15 +536,8 @@ class SplitGraph:
         (its summary's counts), and what the nodes accepted (``sim_accepted``: the
         simulator's), has reached the recorder."""
         rec = self.graph.nodes.get("recorder")
-        if rec is None:
-            return True
-        sent = dict(sim_published or {})
-        for node in self.graph.nodes.values():
-            for topic, n in getattr(node, "published", {}).items():
-                sent[topic] = sent.get(topic, 0) + n
-        return _all_arrived(rec.received, sent, sim_accepted or {},
-                            *(getattr(node, "accepted", {})
-                              for node in self.graph.nodes.values()))
+        return rec is None or _all_arrived(rec.received, self.graph.nodes.values(),
+                                           sim_published, sim_accepted)
 
     def close(self):
         if self.procs is not None:
@@ -565,15 +551,21 @@ class SplitGraph:
             self._affinity = None
 
 
-def _all_arrived(received: dict, sent: dict, *accepted: dict) -> bool:
-    """The recorder's ``received`` counts cover what the graph's nodes ``sent`` per topic
-    and what they ``accepted`` from their inputs ({topic: n}: the simulator's efforts,
-    the driver's commands) — those come from whichever node publishes them, the twin's
-    own or one outside the run, and the recorder validates them alike (found in session
-    13: the last effort of an outside driver was missing from 1 bag in 5 — the run had
-    ended before the recorder took it)."""
-    need = dict(sent)
-    for acc in accepted:
+def _all_arrived(received: dict, nodes, published: dict | None = None,
+                 accepted: dict | None = None) -> bool:
+    """The recorder's ``received`` counts cover what the ``nodes`` published per topic
+    (plus ``published``, a node elsewhere's counts) and what they accepted from their
+    inputs (their ``accepted`` {topic: n}, plus ``accepted``: the simulator's efforts, the
+    driver's commands) — those come from whichever node publishes them, the twin's own or
+    one outside the run, and the recorder validates them alike (found in session 13: the
+    last effort of an outside driver was missing from 1 bag in 5 — the run had ended
+    before the recorder took it)."""
+    nodes = list(nodes)
+    need = dict(published or {})
+    for node in nodes:
+        for t, n in getattr(node, "published", {}).items():
+            need[t] = need.get(t, 0) + n
+    for acc in [accepted or {}] + [getattr(node, "accepted", {}) for node in nodes]:
         for t, n in acc.items():
             need[t] = max(need.get(t, 0), n)
     return all(received.get(t, 0) >= n for t, n in need.items())
@@ -784,8 +776,8 @@ def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:
         res.pacing = {k: sim[k] for k in ("ticks", "late_ticks", "lateness_p50_s",
                                           "lateness_p99_s", "lateness_max_s", "late_policy",
                                           "late_bound_s", "skipped_ticks", "slowed_s",
-                                          "effort_waits", "effort_wait_timeouts")}
-        res.pacing["scheduling"] = sim.get("scheduling")
+                                          "effort_waits", "effort_wait_timeouts",
+                                          "scheduling")}
         res.overruns = sim["late_ticks"]
 
 

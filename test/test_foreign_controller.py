@@ -272,11 +272,18 @@ def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
 
 
 def test_the_end_waits_for_what_the_nodes_accepted_not_only_what_they_sent():
+    from types import SimpleNamespace as Node
     from flexarm_ros.run import _all_arrived
-    sent = {T.JOINT_STATES: 301, T.COMMANDS: 300}          # no driver of the twin's own
+    sim = Node(published={T.JOINT_STATES: 301}, accepted={T.EFFORTS: 300})
+    ctl = Node(published={T.COMMANDS: 300})                 # no driver of the twin's own
     got = {T.JOINT_STATES: 301, T.COMMANDS: 300, T.EFFORTS: 299}
-    assert not _all_arrived(got, sent, {T.EFFORTS: 300})    # the outside driver's last
-    assert _all_arrived({**got, T.EFFORTS: 300}, sent, {T.EFFORTS: 300})
+    assert not _all_arrived(got, [sim, ctl])                # the outside driver's last
+    assert _all_arrived({**got, T.EFFORTS: 300}, [sim, ctl])
+    # the simulator in a process of its own: its counts from its summary
+    assert not _all_arrived(got, [ctl], {T.JOINT_STATES: 301}, {T.EFFORTS: 300})
+    assert _all_arrived({**got, T.EFFORTS: 300}, [ctl], {T.JOINT_STATES: 301},
+                        {T.EFFORTS: 300})
     # an outside controller's commands the twin's driver accepted, likewise
-    assert not _all_arrived({T.COMMANDS: 4}, {}, {T.COMMANDS: 5}, {T.EFFORTS: 0})
-    assert _all_arrived({T.COMMANDS: 5, T.EFFORTS: 0}, {}, {T.COMMANDS: 5}, {T.EFFORTS: 0})
+    drv = Node(published={T.EFFORTS: 0}, accepted={T.COMMANDS: 5})
+    assert not _all_arrived({T.COMMANDS: 4, T.EFFORTS: 0}, [drv])
+    assert _all_arrived({T.COMMANDS: 5, T.EFFORTS: 0}, [drv])

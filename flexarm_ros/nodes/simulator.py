@@ -479,11 +479,12 @@ class SimulatorNode(Node):
                 if st["skipped_ticks"] or st["slowed_s"]:
                     n = self.pacer.crossings
                     pace += (f"; late beyond {st['late_bound_s']:g} s {n} "
-                             f"time{'' if n == 1 else 's'}: " + (f"{st['skipped_ticks']} ticks stepped without "
-                                            f"publishing (late_policy skip)"
-                                            if st["skipped_ticks"] else
-                                            f"{st['slowed_s']:.3f} s behind the wall clock "
-                                            f"(late_policy slow)"))
+                             f"time{'' if n == 1 else 's'}: "
+                             + (f"{st['skipped_ticks']} ticks stepped without "
+                                f"publishing (late_policy skip)"
+                                if st["skipped_ticks"] else
+                                f"{st['slowed_s']:.3f} s behind the wall clock "
+                                f"(late_policy slow)"))
             log = self.get_logger().warning if (self.mode == "realtime" and
                                                 self.pacer.crossings) else \
                 self.get_logger().info

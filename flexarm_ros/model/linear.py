@@ -134,6 +134,13 @@ def highest_rate(chain, q0, qd0, z0=None) -> float:
     the stable step of explicit integrators. Computed by central differences of the
     right-hand side. With backlash the mesh is also taken engaged on either side (at the
     start the teeth may be apart, hiding the stiffest coupling)."""
+    return max(float(np.abs(np.linalg.eigvals(J)).max()) for J in jacobians(chain, q0, qd0, z0))
+
+
+def jacobians(chain, q0, qd0, z0=None) -> list[np.ndarray]:
+    """The Jacobians ∂ẋ/∂x of the first-order system about (q0, q̇0, z0) that
+    :func:`highest_rate` takes its spectral radius over: one, and with backlash one more on
+    either side of the dead zone (central differences staying on one side of its kink)."""
     free = chain.free
     z0 = np.zeros(chain.nz) if z0 is None else z0
     states = [q0]
@@ -144,12 +151,9 @@ def highest_rate(chain, q0, qd0, z0=None) -> float:
             states.append(q)
     # stay on one side of the dead zone's kink
     max_step = BACKLASH_MAX_STEP if chain.backlash else np.inf
-    worst = 0.0
-    for q in states:
-        x0 = np.concatenate([q[free], qd0[free], z0])
-        Jm = jacobian(lambda x: chain.rhs(0.0, x), x0, max_step=max_step)
-        worst = max(worst, float(np.abs(np.linalg.eigvals(Jm)).max()))
-    return worst
+    return [jacobian(lambda x: chain.rhs(0.0, x),
+                     np.concatenate([q[free], qd0[free], z0]), max_step=max_step)
+            for q in states]
 
 
 def smooth_rhs(chain) -> bool:

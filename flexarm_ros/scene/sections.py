@@ -23,7 +23,9 @@ RUNGS = ("rigid", "cubic", "modal", "fem", "fd")
 #: cheapest rung, refinement and RK4 step estimated to meet the tip tolerance,
 #: :mod:`flexarm_ros.model.autofidelity`)
 RUNG_CHOICES = RUNGS + ("auto",)
-INTEGRATORS = ("rk4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
+#: rkn4: RK4 with the positions stepped by the Runge–Kutta–Nyström formulas (same cost, about
+#: half the error on the arms' oscillations; :func:`flexarm_ros.sim.step.rk4_step`)
+INTEGRATORS = ("rk4", "rkn4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
 TORQUE_PROGRAMS = ("constant", "step", "pulse", "square", "piecewise_constant",
                    "piecewise_linear")
 MOTION_PROGRAMS = ("spin_up", "smooth_step", "hold")
@@ -521,7 +523,7 @@ class Fidelity:
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
                                            "(geometric stiffening) terms")
     integrator: str = param("rk4", choices=INTEGRATORS, doc="time integrator")
-    dt: float = param(0.0, unit="s", ge=0.0, doc="fixed step (rk4) or max step (0 → auto)")
+    dt: float = param(0.0, unit="s", ge=0.0, doc="fixed step (rk4, rkn4, trapezoid) or max step (0 → auto)")
     rtol: float = param(1e-8, gt=0.0, lt=1.0, doc="relative tolerance (adaptive)")
     atol: float = param(1e-10, gt=0.0, doc="absolute tolerance (adaptive)")
     output_dt: float = param(1e-3, unit="s", gt=0.0, doc="sample period of the output")

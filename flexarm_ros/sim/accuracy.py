@@ -60,9 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, highest_rate,
-                                      search_above_stable)
-from flexarm_ros.sim.step import RK4_AUTO, RK4_STABILITY
+from flexarm_ros.model.linear import ABOVE_STABLE_SHARE, search_above_stable
 
 SAFETY = 0.5            # the estimate aims at half the tolerance
 WINDOW_FRACTION = 0.1   # the pilot window: this share of the run ...
@@ -120,7 +118,7 @@ class StepChoice:
 
 
 #: the order the estimate assumes per stepper (the contact stepper's: see the module text)
-ORDER = {"rk4": 4, "contact": 3}
+ORDER = {"rk4": 4, "rkn4": 4, "contact": 3}
 
 
 def tip_history(chain, x0, t_end, h, output_dt, max_ratio,
@@ -133,7 +131,7 @@ def tip_history(chain, x0, t_end, h, output_dt, max_ratio,
         run, _ = integrate_with_contact(chain, contact, x0, t_end, output_dt, dt=h)
     else:
         from flexarm_ros.sim.integrate import integrate
-        run = integrate(chain, x0, t_end, "rk4", h, output_dt=output_dt,
+        run = integrate(chain, x0, t_end, _explicit(chain), h, output_dt=output_dt,
                         max_deflection_ratio=max_ratio)
     return chain.energies(run.t, run.q, run.qd, run.z)[1], run.dt   # one compiled pass
 
@@ -162,10 +160,12 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                             dense=smooth(chain))
         h1, window = h_top, t_end               # pilots over the whole run: every event
     else:
-        order = ORDER["rk4"]
+        from flexarm_ros.sim.step import stability
+        order = ORDER[_explicit(chain)]
         q, qd = chain.full_state(0.0, x0)
-        rate = highest_rate(chain, q, qd, x0[2 * len(chain.free):])
-        h_top = RK4_AUTO / rate if rate > 0 else output_dt
+        rate, limit, auto = stability(chain, q, qd, x0[2 * len(chain.free):],
+                                      _explicit(chain))
+        h_top = auto if rate > 0 else output_dt
         h1 = h_top / 2
         window = max(WINDOW_MIN_S, WINDOW_FRACTION * t_end)
         jumps = input_breakpoints(chain, t_end)[:-1]
@@ -187,7 +187,7 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
         est = e1 * (h / h1) ** order * growth
         base = (h1, e1)
         if h_want > h_top:          # the stable step binds, not the tolerance: try above it
-            above = _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate,
+            above = _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit,
                                   h_top, h_want, fine, (h1, e1), h2, order, growth)
             if above is not None:
                 return above
@@ -208,7 +208,13 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
     return StepChoice(h, est, tol, base[0], window, base[1], h_top, order)
 
 
-def _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate, h_top, h_want,
+def _explicit(chain) -> str:
+    """The explicit integrator the pilots step with: the scene's rkn4, else RK4 (also the
+    contact stepper's)."""
+    return "rkn4" if chain.fidelity.integrator == "rkn4" else "rk4"
+
+
+def _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit, h_top, h_want,
                   fine, base, h2, order, growth) -> StepChoice | None:
     """A step above the stable step h_top, up to ABOVE_STABLE_SHARE of the stability
     limit, *measured* at that step, or None (keep h_top).
@@ -223,7 +229,7 @@ def _above_stable(chain, x0, window, tol, output_dt, max_ratio, rate, h_top, h_w
     h1, e1 = base
     e2 = e1 * (h2 / h1) ** order
     target = SAFETY * tol / growth
-    h_cap = ABOVE_STABLE_SHARE * RK4_STABILITY / rate if rate > 0 else math.inf
+    h_cap = ABOVE_STABLE_SHARE * limit
     if not math.isfinite(h_cap) or h_cap <= h_top * (1 + 1e-9):
         return None
 

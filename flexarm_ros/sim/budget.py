@@ -294,7 +294,7 @@ def _fix(chain, kind, integrator) -> str:
         return ("fidelity.motor_current: quasi_static (a DC motor whose L/R is far below the "
                 "mechanical time scales), --integrator radau or bdf (implicit), or check "
                 "the drive's parameters above")
-    explicit = integrator in ("rk4", "rk45", "dop853", "lsoda")
+    explicit = integrator in ("rk4", "rkn4", "rk45", "dop853", "lsoda")
     tips = []
     if fid.rung in ("fem", "fd", "modal"):
         tips.append("a coarser rung or refinement (--rung, --refine: the modal rung keeps "

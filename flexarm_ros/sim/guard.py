@@ -27,7 +27,7 @@ class DivergenceGuard:
         return np.array([phi @ q[sl] for phi, sl in self.tip_rows]) / self.lengths
 
     def _fix(self):
-        if self.integrator == "rk4":
+        if self.integrator in ("rk4", "rkn4"):
             return (f"reduce the step (--dt, now {self.h:.3g} s), use --integrator radau, "
                     f"or a coarser rung / fewer modes")
         return "tighten --rtol/--atol or use --integrator radau or bdf"

@@ -1,5 +1,6 @@
-"""Time integration of a chain: fixed-step RK4, the implicit trapezoidal rule, and scipy's
-``solve_ivp`` methods.
+"""Time integration of a chain: fixed-step RK4 and RKN4 (RK4 with the positions stepped by
+the Runge–Kutta–Nyström formulas, :func:`~flexarm_ros.sim.step.rk4_step`), the implicit
+trapezoidal rule, and scipy's ``solve_ivp`` methods.
 
 Every run returns an :class:`Integration` result (like scipy's ``OdeResult``: ``status``,
 ``message``, call counters); the state is checked after every step and a non-finite or
@@ -26,12 +27,17 @@ from flexarm_ros.model.differentiate import jacobian
 from flexarm_ros.model.linear import smooth_rhs
 from flexarm_ros.model.programs import torque_breakpoints
 from flexarm_ros.sim.guard import DivergenceGuard
-from flexarm_ros.sim.step import choose_step, rk4_step
+from flexarm_ros.sim.step import choose_step, nystrom_positions, rk4_step
 from flexarm_ros.sim.budget import Pace, check_work
 
 #: scipy's solve_ivp methods by integrator name (the class by :func:`solve_ivp_method`)
 SOLVE_IVP = {"rk45": "RK45", "dop853": "DOP853", "radau": "Radau", "bdf": "BDF",
              "lsoda": "LSODA"}
+
+#: the explicit fixed-step integrators (one step function, :func:`rk4_step`) and with the
+#: implicit trapezoidal rule, the fixed-step ones
+EXPLICIT = ("rk4", "rkn4")
+FIXED_STEP = EXPLICIT + ("trapezoid",)
 
 #: fewest RK4 steps per call of a compiled loop between progress reports
 MIN_CALL_STEPS = 250
@@ -94,9 +100,9 @@ class _Counted:
 def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
               output_dt=1e-3, max_deflection_ratio=0.5, progress=None) -> Integration:
     """Integrate the chain from state x0 = [q_free, q̇_free, z] over [0, t_end]."""
-    if integrator not in ("rk4", "trapezoid", *SOLVE_IVP):
-        raise SceneError(f"fidelity.integrator: got {integrator!r}, expected one of rk4, "
-                         f"trapezoid, {', '.join(SOLVE_IVP)}")
+    if integrator not in FIXED_STEP + tuple(SOLVE_IVP):
+        raise SceneError(f"fidelity.integrator: got {integrator!r}, expected one of "
+                         f"{', '.join(FIXED_STEP)}, {', '.join(SOLVE_IVP)}")
     if integrator == "trapezoid" and chain.nz:
         raise SceneError(
             f"fidelity.integrator: got 'trapezoid', but the model has actuator states "
@@ -107,15 +113,16 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     t_out = np.arange(n_out + 1) * output_dt
     chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
     h = choose_step(chain, x0, integrator, dt, output_dt,
-                    dense=integrator == "rk4" and smooth(chain))
-    if integrator in ("rk4", "trapezoid"):
+                    dense=integrator in EXPLICIT and smooth(chain))
+    if integrator in FIXED_STEP:
         check_work(chain, x0, h, t_end, integrator)         # before the work: no silent hang
     guard = DivergenceGuard(chain, max_deflection_ratio, integrator, h)
     f = _Counted(chain)
     xs = np.empty((len(t_out), len(x0)))
     xs[0] = x0
     guard.check(0.0, x0)
-    dense = integrator == "rk4" and not _divides(h, output_dt)
+    dense = integrator in EXPLICIT and not _divides(h, output_dt)
+    nq = nystrom_positions(chain, integrator)
     if chain.backend == "numba":                                # compile outside the timing
         kloops.warm_up(integrator, chain.kernel_args, x0, xs, dense=dense)
     wall0 = time.perf_counter()
@@ -132,7 +139,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t_stop = min(t + chunk, next(b for b in bps if b > t + 1e-12 * max(1.0, t_end)))
             code, t_new, st, calls, k_next, x_last, x_bad = kloops.rk4_dense(
                 x, t, h, t_stop, output_dt, k_next, max_deflection_ratio, xs,
-                chain.kernel_args, ws)
+                chain.kernel_args, ws, nq > 0)
             steps += st
             f.calls += calls
             if code != kchain.OK:
@@ -143,14 +150,15 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         xs[k_next:] = x                  # t_end exactly on the grid but below rounding
     elif dense:
         steps = _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard,
-                               input_breakpoints(chain, t_end))
-    elif integrator == "rk4" and chain.backend == "numba":
+                               input_breakpoints(chain, t_end), nq)
+    elif integrator in EXPLICIT and chain.backend == "numba":
         per = int(round(output_dt / h))
         ws = kchain.workspace(chain.kernel_args)
         x, steps = np.array(x0, float), 0
         for k0, k1 in _chunks(n_out, per=per):
             code, t_fail, st, x_last, x_bad = kloops.rk4_loop(
-                x, h, per, k0, k1, output_dt, max_deflection_ratio, xs, chain.kernel_args, ws)
+                x, h, per, k0, k1, output_dt, max_deflection_ratio, xs, chain.kernel_args, ws,
+                nq > 0)
             steps += st
             if code != kchain.OK:
                 guard.last = x_last
@@ -162,7 +170,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         steps, calls = _run_trapezoid(chain, x0, h, n_out, output_dt, max_deflection_ratio,
                                       xs, guard, progress)
         f.calls += calls
-    elif integrator == "rk4":
+    elif integrator in EXPLICIT:
         per = int(round(output_dt / h))
         x = np.array(x0, float)
         steps = 0
@@ -170,7 +178,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t = t_out[k]
             for j in range(per):
                 tj = t + j * h
-                x = chain.clamp_states(rk4_step(f, tj, x, h))
+                x = chain.clamp_states(rk4_step(f, tj, x, h, nq=nq))
                 steps += 1
                 guard.check(tj + h, x)
             xs[k + 1] = x
@@ -210,7 +218,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             t_lo = t_hi
         xs[k_out:] = x  # t_end exactly on the grid but below rounding
     wall = time.perf_counter() - wall0
-    step_used = h if integrator in ("rk4", "trapezoid") else 0.0
+    step_used = h if integrator in FIXED_STEP else 0.0
     return Integration.completed(chain, t_out, xs, f.calls, steps, wall, step_used)
 
 
@@ -242,7 +250,7 @@ def hermite(theta, h, x0, f0, x1, f1):
             + (3 * t2 - 2 * t3) * x1 + (t3 - t2) * h * f1)
 
 
-def _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard, bps) -> int:
+def _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard, bps, nq=0) -> int:
     """RK4 with steps of h independent of the output grid (numpy backend): outputs inside
     a step from :func:`hermite`, ẋ from the right-hand side at both ends; a step ends on
     every input breakpoint in ``bps``. As the compiled :func:`kloops.rk4_dense`, the ẋ at
@@ -255,7 +263,7 @@ def _run_rk4_dense(f, chain, x0, h, t_end, t_out, xs, guard, bps) -> int:
         bp = next(b for b in bps if b > t + eps)
         hh = min(h, bp - t)
         f0 = f1 if f1 is not None else f(t + STAGE_EPS * hh, x)
-        x1 = chain.clamp_states(rk4_step(f, t, x, hh, k1=f0))
+        x1 = chain.clamp_states(rk4_step(f, t, x, hh, k1=f0, nq=nq))
         f1 = None
         steps += 1
         guard.check(t + hh, x1)

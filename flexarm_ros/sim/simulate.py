@@ -165,10 +165,10 @@ def check_tolerance_applies(chain, contact) -> None:
     fid = chain.fidelity
     tol = fid.tolerance
     _check_tolerance(tol, "the estimate is round-off")
-    if fid.integrator not in ("rk4", "trapezoid"):
+    if fid.integrator not in ("rk4", "rkn4", "trapezoid"):
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
-                         f"{fid.integrator!r}, expected integrator rk4 or trapezoid (the "
-                         f"adaptive integrators take --rtol/--atol)")
+                         f"{fid.integrator!r}, expected integrator rk4, rkn4 or trapezoid "
+                         f"(the adaptive integrators take --rtol/--atol)")
     if fid.integrator == "trapezoid" and contact is not None:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator 'trapezoid' "
                          f"and a wall, expected integrator rk4 (the contact stepper is RK4's)")

@@ -16,7 +16,7 @@ import numpy as np
 from flexarm_ros.errors import StepTooLarge
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.model.contact import constrained_rate
-from flexarm_ros.model.linear import RK4_AUTO, RK4_STABILITY, grid_step, highest_rate
+from flexarm_ros.model.linear import RK4_AUTO, RK4_STABILITY, grid_step, jacobians
 
 #: the automatic step with a wall is this fraction of RK4_AUTO/|λ|max: impacts excite the
 #: highest retained mode, which the full automatic step damps by ~6 % per step (|R(1.5i)| =
@@ -28,7 +28,7 @@ __all__ = ["CONTACT_STEP_FRACTION", "RK4_AUTO", "RK4_STABILITY", "choose_step", 
            "rk4_step"]
 
 
-def rk4_step(f, t, x, h, quadrature: bool = False, k1=None):
+def rk4_step(f, t, x, h, quadrature: bool = False, k1=None, nq: int = 0):
     """One RK4 step of ẋ = f(t, x) from (t, x) over h (actuator-state bounds are the
     caller's):
 
@@ -39,6 +39,13 @@ def rk4_step(f, t, x, h, quadrature: bool = False, k1=None):
     ε = ``STAGE_EPS``: the first and last stages lie just inside the step, so an input that
     jumps on a step boundary is seen with its value on that step (as the compiled loops).
 
+    ``nq`` > 0 (integrator rkn4): the first nq entries of x are positions whose rates are
+    the next nq, stepped by the fourth-order Runge–Kutta–Nyström formulas (Nyström 1925;
+    Hairer, Nørsett & Wanner I, Sec. II.14): with a_i the accelerations of stage i,
+    Q₂ = Q₃ = q + h/2·q̇ + h²/8·a₁, Q₄ = q + h·q̇ + h²/2·a₃ and
+    q₁ = q + h·q̇ + h²/6·(a₁ + a₂ + a₃); the rest of x by RK4's stages and weights (the
+    compiled ``loops._rk4_step`` with ``nystrom``).
+
     With ``quadrature``, ``f`` returns (ẋ, g) and the step returns (x₁, ∫g dt), the integral
     by the same stages and weights, h/6·(g₁ + 2g₂ + 2g₃ + g₄) (e.g. the normal impulse from
     the stage contact forces). ``k1``: the first stage, already known (first same as last:
@@ -47,11 +54,76 @@ def rk4_step(f, t, x, h, quadrature: bool = False, k1=None):
         return f(ts, xs) if quadrature else (f(ts, xs), 0.0)
 
     k1, g1 = stage(t + STAGE_EPS * h, x) if k1 is None or quadrature else (k1, 0.0)
-    k2, g2 = stage(t + 0.5 * h, x + 0.5 * h * k1)
-    k3, g3 = stage(t + 0.5 * h, x + 0.5 * h * k2)
-    k4, g4 = stage(t + (1.0 - STAGE_EPS) * h, x + h * k3)
+    v, a = x[nq:2 * nq], slice(nq, 2 * nq)
+    x2 = x + 0.5 * h * k1
+    x2[:nq] = x[:nq] + 0.5 * h * v + 0.125 * h * h * k1[a]
+    k2, g2 = stage(t + 0.5 * h, x2)
+    x3 = x + 0.5 * h * k2
+    x3[:nq] = x2[:nq]
+    k3, g3 = stage(t + 0.5 * h, x3)
+    x4 = x + h * k3
+    x4[:nq] = x[:nq] + h * v + 0.5 * h * h * k3[a]
+    k4, g4 = stage(t + (1.0 - STAGE_EPS) * h, x4)
     x1 = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    x1[:nq] = x[:nq] + h * v + (h * h / 6.0) * (k1[a] + k2[a] + k3[a])
     return (x1, (h / 6.0) * (g1 + 2 * g2 + 2 * g3 + g4)) if quadrature else x1
+
+
+def nystrom_positions(chain, integrator: str) -> int:
+    """The ``nq`` of :func:`rk4_step` for ``integrator``: the free coordinates for rkn4, 0
+    (RK4 throughout) for rk4."""
+    return len(chain.free) if integrator == "rkn4" else 0
+
+
+def rkn4_map(J, nq: int, h: float) -> np.ndarray:
+    """The step map x₁ = R·x₀ of :func:`rk4_step` with ``nq`` Nyström positions on the
+    linear system ẋ = J x (nq = 0: RK4's R = Σ (hJ)^k/k!, k ≤ 4)."""
+    m = J.shape[0]
+    X = np.eye(m)
+    v, a = slice(nq, 2 * nq), slice(nq, 2 * nq)
+    k1 = J @ X
+    x2 = X + 0.5 * h * k1
+    x2[:nq] = X[:nq] + 0.5 * h * X[v] + 0.125 * h * h * k1[a]
+    k2 = J @ x2
+    x3 = X + 0.5 * h * k2
+    x3[:nq] = x2[:nq]
+    k3 = J @ x3
+    x4 = X + h * k3
+    x4[:nq] = X[:nq] + h * X[v] + 0.5 * h * h * k3[a]
+    k4 = J @ x4
+    R = X + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    R[:nq] = X[:nq] + h * X[v] + (h * h / 6.0) * (k1[a] + k2[a] + k3[a])
+    return R
+
+
+#: spectral radius of the step map above which a step counts as unstable: a rigid mode's
+#: Jordan block gives eigenvalues 1 ± O(√ε) in floating point
+GROWTH_TOL = 1e-6
+
+
+def rkn4_limit(J, nq: int, rate: float) -> float:
+    """The largest step h for which the RKN4 step map of ẋ = J x (:func:`rkn4_map`) has
+    spectral radius ≤ 1 (+ GROWTH_TOL); ``rate`` = |λ|max of J. Unlike RK4's, RKN4's limit
+    depends on how each mode is damped, not on |λ| alone — for q̈ + 2ζωq̇ + ω²q = 0:
+    h·ω = 2.59 undamped, 3.2 at ζ = 0.1–0.3, 1.33 at ζ = 1 (RK4: 2.78–2.95), so it is
+    found on the map itself: scanned in h·rate from 0.02 by 0.02 to the first unstable
+    step, then bisected."""
+    if not rate > 0:
+        return np.inf
+
+    def stable(h):
+        return np.abs(np.linalg.eigvals(rkn4_map(J, nq, h))).max() <= 1.0 + GROWTH_TOL
+
+    lo = 0.0
+    for s in np.arange(0.02, 4.0 + 1e-9, 0.02):
+        if not stable(s / rate):
+            hi = s / rate
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+            return lo
+        lo = s / rate
+    return lo
 
 
 def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dense=False):
@@ -75,18 +147,17 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     if integrator == "trapezoid":
         h = min(dt, output_dt) if dt > 0 else output_dt
         return output_dt / np.ceil(output_dt / h - 1e-9)
-    if integrator != "rk4":
+    if integrator not in ("rk4", "rkn4"):
         return dt
     q, qd = chain.full_state(t0, x0)
-    rate = highest_rate(chain, q, qd, x0[2 * len(chain.free):])
-    limit = RK4_STABILITY / rate if rate > 0 else np.inf
+    rate, limit, auto = stability(chain, q, qd, x0[2 * len(chain.free):], integrator)
     if dt > 0:
         if dt > limit:
             raise _refusal(dt, limit, t0, f"the highest model rate {rate / (2 * np.pi):.4g} Hz",
-                           implicit=contact is None)
+                           implicit=contact is None, integrator=integrator)
         h = dt
     else:
-        h = RK4_AUTO / rate if rate > 0 else output_dt
+        h = auto if rate > 0 else output_dt
     h = grid_step(h, output_dt, dense)
     if contact is None or contact.method == "compliant":
         return h
@@ -100,6 +171,22 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     return h
 
 
+def stability(chain, q, qd, z, integrator="rk4") -> tuple[float, float, float]:
+    """(|λ|max, stability limit, automatic step) of an explicit fixed-step ``integrator``
+    about the state (q, q̇, z). RK4: RK4_STABILITY/|λ|max and RK4_AUTO/|λ|max. RKN4: the
+    limit from its step map on the linearization (:func:`rkn4_limit`, the least over the
+    Jacobians of :func:`~flexarm_ros.model.linear.jacobians`) and the automatic step the
+    same share of it as RK4's, RK4_AUTO/RK4_STABILITY, at most RK4_AUTO/|λ|max."""
+    Js = jacobians(chain, q, qd, z)
+    rate = max(float(np.abs(np.linalg.eigvals(J)).max()) for J in Js)
+    if not rate > 0:
+        return rate, np.inf, np.inf
+    if integrator != "rkn4":
+        return rate, RK4_STABILITY / rate, RK4_AUTO / rate
+    limit = min(rkn4_limit(J, len(chain.free), rate) for J in Js)
+    return rate, limit, min(RK4_AUTO / rate, RK4_AUTO / RK4_STABILITY * limit)
+
+
 def floor_sig(x: float, digits: int = 3) -> float:
     """x rounded down to ``digits`` significant digits (a suggested step that is itself
     below the limit it is printed against)."""
@@ -109,7 +196,7 @@ def floor_sig(x: float, digits: int = 3) -> float:
     return float(np.floor(x / 10.0 ** e) * 10.0 ** e)
 
 
-def _refusal(dt, limit, t0, source, implicit=True) -> StepTooLarge:
+def _refusal(dt, limit, t0, source, implicit=True, integrator="rk4") -> StepTooLarge:
     """The refusal of a fixed RK4 step above its stability limit: ``source`` names what
     sets the limit; ``implicit``: offer the implicit integrators (not with a wall, whose
     contact integrator is RK4)."""
@@ -118,5 +205,5 @@ def _refusal(dt, limit, t0, source, implicit=True) -> StepTooLarge:
         fix += "an implicit integrator (--integrator trapezoid, radau or bdf), "
     return StepTooLarge(
         "fixed step", t0, dt, fix + "or a coarser rung / fewer modes",
-        detail=f"dt = {dt:.3g} s exceeds the RK4 stability limit {limit:.3g} s set by "
+        detail=f"dt = {dt:.3g} s exceeds the {integrator.upper()} stability limit {limit:.3g} s set by "
                f"{source}")

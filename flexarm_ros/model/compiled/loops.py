@@ -15,27 +15,50 @@ from flexarm_ros.model.compiled.chain import (
 
 
 @_jit_inline
-def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws, k1_given=False):
+def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws, k1_given=False, nystrom=False):
     """One RK4 step x → xn from time t; actuator states clamped to their bounds. Returns
     False when xn is not finite. With ``k1_given`` the first stage is already in k1 (the
-    previous step's ẋ at its end, :func:`_rk4_dense`)."""
+    previous step's ẋ at its end, :func:`_rk4_dense`).
+
+    With ``nystrom`` the positions q (the first nf entries of x, whose rates are the next
+    nf) are stepped by the fourth-order Runge–Kutta–Nyström formulas (Nyström 1925;
+    Hairer, Nørsett & Wanner I, Sec. II.14; Kreyszig, *Advanced Engineering Mathematics*,
+    Sec. 21.3) and the rest (q̇, actuator states) by RK4's stages and weights:
+
+        Q₂ = Q₃ = q + h/2·q̇ + h²/8·a₁,   Q₄ = q + h·q̇ + h²/2·a₃,
+        q₁ = q + h·q̇ + h²/6·(a₁ + a₂ + a₃),
+
+    a_i the accelerations of stage i. Fourth order like RK4 (same four right-hand sides),
+    with an error constant about half of RK4's on the arm's oscillations
+    (:mod:`flexarm_ros.sim.step`, ``rkn4_step``). Without it the loops below are RK4's
+    exactly (nq = 0)."""
     m = x.shape[0]
+    nq = model.free.shape[0] if nystrom else 0
     nz = model.nz
     zlo = model.z_lo
     zhi = model.z_hi
+    hh = h * h
     if not k1_given:
         rhs_into(t + STAGE_EPS * h, x, k1, model, ws)
-    for i in range(m):
+    for i in range(nq):
+        tmp[i] = x[i] + 0.5 * h * x[nq + i] + 0.125 * hh * k1[nq + i]
+    for i in range(nq, m):
         tmp[i] = x[i] + 0.5 * h * k1[i]
     rhs_into(t + 0.5 * h, tmp, k2, model, ws)
-    for i in range(m):
+    for i in range(nq, m):                  # Nyström: the positions of stage 2 again
         tmp[i] = x[i] + 0.5 * h * k2[i]
     rhs_into(t + 0.5 * h, tmp, k3, model, ws)
-    for i in range(m):
+    for i in range(nq):
+        tmp[i] = x[i] + h * x[nq + i] + 0.5 * hh * k3[nq + i]
+    for i in range(nq, m):
         tmp[i] = x[i] + h * k3[i]
     rhs_into(t + (1.0 - STAGE_EPS) * h, tmp, k4, model, ws)
     finite = True
-    for i in range(m):
+    for i in range(nq):
+        xn[i] = x[i] + h * x[nq + i] + (hh / 6.0) * (k1[nq + i] + k2[nq + i] + k3[nq + i])
+        if not math.isfinite(xn[i]):
+            finite = False
+    for i in range(nq, m):
         xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
         if not math.isfinite(xn[i]):
             finite = False
@@ -46,14 +69,14 @@ def _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws, k1_given=False):
 
 
 @_jit_inline
-def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4):
+def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4, nystrom=False):
     """``nsteps`` RK4 steps of size h from (t0, x), advancing x in place: the one loop of
     :func:`rk4_span` and :func:`rk4_loop`. Returns (status, steps taken, time reached); on
     NON_FINITE or DEFLECTION x is the last good state and xn the offending one."""
     m = x.shape[0]
     for j in range(nsteps):
         t = t0 + j * h
-        if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws):
+        if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws, False, nystrom):
             return NON_FINITE, j + 1, t + h
         if _deflection_ratio(xn, model) > max_ratio:
             return DEFLECTION, j + 1, t + h
@@ -84,9 +107,9 @@ def _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args):
 
 
 @_jit
-def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
-    """Fixed-step RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt), ``per``
-    steps each (:func:`_rk4_run` from k·out_dt), storing the state into xs[k + 1].
+def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args, nystrom):
+    """Fixed-step RK4 (RKN4 with ``nystrom``) over output intervals k0..n_out−1 (x0 at
+    t = k0·out_dt), ``per`` steps each (:func:`_rk4_run` from k·out_dt), storing the state into xs[k + 1].
 
     Returns (status, time, steps, last good state, offending state): status OK,
     NON_FINITE or DEFLECTION.
@@ -95,19 +118,19 @@ def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
     x = x0.copy()
     sc = np.empty((6, m))
     status, t, steps = _rk4_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, model_args,
-                                 ws_args)
+                                 ws_args, nystrom)
     return status, t, steps, x, (x if status == OK else sc[0].copy())
 
 
 @_jit_raw
-def _rk4_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args):
+def _rk4_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args, nystrom):
     """:func:`rk4_loop`'s loop without reference counting (as :func:`_rk4_span`)."""
     model, ws = named(model_args, ws_args)
     m = x.shape[0]
     steps = 0
     for k in range(k0, n_out):
         status, done, t = _rk4_run(x, k * out_dt, h, per, max_ratio, model, ws, sc[0], sc[1],
-                                   sc[2], sc[3], sc[4], sc[5])
+                                   sc[2], sc[3], sc[4], sc[5], nystrom)
         steps += done
         if status != OK:
             return status, t, steps
@@ -132,9 +155,10 @@ def hermite(theta, h, x0, f0, x1, f1, out):
 
 
 @_jit
-def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args):
-    """Fixed-step RK4 from (t0, x0) to ``t_stop`` with steps of ``h`` independent of the
-    output period (the last step shortened to end on ``t_stop``); the outputs xs[k] at
+def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args,
+              nystrom):
+    """Fixed-step RK4 (RKN4 with ``nystrom``, :func:`_rk4_step`) from (t0, x0) to ``t_stop``
+    with steps of ``h`` independent of the output period (the last step shortened to end on ``t_stop``); the outputs xs[k] at
     k·out_dt, from k = ``k_next`` on, inside a step come from :func:`hermite` on that
     step, one on a step's end is the step's own state. The step may exceed the output
     period.
@@ -145,12 +169,13 @@ def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_a
     x = x0.copy()
     sc = np.empty((9, m))
     status, t, steps, calls, k = _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio,
-                                            xs, model_args, ws_args)
+                                            xs, model_args, ws_args, nystrom)
     return status, t, steps, calls, k, x, (x if status == OK else sc[0].copy())
 
 
 @_jit_raw
-def _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args):
+def _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args,
+               nystrom):
     """:func:`rk4_dense`'s loop without reference counting (x advanced in place, sc[0] the
     offending state on failure)."""
     model, ws = named(model_args, ws_args)
@@ -176,7 +201,7 @@ def _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, 
         if have_f1:     # first same as last: ẋ at the previous step's end (no input jump
             for i in range(m):      # inside a call: the caller splits at them)
                 k1[i] = f1[i]
-        if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws, have_f1):
+        if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws, have_f1, nystrom):
             return NON_FINITE, t + hh, steps, calls, k
         steps += 1
         calls += 3 if have_f1 else 4
@@ -335,11 +360,11 @@ def warm_up(integrator, model, x0, xs, dense=None):
     load costs tens of ms of a short process's start-up)."""
     ws = workspace(model)
     x = np.array(x0, float)
-    if integrator == "rk4":
+    if integrator in ("rk4", "rkn4"):
         if dense is not True:
-            rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws)
+            rk4_loop(x, 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws, False)
         if dense is not False:
-            rk4_dense(x, 0.0, 1e-3, 0.0, 1e-3, xs.shape[0], 1.0, xs, model, ws)
+            rk4_dense(x, 0.0, 1e-3, 0.0, 1e-3, xs.shape[0], 1.0, xs, model, ws, False)
     elif integrator == "trapezoid":
         nf = Model._make(model).free.shape[0]
         trapezoid_loop(x, np.zeros(nf), 1e-3, 1, 0, 0, 1e-3, 1.0, xs, model, ws,

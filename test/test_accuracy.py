@@ -115,15 +115,16 @@ def _fake_pilots(monkeypatch, law):
     (lambda h: 1e3 * h ** 4 if h <= 1e-2 else 1.0, None),
 ])
 def test_above_the_stable_step_only_a_measured_step_is_taken(monkeypatch, law, expect):
+    from flexarm_ros.sim.step import RK4_AUTO, RK4_STABILITY
     acc, taken = _fake_pilots(monkeypatch, law)
-    h_top, rate = 1e-2, acc.RK4_AUTO / 1e-2
+    h_top, rate = 1e-2, RK4_AUTO / 1e-2
     h1, h2 = h_top / 2, h_top / 4
     fine = np.full((11, 2), [law(h2), 0.0])
     e1 = (law(h1) - law(h2)) / (1 - 0.5 ** 4)
     tol = e1 * 3.2 ** 4 / acc.SAFETY       # the h⁴ extrapolation wants 3.2·h1 = 1.6·h_top
     h_want = h1 * (acc.SAFETY * tol / e1) ** 0.25
-    got = acc._above_stable(None, None, 0.1, tol, 1e-3, 0.5, rate, h_top, h_want, fine,
-                            (h1, e1), h2, 4, 1.0)
+    got = acc._above_stable(None, None, 0.1, tol, 1e-3, 0.5, RK4_STABILITY / rate, h_top,
+                            h_want, fine, (h1, e1), h2, 4, 1.0)
     if expect is None:
         assert got is None and 1 <= len(taken) <= 2, taken
         return

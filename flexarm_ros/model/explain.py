@@ -17,15 +17,16 @@ def _tolerance_method(chain, state) -> str:
     if chain.scene.walls:
         return ("by the contact stepper's pilot runs over the whole run, never above its "
                 "automatic contact step")
-    from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, RK4_AUTO, RK4_STABILITY,
-                                          highest_rate)
-    rate = highest_rate(chain, *state)
+    from flexarm_ros.model.linear import ABOVE_STABLE_SHARE
+    from flexarm_ros.sim.step import stability
+    integrator = "rkn4" if chain.fidelity.integrator == "rkn4" else "rk4"
+    rate, limit, auto = stability(chain, *state, integrator)
     if not rate > 0:
         return "by step-halving pilot runs"
-    return (f"by step-halving pilot runs up to the stable step {RK4_AUTO / rate:.4g} s, "
-            f"and above it (up to {ABOVE_STABLE_SHARE * RK4_STABILITY / rate:.4g} s, "
-            f"{ABOVE_STABLE_SHARE:g} of RK4's stability limit) only where a pilot run at "
-            f"that step meets the tolerance")
+    return (f"by step-halving pilot runs up to the stable step {auto:.4g} s, "
+            f"and above it (up to {ABOVE_STABLE_SHARE * limit:.4g} s, "
+            f"{ABOVE_STABLE_SHARE:g} of {integrator.upper()}'s stability limit) only where "
+            f"a pilot run at that step meets the tolerance")
 
 
 def explain(scene, chain=None) -> str:

@@ -63,11 +63,11 @@ def _per_rhs(scene_name, over, sums) -> float:
     x0 = np.concatenate([q0[ch.free], qd0[ch.free], z0])
     ws = kchain.workspace(ch.kernel_args)
     h = 1e-5          # small: the state stays near the start whatever the rung's stiffness
-    loops.rk4_span(x0, 0.0, h, 2, 10.0, ch.kernel_args, ws)      # compile / load
+    loops.rk4_span(x0, 0.0, h, 2, 10.0, ch.kernel_args, ws, False)      # compile / load
     best = np.inf
     for _ in range(REPEATS):
         t0 = time.perf_counter()
-        loops.rk4_span(x0, 0.0, h, STEPS, 10.0, ch.kernel_args, ws)
+        loops.rk4_span(x0, 0.0, h, STEPS, 10.0, ch.kernel_args, ws, False)
         best = min(best, time.perf_counter() - t0)
     return best / (4 * STEPS) * 1e6
 

@@ -78,6 +78,8 @@ class RunResult:
     cpus: dict | None = None                  # --processes with pinning: node -> CPUs
     first_command_s: float | None = None      # sim time of the first recorded command
     layout: str = ""                          # "one", "split" or "processes"
+    integrator: str | None = None             # what the plant stepped with (rk4, rkn4)
+    step_s: float | None = None               # ... and its step
 
     @property
     def ticking_s(self) -> float | None:
@@ -94,6 +96,7 @@ class RunResult:
                 "nodes": list(self.nodes), "record": str(self.record) if self.record else None,
                 "wall_time_s": self.wall_s, "ticking_wall_time_s": self.ticking_s,
                 "sim_time_s": self.sim_s, "ticks": self.ticks,
+                "integrator": self.integrator, "step_s": self.step_s,
                 "real_time_factor": self.real_time_factor,
                 "first_command_s": self.first_command_s,
                 "late_ticks": p.get("late_ticks"),
@@ -768,6 +771,7 @@ def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:
     the topics' absolute names, as ``recorded``."""
     from flexarm_ros.twin.topics import resolve
     res.sim_s, res.ticks = sim["sim_time_s"], sim["ticks"]
+    res.integrator, res.step_s = sim.get("integrator"), sim.get("step_s")
     res.real_time_factor = sim["real_time_factor"]
     res.published = {resolve(namespace, t): n for t, n in sim["published"].items()}
     res.diverged = res.diverged or sim.get("diverged")

@@ -238,6 +238,9 @@ try:
     rclpy.spin(node)
 except (KeyboardInterrupt, Exception):
     pass
+finally:
+    node.destroy_node()
+    rclpy.try_shutdown()
 '''
 
 
@@ -258,7 +261,16 @@ def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
                   namespace=NS, progress=False, nodes=("simulator", "controller"),
                   layout=layout)
     finally:
-        _stop(proc, log)
+        # the stand-in amplifier is this test's, not the project's (the example controller's
+        # exit is held strictly by _stop): once in CI under load (session 15) it outlived
+        # SIGTERM by 30 s after a complete run; SIGKILL it then, the run is what is tested
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+        log.close()
     s = res.to_json()
     assert not res.diverged and not res.stalled and s["ticks"] == 300, s
     bag = read_bag(tmp_path / "run.mcap")

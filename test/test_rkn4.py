@@ -125,3 +125,41 @@ def test_rkn4_from_the_cli_with_a_tolerance(tmp_path, capsys):
     err = np.max(np.linalg.norm(_tip(simulate(sc, 0.5)) - _tip(_reference(sc, 0.5)),
                                 axis=1))
     assert err <= 1e-5
+
+
+def test_the_twin_plant_steps_rkn4_where_the_scene_names_it():
+    """The ROS twin's plant (sim/plant.Plant) steps the scene's rkn4 (no wall): held at the
+    scene's own torques it follows the batch run of the same model, integrator and step to
+    round-off, and parts from the RK4 batch run by RK4's larger error; any other
+    integrator of a scene is batch-only and the plant says rk4."""
+    from flexarm_ros.sim.plant import Plant
+    sc = load_scene("two_link_free").with_fidelity(dt=1e-3, **MODAL3)
+    end = {}
+    for integrator in ("rk4", "rkn4"):
+        s = sc.with_fidelity(integrator=integrator)
+        end[integrator] = simulate(s, 0.3).run.q[-1]
+    plant = Plant(sc.with_fidelity(integrator="rkn4"))
+    assert plant.integrator == "rkn4" and plant.h == 1e-3
+    plant.set_inputs([2.8, 1.1])                  # the scene's constant joint torques
+    for _ in range(300):
+        plant.step(1e-3)
+    q = plant.chain.full_state(plant.t, plant.x)[0]
+    assert np.abs(q - end["rkn4"]).max() < 1e-12
+    assert np.abs(q - end["rk4"]).max() > 1e3 * np.abs(q - end["rkn4"]).max()
+    assert Plant(sc.with_fidelity(integrator="dop853")).integrator == "rk4"
+    assert Plant(load_scene("two_link_case1").with_fidelity(integrator="rk4")).integrator \
+        == "rk4"
+
+
+def test_flexarm_run_reports_the_plants_integrator(capfd):
+    """``flexarm run --json`` names the integrator the plant stepped with; a batch-only one
+    is said at WARN level (ROS logging writes to the process's stderr: capfd)."""
+    argv = ["run", "two_link_free", "--rung", "modal", "--refine", "3", "--duration", "0.02",
+            "--no-record", "--json", "--quiet"]
+    assert main(argv + ["--integrator", "rkn4"]) == 0
+    out = json.loads(capfd.readouterr().out)
+    assert out["integrator"] == "rkn4" and out["ticks"] == 20
+    assert main(argv + ["--integrator", "radau"]) == 0
+    cap = capfd.readouterr()
+    assert json.loads(cap.out)["integrator"] == "rk4"
+    assert "fidelity.integrator 'radau' applies to batch runs" in cap.err + cap.out

@@ -124,6 +124,14 @@ class SimulatorNode(Node):
         # the work budget of a finite run, checked here too (a node started on its own)
         self.core = SimulatorCore(scene, None if self.n_end is None else
                                   self.n_end / scene.control.rate_hz)
+        plant = self.core.plant
+        asked = plant.chain.fidelity.integrator
+        if asked != plant.integrator:       # batch-only integrators: said, not ignored
+            self.get_logger().warning(
+                f"fidelity.integrator {asked!r} applies to batch runs (flexarm simulate); "
+                f"the twin's plant steps {plant.integrator}"
+                + (" (the contact stepper's)" if asked == "rkn4" else "")
+                + f" at {plant.h:.3g} s")
         self.period = self.core.period
         pubs = {}                                   # outputs() at k = 0 changes nothing
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
@@ -428,7 +436,8 @@ class SimulatorNode(Node):
         """The run as numbers: simulated time, ticks, real-time factor, pacing (realtime:
         late ticks, lateness p50/p99/max, skipped ticks / time behind), the waits for
         efforts, messages published per topic, rejected efforts by reason."""
-        out = {"mode": self.mode, "sim_time_s": self.core.t, "ticks": self.core.k,
+        out = {"mode": self.mode, "integrator": self.core.plant.integrator,
+               "step_s": self.core.plant.h, "sim_time_s": self.core.t, "ticks": self.core.k,
                "real_time_factor": self.rtf(), "published": dict(self.published),
                "accepted": dict(self.accepted),
                "rejected_efforts": dict(self.core.validator.counts),

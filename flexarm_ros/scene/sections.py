@@ -566,8 +566,9 @@ class Fidelity:
                              f"--rung modal --refine {self.refine})")
         if self.integrator != "rk4":
             raise SceneError(f"{key}integrator: got {self.integrator!r} with {key}rung "
-                             f"'auto', expected rk4 (auto chooses the RK4 step; with an "
-                             f"adaptive or implicit integrator name the rung)")
+                             f"'auto', expected rk4, the default (auto chooses the step and "
+                             f"takes rkn4 itself where it steps further; for another "
+                             f"integrator name the rung, e.g. --rung modal --refine 3)")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -17,6 +17,10 @@ that spring, and it diverged (the load pressure reached the supply within three 
 the valve step, t = 0.133 s). On the bench the valve current is what the amplifier
 holds; the pressure answers the arm continuously — as here.
 
+The plant steps RK4, or RKN4 where the scene names ``fidelity.integrator: rkn4`` and has
+no wall (:func:`plant_integrator`; the contact stepper is RK4's); any other integrator of a
+scene applies to batch runs only, and the simulator node says so when it starts.
+
 Sensors are sampled on their own grids inside a step (the step is cut at every sample
 time), from the model at that instant (see :mod:`sensors`); contact is integrated through
 its events (:class:`contact.ContactStepper`). Nothing non-finite ever leaves: a diverging
@@ -48,6 +52,13 @@ from flexarm_ros.scene import Input, Program
 from flexarm_ros.scene.sections import ENCODER_REVOLUTIONS, INT32_MAX
 from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
 from flexarm_ros.model.statics import initial_state
+
+
+def plant_integrator(scene) -> str:
+    """The integrator the plant steps ``scene`` with: rkn4 where the scene names it and has
+    no wall, else rk4 (the contact stepper's; the implicit and adaptive integrators are
+    batch-only: a tick-by-tick plant has no use for an error-controlled step)."""
+    return "rkn4" if scene.fidelity.integrator == "rkn4" and not scene.walls else "rk4"
 
 
 def in_plant(drive) -> bool:
@@ -128,10 +139,12 @@ class Plant:
         self.inputs = np.zeros(len(ch.links))
         fid = ch.fidelity
         # the step of a batch run (fidelity.dt checked against the stability limit)
-        self.h = h = choose_step(ch, self.x, "rk4", fid.dt, fid.output_dt, contact=self.contact)
+        self.integrator = plant_integrator(ch.scene)
+        self.h = h = choose_step(ch, self.x, self.integrator, fid.dt, fid.output_dt,
+                                 contact=self.contact)
         if duration is not None:        # the work budget of a run of that length
-            check_work(ch, self.x, h, duration, "rk4", self.contact)
-        self.guard = DivergenceGuard(ch, fid.max_deflection_ratio, "rk4", h)
+            check_work(ch, self.x, h, duration, self.integrator, self.contact)
+        self.guard = DivergenceGuard(ch, fid.max_deflection_ratio, self.integrator, h)
         self.guard.check(0.0, self.x)
         self.ws = kchain.workspace(ch.kernel_args)
         self._frames_at = None                       # (t, k) of the frames in self.ws
@@ -287,7 +300,7 @@ class Plant:
             n = max(1, int(math.ceil(dt / self.h - 1e-9)))
             code, t_fail, x_last, x_bad = kloops.rk4_span(
                 self.x, self.t, dt / n, n, self.chain.fidelity.max_deflection_ratio,
-                self.chain.kernel_args, self.ws)
+                self.chain.kernel_args, self.ws, self.integrator == "rkn4")
             if code != kchain.OK:
                 self.guard.last = x_last
                 self.guard.check(t_fail, x_bad)

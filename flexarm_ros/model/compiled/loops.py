@@ -86,23 +86,24 @@ def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4, ny
 
 
 @_jit
-def rk4_span(x0, t0, h, nsteps, max_ratio, model_args, ws_args):
-    """``nsteps`` fixed RK4 steps of size h from (t0, x0): the co-simulation plant's
-    advance. Returns (status, time, last good state, offending state)."""
+def rk4_span(x0, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom):
+    """``nsteps`` fixed RK4 steps (RKN4 with ``nystrom``) of size h from (t0, x0): the
+    co-simulation plant's advance. Returns (status, time, last good state, offending
+    state)."""
     m = x0.shape[0]
     x = x0.copy()
     sc = np.empty((6, m))
-    status, t = _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args)
+    status, t = _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom)
     return status, t, x, (x if status == OK else sc[0].copy())
 
 
 @_jit_raw
-def _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args):
+def _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom):
     """:func:`rk4_span`'s loop without reference counting (x advanced in place, sc[0] the
     offending state on failure, sc[1:] the stages)."""
     model, ws = named(model_args, ws_args)
     status, _, t = _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, sc[0], sc[1], sc[2],
-                            sc[3], sc[4], sc[5])
+                            sc[3], sc[4], sc[5], nystrom)
     return status, t
 
 

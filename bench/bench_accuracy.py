@@ -127,10 +127,17 @@ TRAPEZOID_SCENES = [("link", 1.0, {}), ("link_tipmass", 1.0, {}),
                     ("two_link_free", 1.0, {})]
 
 
+#: part 2 with integrator rkn4 beside rk4 on the same model (docs/accuracy.md, "Integrator
+#: rkn4"): scene, duration, fidelity overrides
+RKN4_SCENES = [("two_link_free", 1.0, {"rung": "modal", "refine": 3}),
+               ("link_tipmass", 1.0, {})]
+
+
 def tolerance_table(quick=False) -> list[dict]:
     rows = []
     cases = [(name, T, {}, "rk4") for name, T in TOLERANCE_SCENES]
     cases += [(name, T, over, "trapezoid") for name, T, over in TRAPEZOID_SCENES]
+    cases += [(name, T, over, i) for name, T, over in RKN4_SCENES for i in ("rk4", "rkn4")]
     for name, T, over, integrator in cases[:3] if quick else cases:
         T = min(T, 0.3) if quick else T
         scene = load_scene(name).with_fidelity(**over)

@@ -43,7 +43,9 @@ class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line (exit 2), like every other bad input."""
 
     def error(self, message):
-        if "expected" not in message and "choose from" not in message:
+        # argparse's "(choose from 'a', 'b')" in the words of every other bad input
+        message = message.replace("(choose from ", "(expected one of ")
+        if "expected" not in message:
             message += f" (expected the usage that {self.prog} --help shows)"
         self.exit(2, f"{self.prog}: error: {message}\n")
 

@@ -190,8 +190,8 @@ def test_quiet_hides_progress_not_the_summary(capsys):
                              "least one control period (0.001 s)"),
     (["--ground-truth-rate", "-5"], "--ground-truth-rate: got -5.0, expected 0 (every "
                                     "tick)"),
-    (["--layout", "triple"], "argument --layout: invalid choice: 'triple' (choose from "
-                             "'one', 'split', 'processes')"),
+    (["--layout", "triple"], "argument --layout: invalid choice: 'triple' (expected one "
+                             "of 'one', 'split', 'processes')"),
 ])
 def test_bad_run_flags_are_named_as_flags_before_anything_starts(capsys, argv, expect):
     try:

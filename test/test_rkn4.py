@@ -163,3 +163,12 @@ def test_flexarm_run_reports_the_plants_integrator(capfd):
     cap = capfd.readouterr()
     assert json.loads(cap.out)["integrator"] == "rk4"
     assert "fidelity.integrator 'radau' applies to batch runs" in cap.err + cap.out
+
+
+@pytest.mark.parametrize("name,integrator,words", [
+    ("two_link_case1", "rkn4", "flexarm simulate refuses it"),
+    ("two_link_free", "dop853", "batch runs only; flexarm run's plant steps rk4"),
+])
+def test_explain_says_where_an_integrator_does_not_apply(capsys, name, integrator, words):
+    assert main(["explain", name, "--integrator", integrator]) == 0
+    assert words in capsys.readouterr().out

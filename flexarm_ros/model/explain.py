@@ -53,6 +53,12 @@ def explain(scene, chain=None) -> str:
              + (" — chosen by rung auto" if chain.auto is not None else "")]
     if chain.auto is not None:
         lines.extend(chain.auto.explain().splitlines())
+    if scene.walls and fid.integrator != "rk4":
+        lines.append(f"integrator {fid.integrator} with a wall: flexarm simulate refuses it "
+                     f"(the contact stepper steps RK4), flexarm run's plant steps rk4")
+    elif fid.integrator not in ("rk4", "rkn4"):
+        lines.append(f"integrator {fid.integrator}: batch runs only; flexarm run's plant "
+                     f"steps rk4")
     lines.append(f"{chain.n} generalized coordinates:")
     for lm in chain.links:
         b = lm.beam

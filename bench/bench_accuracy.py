@@ -1,15 +1,15 @@
 """Accuracy on demand, measured (issue 14; not a unit test — timings are the machine's).
 
 Part 1, defaults: each scene as shipped (1 kHz output; one more two_link_free row with the
-overrides of the cheapest setting found under 1e-6 m, labelled with them), integration real-time factor
-(``SimResult.summary()``: integration only, best of ``REPEATS``) and whole-call real-time
-factor (model build, integration, output columns), tip error against a converged
+overrides of the cheapest setting found under 1e-6 m, labelled with them), integration
+real-time factor (``SimResult.summary()``: integration only, best of ``REPEATS``) and
+whole-call real-time factor (model build, integration, output columns), tip error against a converged
 reference: the finest model the case names, DOP853 at rtol 1e-11 or RK4 at its stable
 step where DOP853 is too costly (the contact scene: its own rung with RK4 at a fixed
 62.5 µs step; impact time error too).
 
 Part 2, ``--tolerance``: each shipped scene (and :data:`TRAPEZOID_SCENES` with the
-implicit trapezoidal rule) at TOL ∈ {1e-3, 1e-5, 1e-7} m: the step the
+implicit trapezoidal rule, :data:`RKN4_SCENES` with rk4 and rkn4) at TOL ∈ {1e-3, 1e-5, 1e-7} m: the step the
 estimate chose, the estimated and the measured tip error (max over the 1 kHz output
 against the same model by DOP853 at rtol 1e-12; a scene with a wall against its own rung
 by RK4 at a fixed 62.5 µs), the cost (RHS evaluations and wall time, pilot runs
@@ -18,8 +18,8 @@ included) — the error must stay ≤ TOL and the cost fall as TOL loosens.
 Part 3, ``--part basis`` (not in ``both``): the modal basis of a chain on
 ``two_link_free`` — each modal rung with the tip-loaded (old) and the chain-loaded
 (default) modes, cubic, fem 2, ``--rung auto`` at 1e-6 m and modal 3 with rk4 and rkn4
-at 7 and 7.5 ms, tip error against FEM 8 (1 s) and integration real-time factor, best of ``BASIS_REPEATS``
-with the candidates alternating in one run (docs/accuracy.md, *The modal basis of a
+at 7 and 7.5 ms, tip error against FEM 8 (1 s) and integration real-time factor, best of
+``BASIS_REPEATS`` with the candidates alternating in one run (docs/accuracy.md, *The modal basis of a
 chain*).
 
     python bench/bench_accuracy.py [--quick] [--json] [--markdown docs/accuracy_table.md]

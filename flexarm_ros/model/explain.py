@@ -18,8 +18,8 @@ def _tolerance_method(chain, state) -> str:
         return ("by the contact stepper's pilot runs over the whole run, never above its "
                 "automatic contact step")
     from flexarm_ros.model.linear import ABOVE_STABLE_SHARE
-    from flexarm_ros.model.explicit import stability
-    integrator = "rkn4" if chain.fidelity.integrator == "rkn4" else "rk4"
+    from flexarm_ros.model.explicit import explicit_integrator, stability
+    integrator = explicit_integrator(chain.fidelity)
     rate, limit, auto = stability(chain, *state, integrator)
     if not rate > 0:
         return "by step-halving pilot runs"

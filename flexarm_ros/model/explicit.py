@@ -54,6 +54,12 @@ def rk4_step(f, t, x, h, quadrature: bool = False, k1=None, nq: int = 0):
     return (x1, (h / 6.0) * (g1 + 2 * g2 + 2 * g3 + g4)) if quadrature else x1
 
 
+def explicit_integrator(fidelity) -> str:
+    """The explicit method that steps a scene's pilots and a-priori estimates: its rkn4,
+    else RK4 (for rk4 itself and for the integrators that have no fixed step)."""
+    return "rkn4" if fidelity.integrator == "rkn4" else "rk4"
+
+
 def nystrom_positions(chain, integrator: str) -> int:
     """The ``nq`` of :func:`rk4_step` for ``integrator``: the free coordinates for rkn4, 0
     (RK4 throughout) for rk4."""

@@ -211,7 +211,8 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
 def _explicit(chain) -> str:
     """The explicit integrator the pilots step with: the scene's rkn4, else RK4 (also the
     contact stepper's)."""
-    return "rkn4" if chain.fidelity.integrator == "rkn4" else "rk4"
+    from flexarm_ros.model.explicit import explicit_integrator
+    return explicit_integrator(chain.fidelity)
 
 
 def _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit, h_top, h_want,

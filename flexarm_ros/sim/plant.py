@@ -58,7 +58,8 @@ def plant_integrator(scene) -> str:
     """The integrator the plant steps ``scene`` with: rkn4 where the scene names it and has
     no wall, else rk4 (the contact stepper's; the implicit and adaptive integrators are
     batch-only: a tick-by-tick plant has no use for an error-controlled step)."""
-    return "rkn4" if scene.fidelity.integrator == "rkn4" and not scene.walls else "rk4"
+    from flexarm_ros.model.explicit import explicit_integrator
+    return "rk4" if scene.walls else explicit_integrator(scene.fidelity)
 
 
 def in_plant(drive) -> bool:

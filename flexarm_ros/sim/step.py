@@ -93,5 +93,5 @@ def _refusal(dt, limit, t0, source, implicit=True, integrator="rk4") -> StepTooL
         fix += "an implicit integrator (--integrator trapezoid, radau or bdf), "
     return StepTooLarge(
         "fixed step", t0, dt, fix + "or a coarser rung / fewer modes",
-        detail=f"dt = {dt:.3g} s exceeds the {integrator.upper()} stability limit {limit:.3g} s set by "
-               f"{source}")
+        detail=f"dt = {dt:.3g} s exceeds the {integrator.upper()} stability limit "
+               f"{limit:.3g} s set by {source}")

@@ -110,7 +110,8 @@ def _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom):
 @_jit
 def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args, nystrom):
     """Fixed-step RK4 (RKN4 with ``nystrom``) over output intervals k0..n_out−1 (x0 at
-    t = k0·out_dt), ``per`` steps each (:func:`_rk4_run` from k·out_dt), storing the state into xs[k + 1].
+    t = k0·out_dt), ``per`` steps each (:func:`_rk4_run` from k·out_dt), storing the state
+    into xs[k + 1].
 
     Returns (status, time, steps, last good state, offending state): status OK,
     NON_FINITE or DEFLECTION.
@@ -159,10 +160,10 @@ def hermite(theta, h, x0, f0, x1, f1, out):
 def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args,
               nystrom):
     """Fixed-step RK4 (RKN4 with ``nystrom``, :func:`_rk4_step`) from (t0, x0) to ``t_stop``
-    with steps of ``h`` independent of the output period (the last step shortened to end on ``t_stop``); the outputs xs[k] at
-    k·out_dt, from k = ``k_next`` on, inside a step come from :func:`hermite` on that
-    step, one on a step's end is the step's own state. The step may exceed the output
-    period.
+    with steps of ``h`` independent of the output period (the last step shortened to end
+    on ``t_stop``); the outputs xs[k] at k·out_dt, from k = ``k_next`` on, inside a step
+    come from :func:`hermite` on that step, one on a step's end is the step's own state.
+    The step may exceed the output period.
 
     Returns (status, time, steps, rhs evaluations, next output index, last good state,
     offending state)."""

@@ -180,6 +180,8 @@ def test_a_named_rung_overrides_auto_and_the_scene_refinement_does_not_leak():
     (["--rung", "auto", "--refine", "3"], ("fidelity.refine", "3", "'auto'", "expected 0")),
     (["--rung", "auto", "--integrator", "dop853"],
      ("fidelity.integrator", "'dop853'", "expected rk4")),
+    (["--rung", "auto", "--integrator", "rkn4"],            # auto takes rkn4 by itself
+     ("fidelity.integrator", "'rkn4'", "expected rk4", "takes rkn4 itself")),
     (["--rung", "auto", "--tolerance", "1e-13"],
      ("fidelity.tolerance", "1e-13", "expected a tolerance", "loosen")),
     (["--rung", "auto", "--tolerance", "-1"], ("tolerance", "-1")),

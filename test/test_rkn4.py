@@ -172,3 +172,11 @@ def test_flexarm_run_reports_the_plants_integrator(capfd):
 def test_explain_says_where_an_integrator_does_not_apply(capsys, name, integrator, words):
     assert main(["explain", name, "--integrator", integrator]) == 0
     assert words in capsys.readouterr().out
+
+
+def test_rkn4_with_a_wall_is_refused_in_one_line(capsys):
+    code = main(["simulate", "two_link_case1", "--integrator", "rkn4", "--duration", "0.1",
+                 "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert all(w in err[0] for w in ("fidelity.integrator", "'rkn4'", "wall", "expected rk4"))

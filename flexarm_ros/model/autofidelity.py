@@ -565,10 +565,10 @@ class _Linear:
         from flexarm_ros.model.explicit import rk4_step
         A, B, ns, m, nq = self.A, self.B, self.ns, self.m, self.nq
 
-        def step(x, u1, u2, u4):
-            u = {0: u1, 1: u2, 2: u2, 3: u4}
-            stage = iter(range(4))
-            return rk4_step(lambda t, y: A @ y + B @ u[next(stage)], 0.0, x, h, nq=nq)
+        def step(x, u1, u2, u4):      # the stages at εh, h/2, h/2, (1 − ε)h
+            return rk4_step(lambda t, y: A @ y + B @ (u1 if t < 0.25 * h else
+                                                      u2 if t < 0.75 * h else u4),
+                            0.0, x, h, nq=nq)
         I, Zx, Zu, Im = np.eye(ns), np.zeros((ns, m)), np.zeros((m, m)), np.eye(m)
         Zs = np.zeros((m, ns))
         return (step(I, Zs, Zs, Zs), step(Zx, Im, Zu, Zu), step(Zx, Zu, Im, Zu),
@@ -717,8 +717,7 @@ class _Analysis:
                 or not smooth_rhs(lin.chain) or math.isnan(c.temporal_m)):
             return None
         budget_t = self.tol - c.spatial_m
-        kept = (lin.method, lin.nq, lin.stable_step, lin.limit,
-                getattr(lin, "y_rk4", None), getattr(lin, "h_rk4", None))
+        kept = (getattr(lin, "y_rk4", None), getattr(lin, "h_rk4", None))
         lin.use("rkn4")
         h = grid_step(lin.stable_step, self.out_dt, True)
         e = self._temporal(lin, h)
@@ -726,7 +725,8 @@ class _Analysis:
             h, e = self._above_stable(lin, h, e, 0.5 * budget_t)
         if e <= budget_t and h > c.step_s * (1 + 1e-9):
             return h, e
-        (lin.method, lin.nq, lin.stable_step, lin.limit, lin.y_rk4, lin.h_rk4) = kept
+        lin.use("rk4")
+        lin.y_rk4, lin.h_rk4 = kept         # RK4's response at its step: the check's growth
         return None
 
     def assess(self) -> AutoChoice:

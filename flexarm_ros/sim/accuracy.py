@@ -60,6 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexarm_ros.errors import SceneError
+from flexarm_ros.model.explicit import explicit_integrator
 from flexarm_ros.model.linear import ABOVE_STABLE_SHARE, search_above_stable
 
 SAFETY = 0.5            # the estimate aims at half the tolerance
@@ -131,8 +132,8 @@ def tip_history(chain, x0, t_end, h, output_dt, max_ratio,
         run, _ = integrate_with_contact(chain, contact, x0, t_end, output_dt, dt=h)
     else:
         from flexarm_ros.sim.integrate import integrate
-        run = integrate(chain, x0, t_end, _explicit(chain), h, output_dt=output_dt,
-                        max_deflection_ratio=max_ratio)
+        run = integrate(chain, x0, t_end, explicit_integrator(chain.fidelity), h,
+                        output_dt=output_dt, max_deflection_ratio=max_ratio)
     return chain.energies(run.t, run.q, run.qd, run.z)[1], run.dt   # one compiled pass
 
 
@@ -161,10 +162,10 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
         h1, window = h_top, t_end               # pilots over the whole run: every event
     else:
         from flexarm_ros.sim.step import stability
-        order = ORDER[_explicit(chain)]
+        method = explicit_integrator(chain.fidelity)
+        order = ORDER[method]
         q, qd = chain.full_state(0.0, x0)
-        rate, limit, auto = stability(chain, q, qd, x0[2 * len(chain.free):],
-                                      _explicit(chain))
+        rate, limit, auto = stability(chain, q, qd, x0[2 * len(chain.free):], method)
         h_top = auto if rate > 0 else output_dt
         h1 = h_top / 2
         window = max(WINDOW_MIN_S, WINDOW_FRACTION * t_end)
@@ -206,13 +207,6 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                          f"can reach with a step above {MIN_STEP_S:g} s (it would need "
                          f"{h:.3g} s); loosen it or use --integrator dop853 with --rtol")
     return StepChoice(h, est, tol, base[0], window, base[1], h_top, order)
-
-
-def _explicit(chain) -> str:
-    """The explicit integrator the pilots step with: the scene's rkn4, else RK4 (also the
-    contact stepper's)."""
-    from flexarm_ros.model.explicit import explicit_integrator
-    return explicit_integrator(chain.fidelity)
 
 
 def _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit, h_top, h_want,

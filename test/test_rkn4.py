@@ -15,7 +15,7 @@ from flexarm_ros.errors import StepTooLarge
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.scene import load_scene
 from flexarm_ros.sim.simulate import simulate
-from flexarm_ros.sim.step import rk4_step, rkn4_limit, rkn4_map
+from flexarm_ros.sim.step import rk4_step, rkn4_limit, rkn4_map, stability
 
 
 def _tip(res) -> np.ndarray:
@@ -101,6 +101,30 @@ def test_the_rkn4_limit_is_where_its_steps_start_to_grow(zeta):
     A = h * J
     R = np.eye(2) + A + A @ A / 2 + A @ A @ A / 6 + A @ A @ A @ A / 24
     np.testing.assert_allclose(rkn4_map(J, 0, h), R, rtol=1e-13, atol=1e-15)
+
+
+def test_a_growing_mode_does_not_count_as_the_steps_instability():
+    """A linearization about a moving state can hold a mode that grows (q̈ = a·q, a > 0:
+    a turning arm's centrifugal terms). Its map grows as the flow does, at every step, so
+    it must not set the limit: beside an undamped oscillator the limit stays the
+    oscillator's h·ω = 2.587 (before the fix it fell to the first scanned step, 0.25/ω —
+    two_link_free's state at 0.5 s gave 0.16 ms for RK4's 8.7 ms)."""
+    w, a = 50.0, 4.0
+    J = np.zeros((4, 4))
+    J[0, 2] = J[1, 3] = 1.0
+    J[2, 0] = -w * w
+    J[3, 1] = a
+    rate = float(np.abs(np.linalg.eigvals(J)).max())
+    assert rkn4_limit(J, 2, rate) * w == pytest.approx(2.587, abs=2e-3)
+    # a state of two_link_free on its way (t = 0.5 s), where the bug showed
+    sc = load_scene("two_link_free").with_fidelity(integrator="rkn4", **MODAL3)
+    res = simulate(sc, 0.5)
+    ch = res.chain
+    q = np.array([res.columns[n][-1] for n in ch.names])
+    qd = np.array([res.columns[n + "_rate"][-1] for n in ch.names])
+    _, lim4, _ = stability(ch, q, qd, np.zeros(0), "rk4")
+    _, lim, _ = stability(ch, q, qd, np.zeros(0), "rkn4")
+    assert 0.9 * lim4 < lim < 1.2 * lim4
 
 
 def test_a_step_above_the_rkn4_limit_is_refused():

@@ -26,8 +26,8 @@ def test_dense_output_is_the_step_at_step_ends_and_fourth_order_between():
     """A step of 2 ms sampled every 1 ms: the samples on step ends are the steps' own
     states (the run sampled at its steps, to round-off), and between them the Hermite
     interpolant keeps RK4's order: halving the step divides the error at the samples by
-    about 2⁴ = 16."""
-    sc = load_scene("two_link_free")
+    about 2⁴ = 16 (the seed's cubic rung by RK4)."""
+    sc = load_scene("two_link_free").with_fidelity(rung="cubic", integrator="rk4")
     dense = simulate(sc.with_fidelity(dt=2e-3), 1.0)
     steps = simulate(sc.with_fidelity(dt=2e-3, output_dt=2e-3), 1.0)
     assert dense.run.dt == steps.run.dt == 2e-3
@@ -70,8 +70,8 @@ def test_the_tolerance_is_met_and_the_step_grows_as_it_loosens(name, duration, t
 
 
 @pytest.mark.parametrize("name,duration,over", [
-    ("two_link_free", 1.0, {}),                                  # cubic: 15.7 ms, 9.97 stable
-    ("two_link_free", 1.0, {"rung": "modal", "refine": 3}),      # 7.3 ms, 4.62 stable
+    ("two_link_free", 1.0, {"rung": "cubic", "integrator": "rk4"}),  # 15.7 ms, 9.97 stable
+    ("two_link_free", 1.0, {"integrator": "rk4"}),               # modal 3: 7.3 ms, 4.62 stable
     ("link_tipmass", 1.0, {}),                                   # 1.07 ms, 0.678 stable
 ])
 def test_a_loose_tolerance_steps_above_the_stable_step_and_is_still_met(name, duration,
@@ -163,7 +163,9 @@ def test_simulate_json_reports_the_estimate(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert code == 0
     assert out["tolerance_m"] == 1e-6 and 0 < out["estimated_tip_error_m"] <= 0.5e-6
-    assert out["step_s"] > 1e-3 and out["integrator"] == "rk4" and out["rung"] == "cubic"
+    # the scene's model (modal 3, rkn4) at the tolerance's step, not the scene's 7.5 ms
+    assert out["step_s"] > 1e-3 and out["step_s"] != 0.0075
+    assert out["integrator"] == "rkn4" and out["rung"] == "modal"
 
 
 @pytest.mark.parametrize("argv,words", [
@@ -202,17 +204,18 @@ def test_explain_refuses_what_simulate_refuses(capsys, extra, words):
 def test_a_step_above_the_stable_one_is_named_with_both_steps(tmp_path, capsys):
     """explain names the stable step and the ceiling; simulate's summary the stable step
     (--json) and, in plain text, that the step is above it and at the ceiling."""
-    assert main(["explain", "two_link_free", "--tolerance", "1e-3"]) == 0
+    seed = ["--rung", "cubic", "--integrator", "rk4"]
+    assert main(["explain", "two_link_free", "--tolerance", "1e-3", *seed]) == 0
     line = capsys.readouterr().out.splitlines()[1]
     assert "up to the stable step 0.009974 s" in line and "up to 0.01571 s" in line
     out = str(tmp_path / "x.npz")
     assert main(["simulate", "two_link_free", "--tolerance", "1e-3", "--duration", "0.5",
-                 "--out", out, "--json", "--quiet"]) == 0
+                 "--out", out, "--json", "--quiet", *seed]) == 0
     summ = json.loads(capsys.readouterr().out)
     assert summ["stable_step_s"] == pytest.approx(0.009974, rel=1e-3)
     assert summ["step_s"] > summ["stable_step_s"]
     assert main(["simulate", "two_link_free", "--tolerance", "1e-3", "--duration", "0.5",
-                 "--out", out]) == 0
+                 "--out", out, *seed]) == 0
     text = capsys.readouterr().out
     assert "above the stable step 0.009974 s; the ceiling, 0.85 of RK4's stability " \
         "limit" in text, text
@@ -264,3 +267,37 @@ def test_a_tolerance_the_trapezoid_cannot_afford_is_refused(monkeypatch):
     msg = str(err.value)
     assert msg.startswith("fidelity.tolerance: got 1e-07 m with integrator 'trapezoid'")
     assert "at most 4 steps per output interval" in msg and "--integrator rk4" in msg
+
+
+def test_two_link_free_as_shipped_is_within_a_micrometre_of_fem():
+    """The scene's default (modal 3, rkn4, its fixed 7.5 ms — above the automatic step)
+    against FEM 8 by RK4 at its own stable step (51 µs; equal to FEM 8 by DOP853 at rtol
+    1e-11 to 3e-12 m), over the first 0.3 s, where the error peaks (t ≈ 0.15 s): within
+    1e-6 m (measured 6.9e-7); the seed's cubic rung, one flag away, is not (5.5e-6)."""
+    sc = load_scene("two_link_free")
+    assert (sc.fidelity.rung, sc.fidelity.refine, sc.fidelity.integrator,
+            sc.fidelity.dt) == ("modal", 3, "rkn4", 0.0075)
+    ref = _tip(simulate(sc.with_fidelity(rung="fem", refine=8, integrator="rk4"), 0.3))
+    res = simulate(sc, 0.3)
+    assert res.run.dt == 0.0075
+    assert np.max(np.linalg.norm(_tip(res) - ref, axis=1)) <= 1e-6
+    seed = simulate(sc.with_fidelity(rung="cubic"), 0.3)
+    assert np.max(np.linalg.norm(_tip(seed) - ref, axis=1)) > 3e-6
+
+
+def test_a_scenes_fixed_step_goes_with_its_model():
+    """fidelity.dt of a scene belongs to the model it names: another rung, refinement or
+    modal basis, a tolerance and rung auto step at their own step unless --dt comes with
+    them; an integrator, or the same rung named again, keep it."""
+    sc = load_scene("two_link_free")
+    f = lambda **kw: sc.with_fidelity(**kw).fidelity     # noqa: E731
+    assert f(integrator="rk4").dt == 0.0075
+    assert f(rung="modal").dt == f(refine=3).dt == 0.0075
+    assert f(rung="cubic").dt == f(refine=4).dt == f(modal_basis="tip_loaded").dt == 0.0
+    assert f(tolerance=1e-6).dt == 0.0
+    assert f(rung="cubic", dt=0.005).dt == 0.005
+    auto = f(rung="auto")
+    assert (auto.dt, auto.refine, auto.integrator) == (0.0, 0, "rk4")
+    # a model too stiff for 7.5 ms runs at its own automatic step instead of being refused
+    res = simulate(sc.with_fidelity(rung="fem", refine=2), 0.01)
+    assert 0 < res.run.dt < 0.0075

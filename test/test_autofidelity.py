@@ -259,13 +259,13 @@ def test_estimate_from_the_cli_and_its_refusals(tmp_path, capsys):
     code = main(["simulate", "two_link_free", "--estimate", "--duration", "0.5", "--json",
                  "--quiet", "--out", str(tmp_path / "x.npz")])
     out = json.loads(capsys.readouterr().out)
-    assert code == 0 and out["rung"] == "cubic" and out["estimated_tip_error_m"] > 0
+    assert code == 0 and out["rung"] == "modal" and out["estimated_tip_error_m"] > 0
     a = out["assessment"]
     assert a["finer"] is not None and a["refine"] == out["refine"]
     assert a["tolerance_m"] is None and a["tolerance_source"] == "none"
     # with a tolerance, which only chose the step, the advice is a finer rung
-    code = main(["simulate", "two_link_free", "--estimate", "--tolerance", "1e-6",
-                 "--duration", "0.5", "--quiet", "--out", str(tmp_path / "y.npz")])
+    code = main(["simulate", "two_link_free", "--rung", "cubic", "--estimate", "--tolerance",
+                 "1e-6", "--duration", "0.5", "--quiet", "--out", str(tmp_path / "y.npz")])
     cap = capsys.readouterr()
     assert code == 0 and "step 0.00" in cap.out and "estimated tip error" in cap.out
     assert "name a finer rung" in cap.err and "tighten --tolerance" not in cap.err

@@ -9,7 +9,6 @@ instruments' outputs: encoder counts, V with a sensitivity, strain 1, potentiome
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -29,8 +28,7 @@ def _columns(scene):
 
 
 def _with_rung(scene, rung):
-    return dataclasses.replace(scene, fidelity=dataclasses.replace(scene.fidelity, rung=rung,
-                                                                   refine=None))
+    return scene.with_fidelity(rung=rung, refine=0)
 
 
 def test_every_simulate_column_of_every_shipped_scene_has_a_unit():

@@ -761,13 +761,28 @@ class Scene:
                                  f"the tool can never touch")
 
     def with_fidelity(self, **overrides) -> "Scene":
-        """A copy with fidelity fields replaced (None values are ignored), validated."""
+        """A copy with fidelity fields replaced (None values are ignored), validated.
+
+        A scene's ``dt`` and (with rung auto) ``refine`` and ``integrator`` go with the
+        model the scene names: another rung, refinement or modal basis, a tolerance, or
+        rung auto step at their own (automatic or chosen) step unless ``dt`` is given too.
+        """
         changes = {k: v for k, v in overrides.items() if v is not None}
         if not changes:
             return self
         data = dataclasses.asdict(self.fidelity)
-        if changes.get("rung") == "auto" and "refine" not in changes:
-            changes["refine"] = 0       # the scene's refinement belonged to its own rung
+        if changes.get("rung") == "auto":
+            # the scene's refinement belonged to its own rung; auto chooses the step and
+            # the integrator (rk4, or rkn4 where it steps further)
+            changes.setdefault("refine", 0)
+            changes.setdefault("dt", 0.0)
+            changes.setdefault("integrator", "rk4")
+        model = ("rung", "refine", "modal_basis")
+        if any(changes.get(k, data[k]) != data[k] for k in model) or changes.get("tolerance"):
+            # a scene's fixed step was chosen for the model it names (two_link_free: 7.5 ms
+            # for modal 3, above that model's automatic step): another model, or a
+            # tolerance, chooses its own step unless one is given with it
+            changes.setdefault("dt", 0.0)
         data.update(changes)
         fid = from_mapping(Fidelity, data, "fidelity")
         return dataclasses.replace(self, fidelity=fid)

@@ -1,7 +1,7 @@
 """Accuracy on demand, measured (issue 14; not a unit test — timings are the machine's).
 
 Part 1, defaults: each scene as shipped (1 kHz output; one more two_link_free row with the
-overrides of the cheapest setting found under 1e-6 m, labelled with them), integration
+seed's cubic rung, labelled with its overrides), integration
 real-time factor (``SimResult.summary()``: integration only, best of ``REPEATS``) and
 whole-call real-time factor (model build, integration, output columns), tip error against a converged
 reference: the finest model the case names, DOP853 at rtol 1e-11 or RK4 at its stable
@@ -44,13 +44,14 @@ TOLERANCES = (1e-3, 1e-5, 1e-7)
 
 #: (scene, duration s, reference overrides, issue target RTF, issue target error m)
 DEFAULTS = [
+    # as shipped since session 16: modal 3, rkn4 at 7.5 ms (docs/accuracy.md, "Integrator
+    # rkn4")
     ("two_link_free", 1.0, {"rung": "fem", "refine": 8, "integrator": "dop853",
                             "rtol": 1e-11, "atol": 1e-13}, 800, 1e-6),
-    # not the scene's default: the cheapest setting found under 1e-6 m (docs/accuracy.md,
-    # "Integrator rkn4"), one command line away from it
+    # the seed's own cubic rung, one flag away (the default until session 15)
     ("two_link_free", 1.0, {"rung": "fem", "refine": 8, "integrator": "dop853",
                             "rtol": 1e-11, "atol": 1e-13}, 800, 1e-6,
-     {"rung": "modal", "refine": 3, "integrator": "rkn4", "dt": 0.0075}),
+     {"rung": "cubic", "integrator": "rk4"}),
     # fem 8 by RK4 at its automatic step (flexarm study's reference: the time error is
     # far below the mesh error there; fem 6 against it: 6.9e-7 m; DOP853 on this stiff
     # mesh takes minutes)

@@ -68,7 +68,7 @@ def test_auto_takes_rkn4_where_it_steps_further_and_still_meets_the_tolerance(
     sc = load_scene(name).with_fidelity(rung="auto", tolerance=tol)
     ref = simulate(load_scene(name).with_fidelity(**truth), 1.0)
     with_rkn4 = simulate(sc, 1.0)
-    monkeypatch.setattr(autofidelity._Analysis, "_with_rkn4", lambda self, c, lin: None)
+    monkeypatch.setattr(autofidelity._Analysis, "_with_rkn4", lambda self, *a: None)
     autofidelity._choose.cache_clear()           # the choice is kept per process
     rk4_only = simulate(sc, 1.0)
     autofidelity._choose.cache_clear()
@@ -295,3 +295,20 @@ def test_the_estimate_with_a_wall_covers_the_impacts():
     assert err > 1e-4                                  # the impacts' share is real
     assert err <= s["estimated_tip_error_m"] <= 8 * err, (err, s["estimated_tip_error_m"])
     assert s["assessment"]["check"]["window_s"] == pytest.approx(T)
+
+
+def test_auto_chooses_rung_and_integrator_together():
+    """Since session 16 every candidate is stepped by rkn4 too where auto may choose the
+    integrator: a candidate that takes it steps further than RK4 would (its verdict names
+    RK4's step), and the chosen one has the least predicted work among the admissible
+    counting those longer steps."""
+    choice = autofidelity.choose(load_scene("link_tipmass").with_fidelity(rung="auto"), 1.0)
+    ok = [c for c in choice.candidates
+          if c.verdict.startswith(("admissible", "chosen"))]
+    chosen = next(c for c in ok if c.verdict.startswith("chosen"))
+    assert all(chosen.work_s <= c.work_s for c in ok)
+    rkn4 = [c for c in ok if c.integrator == "rkn4"]
+    assert rkn4 and choice.integrator == chosen.integrator
+    for c in rkn4:
+        h_rk4 = float(c.verdict.split("rk4's step ")[1].split(" s")[0])
+        assert c.step_s > h_rk4

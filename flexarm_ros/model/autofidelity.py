@@ -49,12 +49,15 @@ A priori, on the linearized model
     Families are walked upward in refinement and left once their predicted work at the
     largest step exceeds the best found (more modes or elements only cost more), so most
     candidates are never built. Then, for the chosen model of a smooth scene without a
-    wall, integrator rkn4 (the same four right-hand sides per step, less error on the arms;
-    :func:`~flexarm_ros.sim.step.rk4_step`) is stepped the same way on the linear model,
-    its stable step being the share of its own stability limit: where it meets the same
-    budget at a longer step, the run takes rkn4 at that step (``_with_rkn4``; link_tipmass
-    at 1e-5 m: 0.937 ms against RK4's 0.789; two_link_free at 1e-6 m: 5.8 against 4.6 ms).
-    The rung is chosen with RK4. Other integrators are not candidates: the
+    wall, every candidate is also stepped by integrator rkn4 (the same four right-hand
+    sides per step, less error on the arms; :func:`~flexarm_ros.sim.step.rk4_step`) on
+    its linear model, its stable step being the share of its own stability limit: where
+    it meets the same budget at a longer step, or meets it where RK4 does not, the
+    candidate takes rkn4 at that step (``_with_rkn4``; link_tipmass at 1e-5 m: 0.937 ms
+    against RK4's 0.789; two_link_free at 1e-6 m: 5.8 against 4.6 ms), and the work
+    compared between candidates is the one at that step: rung, refinement and integrator
+    are chosen together (since session 16; before, the rung was chosen with RK4 and rkn4
+    tried on it). Other integrators are not candidates: the
     trapezoidal rule's step has no error control yet, and the adaptive methods cost 2–40×
     more at equal error on these models (docs/ladder.md).
 
@@ -100,6 +103,10 @@ from flexarm_ros.model.linear import (ABOVE_STABLE_SHARE, RK4_AUTO, RK4_STABILIT
                                       grid_step, highest_rate, search_above_stable,
                                       smooth_rhs)
 from flexarm_ros.model.programs import eval_motion, eval_torque, torque_breakpoints
+
+#: RKN4's stability limit over RK4's at most (h·ω = 3.51 against 2.78, a mode damped at
+#: ζ ≈ 0.2; model/explicit.rkn4_limit): bounds a candidate's largest step when pruning
+RKN4_LIMIT_RATIO = 1.27
 
 #: the tip tolerance of rung auto when fidelity.tolerance is 0, m: 10 µm, the issue's
 #: accuracy target for the seed 001 link and below what the seeds' instruments resolve
@@ -150,6 +157,7 @@ class Candidate:
     work_s: float = math.nan            # predicted integration time (COST_US)
     spatial_m: float = math.nan         # E_s (reference error included)
     temporal_m: float = math.nan        # E_t at step_s
+    integrator: str = "rk4"             # rkn4 where it steps this model further
     verdict: str = ""
 
     @property
@@ -240,8 +248,8 @@ class AutoChoice:
                  f"  why: the least predicted work among the candidates whose estimated spatial "
                  f"error is <= {SPATIAL_SHARE:g} TOL and whose RK4 error at their step is "
                  f"within the rest"
-                 + ("; then rkn4 (the same cost per step, less error) where it takes the "
-                    "chosen model's step further" if self.integrator == "rkn4" else ""),
+                 + ("" if self.wall else " (or rkn4's, the same cost per step, where it "
+                    "steps a candidate further)"),
                  f"  estimates (linearized model, the scene's inputs, the whole run): "
                  f"spatial {self.spatial_m:.2g} m against {self.reference} (its own error "
                  f"{self.reference_error_m:.2g} m, included)"
@@ -654,7 +662,7 @@ class _Analysis:
                     break                     # pruned or refused: the rest cost more
                 analysed[(rung, n)] = (c, lin)
                 if c.spatial_m <= budget_s:
-                    if c.verdict == "admissible" and (best is None
+                    if c.verdict.startswith("admissible") and (best is None
                                                       or c.work_s < best[0].work_s):
                         best = (c, lin)
                     break
@@ -672,20 +680,12 @@ class _Analysis:
                              f"{got}); loosen it or name a rung")
         chosen, lin = best
         for c in cands:
+            rkn4 = c.verdict[len("admissible"):] if c.verdict.startswith("admissible") else ""
             if c is chosen:
-                c.verdict = "chosen: the least work meeting the tolerance"
-            elif c.verdict == "admissible":
-                c.verdict = f"admissible, more work than {chosen.label}"
-        integrator = "rk4"
-        got = self._with_rkn4(chosen, lin)
-        if got is not None:
-            h_rk4 = chosen.step_s
-            chosen.take_step(got[0], self.T, lin.cost_us)
-            chosen.temporal_m = got[1]
-            chosen.stable_step_s = lin.stable_step
-            chosen.verdict += (f"; rkn4 at {got[0]:.3g} s (rk4's step {h_rk4:.3g} s: the "
-                               f"same tolerance, fewer steps)")
-            integrator = "rkn4"
+                c.verdict = "chosen: the least work meeting the tolerance" + rkn4
+            elif c.verdict.startswith("admissible"):
+                c.verdict = f"admissible, more work than {chosen.label}" + rkn4
+        integrator = chosen.integrator
         finer = self._finer(chosen, analysed, cands)
         window = check_window(lin.chain, self.T)
         growth = self._growth(lin, chosen, window)
@@ -702,28 +702,29 @@ class _Analysis:
             window_s=window, growth=growth, wall=self.wall,
             analysis_s=time.perf_counter() - t0, integrator=integrator)
 
-    def _with_rkn4(self, c, lin) -> tuple[float, float] | None:
-        """(step, E_t) of integrator rkn4 on the chosen candidate where it takes a longer
-        step than RK4 within the same temporal budget, else None (``lin`` left on RK4).
-        RKN4 costs what RK4 costs per step (the same four right-hand sides) and errs less
-        on the arms (docs/accuracy.md, *Integrator rkn4*), so the larger step is the
-        cheaper run. Its stable step (the share of its own stability limit, at most RK4's)
-        must meet the budget TOL − E_s; above it, as for RK4, half the budget evaluated
-        there. Only for a scene that leaves the integrator to auto (fidelity.integrator rk4,
-        the default, and no fidelity.dt), without a wall (the contact stepper is RK4's), for
-        a smooth model (dense output). The rung was chosen with RK4: a rung that RK4 could
-        not afford but RKN4 could is not looked for."""
-        if (self.wall or self.fid.dt > 0 or self.fid.integrator != "rk4"
-                or not smooth_rhs(lin.chain) or math.isnan(c.temporal_m)):
-            return None
-        budget_t = self.tol - c.spatial_m
+    def _with_rkn4(self, c, lin, budget_t) -> tuple[float, float] | None:
+        """(step, E_t) of integrator rkn4 on candidate ``c`` where it meets the temporal
+        budget TOL − E_s at a longer step than RK4 (``c.step_s``), or meets it where RK4
+        does not; else None (``lin`` left on RK4). RKN4 costs what RK4 costs per step (the
+        same four right-hand sides) and errs less on the arms (docs/accuracy.md,
+        *Integrator rkn4*), so the larger step is the cheaper run. Its stable step (the
+        share of its own stability limit, at most RK4's) must meet the budget, else it is
+        shortened as RK4's is (E_t ∝ h⁴, checked); above it, as for RK4, half the budget
+        evaluated there."""
+        rk4_met = c.temporal_m <= budget_t
         kept = (getattr(lin, "y_rk4", None), getattr(lin, "h_rk4", None))
         lin.use("rkn4")
         h = grid_step(lin.stable_step, self.out_dt, True)
         e = self._temporal(lin, h)
         if e <= budget_t:
             h, e = self._above_stable(lin, h, e, 0.5 * budget_t)
-        if e <= budget_t and h > c.step_s * (1 + 1e-9):
+        elif not rk4_met:
+            for _ in range(4):              # E_t ∝ h⁴: shorten, then check
+                h = grid_step(h * 0.9 * (budget_t / e) ** 0.25, self.out_dt, True)
+                e = self._temporal(lin, h)
+                if e <= budget_t:
+                    break
+        if e <= budget_t and (not rk4_met or h > c.step_s * (1 + 1e-9)):
             return h, e
         lin.use("rk4")
         lin.y_rk4, lin.h_rk4 = kept         # RK4's response at its step: the check's growth
@@ -816,8 +817,10 @@ class _Analysis:
         least = c.work_s         # the least work it could take: at its largest step
         if self.fid.dt == 0 and dense:
             if math.isfinite(lin.limit):
-                least = min(least, math.ceil(self.T / (ABOVE_STABLE_SHARE * lin.limit)
-                                             - 1e-9) * lin.cost_us * 1e-6)
+                # rkn4's limit is up to RKN4_LIMIT_RATIO × RK4's (the damping of a mode)
+                longest = ABOVE_STABLE_SHARE * lin.limit * (
+                    RKN4_LIMIT_RATIO if self._rkn4_allowed(dense) else 1.0)
+                least = min(least, math.ceil(self.T / longest - 1e-9) * lin.cost_us * 1e-6)
         if best is not None and least >= best[0].work_s:
             c.verdict = f"pruned: more work at its largest step than {best[0].label}"
             return c, None
@@ -846,12 +849,30 @@ class _Analysis:
             # (POSTERIOR_SAFETY), and at the full budget it flagged runs that met TOL
             h, c.temporal_m = self._above_stable(lin, h, c.temporal_m, 0.5 * budget_t)
             c.take_step(h, self.T, lin.cost_us)
+        got = self._with_rkn4(c, lin, budget_t) if self._rkn4_allowed(dense) else None
+        if got is not None:
+            rk4 = (f"rk4's step {c.step_s:.3g} s" if c.temporal_m <= budget_t
+                   else "rk4 misses it")
+            c.take_step(got[0], self.T, lin.cost_us)
+            c.temporal_m = got[1]
+            c.stable_step_s = lin.stable_step
+            c.integrator = "rkn4"
+            c.verdict = f"admissible; rkn4 at {got[0]:.3g} s ({rk4}: the same tolerance"
+            c.verdict += ", fewer steps)" if rk4.startswith("rk4's") else ")"
+            return c, lin
         if c.temporal_m > budget_t:
             c.verdict = f"temporal estimate above TOL - spatial at {h:.3g} s"
             c.work_s = math.inf
             return c, lin
         c.verdict = "admissible"
         return c, lin
+
+    def _rkn4_allowed(self, dense) -> bool:
+        """Auto may step a candidate by rkn4: a scene that leaves it the integrator
+        (fidelity.integrator rk4, the default, and no fidelity.dt), without a wall (the
+        contact stepper is RK4's), with a smooth model (dense output)."""
+        return (dense and not self.wall and self.fid.dt == 0
+                and self.fid.integrator == "rk4")
 
     def _above_stable(self, lin, h, e_h, budget) -> tuple[float, float]:
         """(step, E_t) above the stable step h where the temporal budget allows it, up to

@@ -77,7 +77,8 @@ def _fidelity_args(p):
     g.add_argument("--rung", choices=RUNG_CHOICES,
                    help="beam discretization rung; auto: the cheapest rung, refinement and "
                         "RK4 step estimated to meet --tolerance (default 1e-5 m tip)")
-    g.add_argument("--refine", type=integer, help="modes / elements / FD segments")
+    g.add_argument("--refine", type=integer,
+                   help="modes / elements / FD segments (0: the rung's default)")
     g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
     g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
     g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
@@ -176,7 +177,7 @@ def cmd_simulate(args):
         for rate, path in summ.get("sensor_tables", {}).items():
             print(f"  sensors at {rate} Hz → {path}")
         if summ.get("auto"):
-            print(f"  rung auto: {summ['rung']} {summ['refine']}, rk4 step "
+            print(f"  rung auto: {summ['rung']} {summ['refine']}, {summ['integrator']} step "
                   f"{summ['step_s']:.3g} s, estimated tip error "
                   f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")

@@ -127,8 +127,10 @@ def explain(scene, chain=None) -> str:
     m = natural_modes(chain, state[0], joints="locked")
     f = ", ".join(f"{v:.4g}" for v in m.frequencies_hz[:4])
     where = " at the static deflection" if scene.initial.static_equilibrium else ""
+    sets = ("sets the explicit step's stability limit; the scene fixes the step"
+            if scene.fidelity.dt > 0 else "sets the explicit step")
     lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
-                 f"{m.frequencies_hz[-1]:.4g} Hz sets the explicit step)")
+                 f"{m.frequencies_hz[-1]:.4g} Hz {sets})")
     from flexarm_ros.model.limits import joint_limits
     lines.append(f"ROS twin: control every {1e3 / scene.control.rate_hz:.4g} ms "
                  f"({scene.control.rate_hz:.6g} Hz), efforts held over it; commands older "

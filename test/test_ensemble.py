@@ -72,6 +72,20 @@ def test_set_keys_grows_a_left_out_section():
         K.set_keys(sc, {"links[0].joint.backlash.width": 0.01})
 
 
+def test_set_keys_applies_fidelity_as_the_command_line_does():
+    """A sweep over fidelity.rung on two_link_free (its fixed 7.5 ms was measured for its
+    modal 3) steps each rung at its own step, as `--rung` does; a dt given with it, or an
+    integrator alone, keep theirs."""
+    sc = load_scene("two_link_free")
+    assert K.set_keys(sc, {"fidelity.rung": "fem"}).fidelity.dt == 0.0
+    assert K.set_keys(sc, {"fidelity.integrator": "rk4"}).fidelity.dt == 0.0075
+    got = K.set_keys(sc, {"fidelity.rung": "cubic", "fidelity.dt": 0.005}).fidelity
+    assert (got.rung, got.dt) == ("cubic", 0.005)
+    assert K.set_keys(sc, {"fidelity.rung": "fem"}) == sc.with_fidelity(rung="fem")
+    with pytest.raises(SceneError, match=r"fidelity\.refine: got -1"):
+        K.set_keys(sc, {"fidelity.refine": -1})
+
+
 @pytest.mark.parametrize("assignment, pattern", [
     ({"links[0].joint.drive.resistnce": 1.0},
      r"links\[0\]\.joint\.drive\.resistnce: unknown key; expected one of .*resistance"),

@@ -127,9 +127,16 @@ def set_keys(scene, assignment: dict):
     if not assignment:
         return scene
     data = scene_mapping(scene) if not isinstance(scene, dict) else _plain(scene)
+    fidelity = {}          # fidelity.<field>: as the command line's overrides apply them
     for path, value in assignment.items():
-        _put(data, parse_path(path), _plain(_plain_value(value)), path)
-    return load_scene_dict(_strip_created(data))
+        tokens = parse_path(path)
+        if len(tokens) == 2 and tokens[0] == "fidelity" and isinstance(tokens[1], str):
+            fidelity[tokens[1]] = _plain(_plain_value(value))
+        else:
+            _put(data, tokens, _plain(_plain_value(value)), path)
+    out = load_scene_dict(_strip_created(data))
+    # Scene.with_fidelity: a scene's fixed step goes with the model it names
+    return out.with_fidelity(**fidelity) if fidelity else out
 
 
 def put_keys(data: dict, assignment: dict) -> dict:

@@ -187,8 +187,10 @@ def cmd_simulate(args):
                                     summ["estimated_tip_error_m"])
                 above = (f" ({res.accuracy.above()})"
                          if res.accuracy.method == "pilot above the stable step" else "")
+                default = (" (the default: the trapezoid's automatic step)"
+                           if summ.get("tolerance_source") == "default" else "")
                 print(f"  step {summ['step_s']:.4g} s{above} chosen for a tip tolerance of "
-                      f"{summ['tolerance_m']:.2g} m, its estimated temporal error "
+                      f"{summ['tolerance_m']:.2g} m{default}, its estimated temporal error "
                       f"{step_est:.2g} m (--estimate adds the rung's own spatial error)")
             if summ.get("assessment"):
                 print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "

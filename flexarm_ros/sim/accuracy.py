@@ -89,6 +89,9 @@ class StepChoice:
     method: str = "step halving"
     #: the ceiling above the stable step (ABOVE_STABLE_SHARE of RK4's stability limit)
     limit_s: float = math.nan
+    #: "given" (fidelity.tolerance) or "default" (the trapezoid's automatic step: chosen
+    #: for rung auto's default tip tolerance, simulate.simulate)
+    source: str = "given"
 
     def above(self) -> str:
         """'above the stable step …' and, at the ceiling, why the step is not larger."""

@@ -273,6 +273,13 @@ def test_the_trapezoids_automatic_step_is_chosen_for_accuracy():
     assert np.max(np.linalg.norm(_tip(fixed) - ref, axis=1)) > DEFAULT_TOLERANCE_M
 
 
+def test_explain_says_how_the_trapezoids_automatic_step_is_chosen(capsys):
+    assert main(["explain", "link", "--integrator", "trapezoid"]) == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert line.endswith("automatic step (chosen for the default tip tolerance 1e-05 m by "
+                         "the linearized model, among the divisors of the output period)")
+
+
 def test_a_tolerance_the_trapezoid_cannot_afford_is_refused(monkeypatch):
     """Past TRAPEZOID_MAX_PER steps per output interval the search stops with one line
     naming the tolerance, the integrator and the best it found (the bound lowered here to

@@ -159,6 +159,7 @@ class Candidate:
     temporal_m: float = math.nan        # E_t at step_s
     integrator: str = "rk4"             # rkn4 where it steps this model further
     verdict: str = ""
+    rkn4_note: str = ""                 # "; rkn4 at … (rk4's step …)" when it took rkn4
 
     @property
     def label(self) -> str:
@@ -680,11 +681,10 @@ class _Analysis:
                              f"{got}); loosen it or name a rung")
         chosen, lin = best
         for c in cands:
-            rkn4 = c.verdict[len("admissible"):] if c.verdict.startswith("admissible") else ""
             if c is chosen:
-                c.verdict = "chosen: the least work meeting the tolerance" + rkn4
+                c.verdict = "chosen: the least work meeting the tolerance" + c.rkn4_note
             elif c.verdict.startswith("admissible"):
-                c.verdict = f"admissible, more work than {chosen.label}" + rkn4
+                c.verdict = f"admissible, more work than {chosen.label}" + c.rkn4_note
         integrator = chosen.integrator
         finer = self._finer(chosen, analysed, cands)
         window = check_window(lin.chain, self.T)
@@ -857,8 +857,9 @@ class _Analysis:
             c.temporal_m = got[1]
             c.stable_step_s = lin.stable_step
             c.integrator = "rkn4"
-            c.verdict = f"admissible; rkn4 at {got[0]:.3g} s ({rk4}: the same tolerance"
-            c.verdict += ", fewer steps)" if rk4.startswith("rk4's") else ")"
+            c.rkn4_note = (f"; rkn4 at {got[0]:.3g} s ({rk4}: the same tolerance"
+                           + (", fewer steps)" if rk4.startswith("rk4's") else ")"))
+            c.verdict = "admissible" + c.rkn4_note
             return c, lin
         if c.temporal_m > budget_t:
             c.verdict = f"temporal estimate above TOL - spatial at {h:.3g} s"

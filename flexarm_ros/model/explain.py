@@ -29,10 +29,10 @@ def _tolerance_method(chain, state) -> str:
             f"a pilot run at that step meets the tolerance")
 
 
-def _trapezoid_note(scene, chain) -> str:
+def _trapezoid_note(chain) -> str:
     """How the trapezoid's automatic step is chosen (sim.simulate), where it applies."""
-    fid = chain.fidelity
-    if fid.integrator != "trapezoid" or scene.walls or chain.backlash or chain.nz:
+    from flexarm_ros.model.linear import trapezoid_step_by_error
+    if not trapezoid_step_by_error(chain):
         return ""
     from flexarm_ros.model.autofidelity import DEFAULT_TOLERANCE_M
     return (f" (chosen for the default tip tolerance {DEFAULT_TOLERANCE_M:g} m by the "
@@ -59,7 +59,7 @@ def explain(scene, chain=None) -> str:
                                     + " (flexarm simulate; its --json names the step and "
                                     "the estimate)"
                                     if fid.tolerance and chain.auto is None else
-                                    ", automatic step" + _trapezoid_note(scene, chain))
+                                    ", automatic step" + _trapezoid_note(chain))
              + (" — chosen by rung auto" if chain.auto is not None else "")]
     if chain.auto is not None:
         lines.extend(chain.auto.explain().splitlines())

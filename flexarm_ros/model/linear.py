@@ -181,3 +181,12 @@ def grid_step(h, output_dt, dense=False):
         return h
     h = min(h, output_dt)
     return output_dt / np.ceil(output_dt / h - 1e-9)
+
+
+def trapezoid_step_by_error(chain) -> bool:
+    """True where the trapezoid's automatic step (fidelity.dt 0) is chosen by its error
+    estimate (:func:`~flexarm_ros.sim.simulate.simulate`): integrator trapezoid, no wall
+    (the contact stepper is RK4's), no backlash (its dead zone defeats the estimate), no
+    actuator state (the rule carries none). Elsewhere it is the output period."""
+    return (chain.fidelity.integrator == "trapezoid" and not chain.scene.walls
+            and not chain.backlash and not chain.nz)

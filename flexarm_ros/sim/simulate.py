@@ -13,6 +13,7 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
+from flexarm_ros.model.linear import trapezoid_step_by_error
 from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact, check_integrator
 from flexarm_ros.model.sensors import (build_sensors, output_period, sample_grid_ns,
                                        sensor_tables)
@@ -112,8 +113,7 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     check_output(T, fid.output_dt, out_dt, chain)
     contact = build_contact(chain)
     choice = _step_for_tolerance(chain, contact, x0, T, out_dt) if fid.tolerance else None
-    if (choice is None and fid.integrator == "trapezoid" and fid.dt == 0 and contact is None
-            and not chain.backlash and not chain.nz):
+    if choice is None and fid.dt == 0 and trapezoid_step_by_error(chain):
         choice = _trapezoid_automatic_step(chain, T, out_dt)
     assessed = None
     if fid.estimate and auto is None:      # rung auto estimates anyway

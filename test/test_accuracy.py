@@ -157,6 +157,33 @@ def test_the_tolerance_with_a_wall_is_met_through_the_impacts(name):
     assert all(a >= b for a, b in zip(steps, steps[1:])) and steps[-1] < steps[0], steps
 
 
+def test_pilots_over_the_whole_run_measure_instead_of_growing_a_window(monkeypatch):
+    """Where the pilots are cheap they cover the whole run: two_link_free (modal 3, rkn4,
+    1 s) at 1e-6 m steps 6.2 ms where a 0.1 s window grown linearly to the run asked
+    3.9 ms (its error peaks at 0.15 s and decays) — both within TOL against DOP853. A
+    third pilot shows the order the pair is in: seed 001's link at 1e-7 m, whose stable
+    step is pre-asymptotic (order 2 between 253 and 126 µs), had been taken at 132 µs by
+    an h⁴ extrapolation and missed (2e-7 m); with the observed order it meets TOL."""
+    from flexarm_ros.sim import accuracy
+    T = 1.0
+    sc = load_scene("two_link_free").with_fidelity(tolerance=1e-6)
+    ref = _tip(_reference(load_scene("two_link_free"), T))
+    whole = simulate(sc, T)
+    assert whole.accuracy.pilot_window_s == T
+    monkeypatch.setattr(accuracy, "WHOLE_RUN_PILOT_S", 0.0)
+    window = simulate(sc, T)
+    assert window.accuracy.pilot_window_s < T
+    assert whole.run.dt > 1.4 * window.run.dt, (whole.run.dt, window.run.dt)
+    for res in (whole, window):
+        assert np.max(np.linalg.norm(_tip(res) - ref, axis=1)) <= 1e-6
+    monkeypatch.setattr(accuracy, "WHOLE_RUN_PILOT_S", 10.0)
+    sc = load_scene("link").with_fidelity(tolerance=1e-7)
+    res = simulate(sc, T)
+    assert res.accuracy.pilot_window_s == T and res.accuracy.order < 3
+    err = np.max(np.linalg.norm(_tip(res) - _tip(_reference(load_scene("link"), T)), axis=1))
+    assert err <= 1e-7 and err <= 2 * res.accuracy.estimated_tip_error_m
+
+
 def test_simulate_json_reports_the_estimate(tmp_path, capsys):
     code = main(["simulate", "two_link_free", "--duration", "0.5", "--tolerance", "1e-6",
                  "--out", str(tmp_path / "x.npz"), "--json", "--quiet"])

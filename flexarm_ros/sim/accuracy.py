@@ -66,6 +66,12 @@ from flexarm_ros.model.linear import ABOVE_STABLE_SHARE, search_above_stable
 SAFETY = 0.5            # the estimate aims at half the tolerance
 WINDOW_FRACTION = 0.1   # the pilot window: this share of the run ...
 WINDOW_MIN_S = 0.1      # ... but at least this long (or the whole run)
+#: the pilots cover the whole run — its error measured, not grown linearly in time from a
+#: window — where their predicted integration work (autofidelity.COST_US per step) is at
+#: most this many seconds (session 16: on two_link_free the window's linear growth had
+#: asked 3.9 ms for 1e-6 m where 7.5 ms meets it; the error there peaks at 0.15 s and
+#: decays with the damping)
+WHOLE_RUN_PILOT_S = 0.25
 MIN_STEP_S = 1e-7       # below this the tolerance is refused as unreachable
 #: below this the tolerance is refused: the pilots' tip histories differ by round-off at
 #: this level (two_link_case1 at 62.5 and 31.25 µs: 2e-12 m apart), so an estimate under
@@ -176,11 +182,22 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
         if jumps:               # the response to the first input jump is in the window
             window += jumps[0]
         window = min(t_end, window)
+        if _pilot_work(chain, t_end, h1) <= WHOLE_RUN_PILOT_S:
+            window = t_end
     coarse, h1 = tip_history(chain, x0, window, h1, output_dt, max_ratio, contact)
     fine, h2 = tip_history(chain, x0, window, h1 / 2, output_dt, max_ratio, contact)
     d12 = float(np.max(np.linalg.norm(coarse - fine, axis=1)))
     growth = t_end / window
     if contact is None and smooth(chain):
+        if window == t_end:
+            # over the whole run a third pilot shows the order the pair is in: the highest
+            # modes at the stable step may still be pre-asymptotic (seed 001 link: 6.7e-7,
+            # 1.7e-7, 1.1e-8 m at 253, 126, 63 µs — order 2, then 4), and an h⁴
+            # extrapolation from there undershot 4× (5e-8 m estimated, 2e-7 measured)
+            finest, _ = tip_history(chain, x0, window, h2 / 2, output_dt, max_ratio)
+            d24 = float(np.max(np.linalg.norm(fine - finest, axis=1)))
+            if d12 > 0.0 and d24 > 0.0:
+                order = min(order, max(1.0, math.log(d12 / d24) / math.log(h1 / h2)))
         # e(h1) − e(h2) = C·(h1^p − h2^p)  →  e(h1) = difference / (1 − (h2/h1)^p)
         e1 = d12 / (1 - (h2 / h1) ** order)
         # (1 − 1e-12): the estimate below then stays at or under SAFETY·tol despite the
@@ -210,6 +227,15 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                          f"can reach with a step above {MIN_STEP_S:g} s (it would need "
                          f"{h:.3g} s); loosen it or use --integrator dop853 with --rtol")
     return StepChoice(h, est, tol, base[0], window, base[1], h_top, order)
+
+
+def _pilot_work(chain, t_end, h1) -> float:
+    """Predicted integration time (s) of the three pilots over ``t_end`` at h1, h1/2 and
+    h1/4 (autofidelity.COST_US per step)."""
+    from flexarm_ros.model.autofidelity import COST_US
+    points = sum(len(lm.beam.x) for lm in chain.links)
+    per_step = (COST_US[0] + COST_US[1] * chain.n * points) * 1e-6
+    return 7 * t_end / h1 * per_step
 
 
 def _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit, h_top, h_want,

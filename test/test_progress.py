@@ -60,3 +60,11 @@ def test_a_compile_notice_comes_once_and_only_from_inside_numbas_compiler(tmp_pa
     with CompileNotice(after=0.05, period=0.02, stream=off, enabled=False) as n:
         ns["compile_extra"]()
     assert not n.said and off.getvalue() == ""
+    # a cache load passes through compiler.py (CompileResult._rebuild): not a compile
+    from flexarm_ros.io.progress import NUMBA_CACHE_LOAD
+    loader = os.path.join(str(tmp_path), *NUMBA_CACHE_LOAD[0])
+    exec(compile(f"def {NUMBA_CACHE_LOAD[1]}():\n    compile_extra()\n", loader, "exec"), ns)
+    load = io.StringIO()
+    with CompileNotice(after=0.05, period=0.02, stream=load) as n:
+        ns[NUMBA_CACHE_LOAD[1]]()
+    assert not n.said and load.getvalue() == ""

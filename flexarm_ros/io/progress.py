@@ -51,6 +51,9 @@ class ProgressLine:
 #: a frame in this file is numba compiling (not loading from its cache, which does not
 #: pass through it)
 NUMBA_COMPILER = ("numba", "core", "compiler.py")
+#: numba's on-disk cache: loading a compiled function passes through compiler.py too
+#: (``CompileResult._rebuild``), which is not compiling
+NUMBA_CACHE_LOAD = (("numba", "core", "caching.py"), "load_overload")
 
 
 class CompileNotice:
@@ -72,14 +75,21 @@ class CompileNotice:
         self._target = None
 
     def _compiling(self) -> bool:
+        """A frame of numba's compiler on the entering thread's stack, not under a cache
+        load (a helper's trial on a loaded host saw the notice for a warm cache: loading
+        took over ``after`` s through compiler.py's ``_rebuild``)."""
         import os
         frame = sys._current_frames().get(self._target)
         mark = os.sep + os.sep.join(NUMBA_COMPILER)
+        load_file = os.sep + os.sep.join(NUMBA_CACHE_LOAD[0])
+        compiling = False
         while frame is not None:
-            if frame.f_code.co_filename.endswith(mark):
-                return True
+            code = frame.f_code
+            if code.co_filename.endswith(load_file) and code.co_name == NUMBA_CACHE_LOAD[1]:
+                return False
+            compiling = compiling or code.co_filename.endswith(mark)
             frame = frame.f_back
-        return False
+        return compiling
 
     def _watch(self):
         if self._stop.wait(self.after):

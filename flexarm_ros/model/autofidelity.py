@@ -138,6 +138,14 @@ MAX_LINEAR_SAMPLES = 5000
 #: µs per RK4 step ≈ COST_US[0] + COST_US[1]·n·P (n coordinates, P mass points), fitted on
 #: this 2-core machine from the integration times of link_tipmass's rungs
 COST_US = (9.0, 0.11)
+
+
+def step_cost_us(chain) -> float:
+    """Predicted µs per RK4 (or RKN4) step of ``chain``: COST_US[0] + COST_US[1]·n·P."""
+    points = sum(len(lm.beam.x) for lm in chain.links)
+    return COST_US[0] + COST_US[1] * chain.n * points
+
+
 #: the check after the run: the first share of the run, at least WINDOW_MIN_S
 WINDOW_FRACTION = 0.1
 WINDOW_MIN_S = 0.1
@@ -432,8 +440,7 @@ class _Linear:
         self.nq = 0             # Nyström positions of the step (rkn4: the free coordinates)
         self.stable_step = RK4_AUTO / rate if rate > 0 else math.inf
         self.limit = RK4_STABILITY / rate if rate > 0 else math.inf
-        points = sum(len(lm.beam.x) for lm in chain.links)
-        self.cost_us = COST_US[0] + COST_US[1] * chain.n * points
+        self.cost_us = step_cost_us(chain)
         self._maps: dict = {}
 
     def use(self, method: str) -> None:

@@ -232,10 +232,8 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
 def _pilot_work(chain, t_end, h1) -> float:
     """Predicted integration time (s) of the three pilots over ``t_end`` at h1, h1/2 and
     h1/4 (autofidelity.COST_US per step)."""
-    from flexarm_ros.model.autofidelity import COST_US
-    points = sum(len(lm.beam.x) for lm in chain.links)
-    per_step = (COST_US[0] + COST_US[1] * chain.n * points) * 1e-6
-    return 7 * t_end / h1 * per_step
+    from flexarm_ros.model.autofidelity import step_cost_us
+    return 7 * t_end / h1 * step_cost_us(chain) * 1e-6
 
 
 def _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit, h_top, h_want,

@@ -48,18 +48,18 @@ A priori, on the linearized model
     on link_tipmass).
     Families are walked upward in refinement and left once their predicted work at the
     largest step exceeds the best found (more modes or elements only cost more), so most
-    candidates are never built. Then, for the chosen model of a smooth scene without a
-    wall, every candidate is also stepped by integrator rkn4 (the same four right-hand
-    sides per step, less error on the arms; :func:`~flexarm_ros.sim.step.rk4_step`) on
-    its linear model, its stable step being the share of its own stability limit: where
-    it meets the same budget at a longer step, or meets it where RK4 does not, the
-    candidate takes rkn4 at that step (``_with_rkn4``; link_tipmass at 1e-5 m: 0.937 ms
-    against RK4's 0.789; two_link_free at 1e-6 m: 5.8 against 4.6 ms), and the work
-    compared between candidates is the one at that step: rung, refinement and integrator
-    are chosen together (since session 16; before, the rung was chosen with RK4 and rkn4
-    tried on it). Other integrators are not candidates: the
-    trapezoidal rule's step has no error control yet, and the adaptive methods cost 2–40×
-    more at equal error on these models (docs/ladder.md).
+    candidates are never built. In a smooth scene without a wall every candidate is also
+    stepped by integrator rkn4 (the same four right-hand sides per step, less error on the
+    arms; :func:`~flexarm_ros.sim.step.rk4_step`) on its linear model, its stable step
+    being the share of its own stability limit: where it meets the same budget at a longer
+    step, or meets it where RK4 does not, the candidate takes rkn4 at that step
+    (``_with_rkn4``; link_tipmass at 1e-5 m: 0.937 ms against RK4's 0.789; two_link_free
+    at 1e-6 m: 5.8 against 4.6 ms), and the work compared between candidates is the one at
+    that step: rung, refinement and integrator are chosen together (since session 16;
+    before, the rung was chosen with RK4 and rkn4 tried on it). Other integrators are not
+    candidates: the trapezoidal rule's step stays within the output period (above it the
+    nonlinear rule diverged, docs/accuracy.md), and the adaptive methods cost 2–40× more
+    at equal error on these models (docs/ladder.md).
 
 Measured (link_tipmass, 3 s; linear estimate / nonlinear error against FEM 8):
 rigid 3.6e-5 / 3.4e-5 m, cubic 6.4e-5 / 6.1e-5, modal 2 2.5e-5 / 1.2e-5, modal 3
@@ -726,11 +726,7 @@ class _Analysis:
         if e <= budget_t:
             h, e = self._above_stable(lin, h, e, 0.5 * budget_t)
         elif not rk4_met:
-            for _ in range(4):              # E_t ∝ h⁴: shorten, then check
-                h = grid_step(h * 0.9 * (budget_t / e) ** 0.25, self.out_dt, True)
-                e = self._temporal(lin, h)
-                if e <= budget_t:
-                    break
+            h, e = self._shortened(lin, h, e, budget_t, True)
         if e <= budget_t and (not rk4_met or h > c.step_s * (1 + 1e-9)):
             return h, e
         lin.use("rk4")
@@ -843,12 +839,7 @@ class _Analysis:
         budget_t = self.tol - c.spatial_m
         c.temporal_m = self._temporal(lin, h)
         if c.temporal_m > budget_t and self.fid.dt == 0:
-            for _ in range(4):              # E_t ∝ h⁴: shorten, then check
-                h_new = h * 0.9 * (budget_t / c.temporal_m) ** 0.25
-                h = grid_step(h_new, self.out_dt, dense)
-                c.temporal_m = self._temporal(lin, h)
-                if c.temporal_m <= budget_t:
-                    break
+            h, c.temporal_m = self._shortened(lin, h, c.temporal_m, budget_t, dense)
             c.take_step(h, self.T, lin.cost_us)
         elif self.fid.dt == 0 and dense and c.temporal_m <= budget_t:
             # above the stable step at half the budget (as --tolerance aims at half TOL):
@@ -874,6 +865,16 @@ class _Analysis:
             return c, lin
         c.verdict = "admissible"
         return c, lin
+
+    def _shortened(self, lin, h, e_h, budget, dense) -> tuple[float, float]:
+        """(step, E_t) below h, whose E_t e_h misses ``budget``: E_t ∝ h⁴ gives the next
+        step (with a 0.9 margin), checked on the linear candidate, at most four times."""
+        for _ in range(4):
+            h = grid_step(h * 0.9 * (budget / e_h) ** 0.25, self.out_dt, dense)
+            e_h = self._temporal(lin, h)
+            if e_h <= budget:
+                break
+        return h, e_h
 
     def _rkn4_allowed(self, dense) -> bool:
         """Auto may step a candidate by rkn4: a scene that leaves it the integrator

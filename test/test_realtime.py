@@ -123,7 +123,8 @@ def test_ground_truth_at_a_set_rate_keeps_the_values_of_every_tick(tmp_path, cap
 
 def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path, capsys):
     """The kernel's own answer for the pacing thread (sched_getscheduler of its thread id,
-    polled while it runs in this process), with ``--thread-priority 50`` and at the
+    polled while it runs in this process, once the kernel knows it as ``flexarm-pacer``:
+    the name comes after the policy is set), with ``--thread-priority 50`` and at the
     default (0: normal scheduling)."""
     import os
     import threading
@@ -139,8 +140,11 @@ def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path,
                 for th in threading.enumerate():
                     if th.name == "realtime-pacer" and th.native_id is not None:
                         try:
+                            with open(f"/proc/self/task/{th.native_id}/comm") as f:
+                                if f.read().strip() != "flexarm-pacer":
+                                    continue        # started, its policy not yet set
                             seen.add(os.sched_getscheduler(th.native_id))
-                        except OSError:             # ended between the two calls
+                        except OSError:             # ended between the calls
                             pass
                 done.wait(0.01)
         w = threading.Thread(target=watch)

@@ -348,8 +348,10 @@ class SimulatorNode(Node):
             wait_s = self.core.scene.control.watchdog_s
             if self._bus is not None:
                 self._bus.self_delivering.add(threading.current_thread())
-            name_thread("flexarm-pacer")
+            # the kernel's name comes after the policy: a thread that ps -L / chrt -p show
+            # as flexarm-pacer already runs under the scheduling the summary names
             granted, self.scheduling = realtime_scheduling(self.p["thread_priority"])
+            name_thread("flexarm-pacer")
             if not granted and self.p["thread_priority"]:
                 self.get_logger().warning(f"realtime pacing thread: {self.scheduling}; "
                                           f"other processes can delay its ticks")

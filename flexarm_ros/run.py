@@ -80,6 +80,7 @@ class RunResult:
     layout: str = ""                          # "one", "split" or "processes"
     integrator: str | None = None             # what the plant stepped with (rk4, rkn4)
     step_s: float | None = None               # ... and its step
+    cpu: dict | None = None                   # twin/cpu_load.cpu_budget over the ticking
 
     @property
     def ticking_s(self) -> float | None:
@@ -118,7 +119,9 @@ class RunResult:
                 "interrupted": self.interrupted, "returncodes": self.returncodes,
                 "recovered": self.recovered,
                 "cpus": ({n: sorted(c) for n, c in self.cpus.items()} if self.cpus
-                         else None)}
+                         else None),
+                **(self.cpu or {"cpu_ms_per_tick": None, "cpu_ms_per_tick_total": None,
+                                "cpu_share": None, "cpus_available": None})}
 
     def summary(self) -> str:
         from flexarm_ros.twin.pacing import short_scheduling
@@ -141,6 +144,16 @@ class RunResult:
                       if p.get("scheduling") else "") + ")" if p else ")")
         else:
             s += f", {self.wall_s:.3g} s wall"
+        if self.cpu and self.cpu["cpu_ms_per_tick"]:
+            c = self.cpu
+            s += ("; CPU per tick " + ", ".join(
+                f"{k} {v:.2f}" for k, v in sorted(c["cpu_ms_per_tick"].items(),
+                                                  key=lambda kv: -kv[1]))
+                  + f" ms ({100 * c['cpu_share']:.0f} % of {c['cpus_available']} CPUs)")
+            p = self.pacing
+            if p and p["ticks"] and p["late_ticks"] > 0.01 * p["ticks"]:
+                s += _busy_hint(c, 1e3 * self.sim_s / self.ticks,
+                                self.layout or ("processes" if self.processes else "one"))
         if self.first_command_s is not None and self.first_command_s > 0:
             s += (f"; the first command came at {self.first_command_s:.3f} s (the drives "
                   f"held 0 before it)")
@@ -635,6 +648,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                                                   "late_policy", "late_bound",
                                                   "ground_truth_rate_hz", "thread_priority")})
     record = Path(record) if record else None
+    cpus = len(os.sched_getaffinity(0))       # before a split graph pins this process
     stop = StopFlag()
     t0 = time.monotonic()
     try:
@@ -645,12 +659,16 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                              simulator={**(simulator or {}),
                                         "summary_file": str(summary_file)},
                              pin=(mode == "realtime") if pin is None else pin)
+            sampler = _cpu_sampler("run")
             sim = g.procs["simulator"]
-            while sim.poll() is None and not stop.set and not g.failed():
-                try:
-                    sim.wait(0.1)
-                except subprocess.TimeoutExpired:
-                    pass
+            try:
+                while sim.poll() is None and not stop.set and not g.failed():
+                    try:
+                        sim.wait(0.1)
+                    except subprocess.TimeoutExpired:
+                        pass
+            finally:
+                sampler.stop()
             codes = g.stop()
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             res = RunResult(name, mode, True, record, time.monotonic() - t0,
@@ -660,6 +678,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             summary_file.unlink(missing_ok=True)
             if sim_summary:
                 _take_summary(res, sim_summary, namespace)
+                _take_cpu(res, sampler, sim_summary, "simulator", cpus)
             if codes.get("simulator") == 3 and not res.stalled:
                 res.diverged = res.diverged or ("the simulator reported a divergence (its "
                                                 "message above)")
@@ -671,13 +690,16 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         if layout == "split":
             return _run_split(scene, mode, duration, record, namespace, progress, fidelity,
                               simulator, nodes, (mode == "realtime") if pin is None else pin,
-                              stop, name, t0)
+                              stop, name, t0, cpus)
         g = InProcessGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                            fidelity=fidelity, simulator=simulator)
+        roles = _roles(g.nodes)
+        sampler = _cpu_sampler(roles)
         try:
             sim = g["simulator"]
             g.spin_until(lambda: sim.finished, stop=stop)
             sim.finish(g.executor)
+            sampler.stop()
             if record:
                 g.spin_until(g.recorded_all, timeout=10.0, stop=None if stop.set else stop)
             for other in ("motor_driver", "controller"):
@@ -689,8 +711,11 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                             sim.rejected,
                             rejected=_node_rejections(g.nodes),
                             interrupted=stop.set, nodes=tuple(g.nodes))
-            _take_summary(res, sim.summary(), namespace)
+            sim_summary = sim.summary()
+            _take_summary(res, sim_summary, namespace)
+            _take_cpu(res, sampler, sim_summary, roles, cpus)
         finally:
+            sampler.stop()
             g.close()
         if record:
             res.recorded = _bag_counts(record)
@@ -701,6 +726,56 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
 
 
 LAYOUTS = ("one", "split", "processes")
+
+#: the graph's share of the CPUs above which the summary says why ticks are late: with
+#: the busiest CPU at load u a stall of the host of S seconds makes S/(T·(1 − u)) late
+#: ticks of period T, four per stalled period at u = 0.75 (twin/cpu_load.py)
+BUSY_SHARE = 0.75
+
+
+def _busy_hint(cpu: dict, period_ms: float, layout: str) -> str:
+    """Why a realtime run with late ticks had them, where its CPU budget says so: the
+    graph took more than BUSY_SHARE of the CPUs, or one process more than BUSY_SHARE of
+    a period per tick (a process's Python runs one thread at a time); "" otherwise."""
+    busiest, ms = max(cpu["cpu_ms_per_tick"].items(), key=lambda kv: kv[1])
+    if cpu["cpu_share"] > BUSY_SHARE:
+        why = f"the graph takes {100 * cpu['cpu_share']:.0f} % of the CPUs"
+    elif ms > BUSY_SHARE * period_ms:
+        why = f"{busiest} takes {ms:.2f} ms of each {period_ms:.3g} ms tick"
+    else:
+        return ""
+    fix = ("--layout one, " if layout == "processes" else "") + \
+        "a lower control rate, a coarser model or more CPUs"
+    return f" — {why}, so every stall of the host makes a run of late ticks: {fix}"
+
+
+def _roles(nodes) -> str:
+    """The role of a process that runs ``nodes``: their names joined by '+', the
+    simulator first."""
+    order = ("simulator", "motor_driver", "controller", "recorder")
+    return "+".join(sorted(nodes, key=lambda n: order.index(n) if n in order else 9))
+
+
+def _cpu_sampler(root_role: str):
+    from flexarm_ros.twin.cpu_load import CpuSampler
+    return CpuSampler(root_role=root_role).start()
+
+
+def _take_cpu(res: RunResult, sampler, sim: dict | None, sim_role: str,
+              cpus: int) -> None:
+    """``res.cpu`` from ``sampler``'s readings over the simulator's ticking (its summary
+    ``sim``), the simulator's own process taken exactly from its ``process_cpu_s``
+    (``sim_role``: the role its process has in the sampler); ``cpus``: how many the graph
+    could run on (this process's affinity when the run began)."""
+    from flexarm_ros.twin.cpu_load import cpu_budget
+    sampler.stop()
+    span = (sim or {}).get("ticking_monotonic_s")
+    if not span or not res.ticks or not sampler.samples:
+        return
+    cpu_s = sampler.between(*span)
+    if sim.get("process_cpu_s") is not None:
+        cpu_s[sim_role] = sim["process_cpu_s"]
+    res.cpu = cpu_budget(cpu_s, res.ticks, span[1] - span[0], cpus)
 
 
 def default_layout(mode: str) -> str:
@@ -721,16 +796,18 @@ def _summary_path() -> Path:
 
 
 def _run_split(scene, mode, duration, record, namespace, progress, fidelity, simulator,
-               nodes, pin, stop, name, t0) -> RunResult:
+               nodes, pin, stop, name, t0, cpus) -> RunResult:
     """:func:`run` with a :class:`SplitGraph`."""
     summary_file = _summary_path()
     g = SplitGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                    fidelity=fidelity, simulator={**(simulator or {}),
                                                  "summary_file": str(summary_file)},
                    pin=pin)
+    sampler = _cpu_sampler(_roles(g.graph.nodes))
     try:
         sim = g.simulator
         g.graph.spin_until(lambda: sim.poll() is not None, stop=stop)
+        sampler.stop()
         codes = g.procs.stop()
         sim_summary = _read_summary(summary_file) or {}
         summary_file.unlink(missing_ok=True)
@@ -752,10 +829,12 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
                         cpus=g.procs.placement or None, layout="split")
         if sim_summary:
             _take_summary(res, sim_summary, namespace)
+            _take_cpu(res, sampler, sim_summary, "simulator", cpus)
         if codes.get("simulator") == 3 and not res.stalled:
             res.diverged = res.diverged or ("the simulator reported a divergence (its "
                                             "message above)")
     finally:
+        sampler.stop()
         g.close()
     if record:
         sim_rej = _bag_rejections(record)

@@ -48,6 +48,14 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
         assert rec[T.resolve(NS, topic)] in (ticks, ticks + 1), topic
     assert s["rejected_commands"] == 0
     assert s["scheduling"] == "SCHED_OTHER (thread_priority 0)"      # the default
+    # the CPU budget over the ticking: every process of the graph costs something, and
+    # together no more than the machine's CPUs had in that time
+    cpu = s["cpu_ms_per_tick"]
+    assert cpu and all(v >= 0 for v in cpu.values())
+    assert s["cpu_ms_per_tick_total"] == pytest.approx(sum(cpu.values()))
+    assert s["cpu_share"] == pytest.approx(s["cpu_ms_per_tick_total"] * 1e-3 * ticks / (
+        s["ticking_wall_time_s"] * s["cpus_available"]), rel=1e-6)
+    assert 0 < s["cpu_share"] <= 1.02
 
 
 def _granted(priority: int) -> str:
@@ -72,6 +80,10 @@ def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_eve
     _check_summary(s, 500, gt_every)
     assert s["layout"] == layout
     assert set(s["nodes"]) == {"simulator", "motor_driver", "controller", "recorder"}
+    procs = ({"simulator", "motor_driver+controller+recorder"} if layout == "split" else
+             {"simulator+motor_driver+controller+recorder"})
+    assert procs <= set(s["cpu_ms_per_tick"]) and all(s["cpu_ms_per_tick"][p] > 0
+                                                      for p in procs)
     if layout == "split":
         assert s["returncodes"] == {"simulator": 0}
     # the drives hold 0 until the controller's first command: when that came is reported
@@ -90,6 +102,7 @@ def test_realtime_run_in_processes_reports_the_same_summary(tmp_path, capsys):
     _check_summary(s, 500)
     assert set(s["nodes"]) == {"simulator", "motor_driver", "controller", "recorder"}
     assert s["returncodes"] == dict.fromkeys(s["nodes"], 0)
+    assert all(s["cpu_ms_per_tick"][n] > 0 for n in s["nodes"])     # a process each
     # realtime in processes pins the simulator alone on a CPU, the other nodes elsewhere
     import os
     if len(os.sched_getaffinity(0)) >= 2:

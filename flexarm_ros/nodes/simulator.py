@@ -181,6 +181,7 @@ class SimulatorNode(Node):
         self.finished = self.started = False
         self.accepted = {T.EFFORTS: 0}              # valid efforts from the source, started
         self.t_wall0 = self.t_wall_end = None
+        self.cpu0 = self.cpu_end = None             # this process's CPU time at both ends
         self._last_report = self._last_log = 0.0
         self._line = ProgressLine(0)
         rate = ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode)
@@ -226,6 +227,7 @@ class SimulatorNode(Node):
         if not self.finished:
             self.finished = True
             self.t_wall_end = time.monotonic()
+            self.cpu_end = time.process_time()
             self.timer.cancel()
             if self._watch is not None:
                 self._watch.cancel()
@@ -406,6 +408,7 @@ class SimulatorNode(Node):
             if not self.ready():
                 return
             self.started, self.t_wall0 = True, time.monotonic()
+            self.cpu0 = time.process_time()
             self._last_log = self.t_wall0
             self._publish_state()
             if self.mode != "fast":
@@ -444,7 +447,14 @@ class SimulatorNode(Node):
                "accepted": dict(self.accepted),
                "rejected_efforts": dict(self.core.validator.counts),
                "diverged": str(self.diverged) if self.diverged else None,
-               "stalled": self.stalled}
+               "stalled": self.stalled,
+               # the ticking on the system-wide monotonic clock, and this process's CPU
+               # over it (the run's per-process CPU budget: twin/cpu_load.py)
+               "ticking_monotonic_s": ([self.t_wall0, self.t_wall_end]
+                                       if None not in (self.t_wall0, self.t_wall_end)
+                                       else None),
+               "process_cpu_s": (self.cpu_end - self.cpu0 if self.cpu_end is not None
+                                 and self.cpu0 is not None else None)}
         if self.mode == "realtime":
             out.update(self.pacer.summary())
             out.update({"scheduling": self.scheduling, "effort_waits": self.waited_ticks,

@@ -310,6 +310,12 @@ def main(argv=None) -> int:
               f"{r['lateness_p50_s'] * 1e3:.2f} / p99 {r['lateness_p99_s'] * 1e3:.2f} / max "
               f"{r['lateness_max_s'] * 1e3:.2f} ms, {lost} messages lost by the recorder"
               + _steal(r))
+        if r.get("cpu_ms_per_tick"):
+            print("      CPU per tick: " + ", ".join(
+                f"{k} {v:.2f}" for k, v in sorted(r["cpu_ms_per_tick"].items(),
+                                                  key=lambda kv: -kv[1]))
+                  + f" ms = {r['cpu_ms_per_tick_total']:.2f} ms, "
+                  f"{100 * r['cpu_share']:.0f} % of {r['cpus_available']} CPUs")
     return 0
 
 

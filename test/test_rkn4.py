@@ -204,3 +204,34 @@ def test_rkn4_with_a_wall_is_refused_in_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert all(w in err[0] for w in ("fidelity.integrator", "'rkn4'", "wall", "expected rk4"))
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.05, 0.3, 1.0])
+def test_a_fixed_step_is_admitted_exactly_where_it_is_below_the_limit(zeta):
+    """``rkn4_admits`` (the scan up to the step, what a run at a fixed step computes)
+    against the limit itself: on q̈ + 2ζωq̇ + ω²q = 0 beside a rigid mode, for steps on
+    both sides of the limit (outside the limit's refinement, 1.6e-3/rate)."""
+    from flexarm_ros.model.explicit import rkn4_admits
+    w = 40.0
+    J = np.zeros((4, 4))
+    J[0, 2] = J[1, 3] = 1.0
+    J[2, 0], J[2, 2] = -w * w, -2 * zeta * w
+    rate = float(np.abs(np.linalg.eigvals(J)).max())
+    lim = rkn4_limit(J, 2, rate)
+    for share in (0.3, 0.8, 0.99, 1.01, 1.2, 2.0):
+        h = share * lim
+        assert rkn4_admits(J, 2, rate, h) == (share < 1), (zeta, share)
+
+
+def test_the_runs_check_of_a_fixed_step_agrees_with_the_limit():
+    """two_link_free (rkn4 at a fixed 7.5 ms): the steps admitted about its initial state
+    are those below RKN4's limit there (8.67 ms)."""
+    from flexarm_ros.model.explicit import admits
+    sc = load_scene("two_link_free")
+    res = simulate(sc, 0.01)
+    ch = res.chain
+    q = np.array([res.columns[n][0] for n in ch.names])
+    qd = np.array([res.columns[n + "_rate"][0] for n in ch.names])
+    _, lim2, _ = stability(ch, q, qd, np.zeros(0), "rkn4")
+    for h in (0.0075, 0.99 * lim2, 1.01 * lim2, 0.0095):
+        assert admits(ch, q, qd, np.zeros(0), "rkn4", h) == (h < lim2), h

@@ -108,30 +108,60 @@ def rkn4_limit(J, nq: int, rate: float) -> float:
     two_link_free modal 3: 2 ms, a 0.05 scan took 7)."""
     if not rate > 0:
         return np.inf
-    # a linearization about a moving state can have modes that grow (Re λ > 0: the
-    # centrifugal terms of a turning arm); their map's eigenvalues grow as the flow does,
-    # e^{h·λ}, which is not the step's instability: at each step the n of them that grow
-    # beyond GROWTH_TOL are set aside and the step is unstable where the next one grows
     re = np.linalg.eigvals(J).real
-
-    def first_unstable(s):
-        h = s / rate
-        mu = -np.sort(-np.abs(np.linalg.eigvals(rkn4_map(J, nq, h))), axis=1)
-        n = (np.exp(np.outer(h, re)) > 1.0 + GROWTH_TOL).sum(axis=1)
-        rho = mu[np.arange(len(h)), np.minimum(n, mu.shape[1] - 1)]
-        bad = np.nonzero((rho > 1.0 + GROWTH_TOL) & (n < mu.shape[1]))[0]
-        return int(bad[0]) if len(bad) else None
-
-    s = np.r_[0.25, 0.5, 0.75, np.arange(10, 41) * 0.1]
-    i = first_unstable(s)
+    s = RKN4_SCAN
+    i = _first_unstable(J, nq, rate, re, s)
     if i is None:
         return float(s[-1] / rate)
     lo, hi = (s[i - 1] if i > 0 else 0.0), s[i]
     for _ in range(2):
         s = np.linspace(lo, hi, 9)[1:]
-        i = first_unstable(s)
+        i = _first_unstable(J, nq, rate, re, s)
         lo, hi = (s[i - 1] if i > 0 else lo), s[i]
     return float(lo / rate)
+
+
+#: the scan of h·|λ|max for RKN4's first unstable step (:func:`rkn4_limit`)
+RKN4_SCAN = np.r_[0.25, 0.5, 0.75, np.arange(10, 41) * 0.1]
+
+
+def rkn4_admits(J, nq: int, rate: float, h: float) -> bool:
+    """Whether the fixed step ``h`` is within RKN4's stability limit on ẋ = J x: the
+    scan of :func:`rkn4_limit` up to h·rate and h itself, all stable. What a run at a
+    given step needs to know, at the cost of the scan's points below it (the limit's
+    two refinements and the points above h are not computed)."""
+    if not rate > 0:
+        return True
+    s = np.r_[RKN4_SCAN[RKN4_SCAN < h * rate], h * rate]
+    return _first_unstable(J, nq, rate, np.linalg.eigvals(J).real, s) is None
+
+
+def _first_unstable(J, nq, rate, re, s):
+    """The index of the first step h = s/rate (s ascending) whose RKN4 map of ẋ = J x
+    grows, or None; ``re``: Re λ of J. A linearization about a moving state can have
+    modes that grow (Re λ > 0: the centrifugal terms of a turning arm); their map's
+    eigenvalues grow as the flow does, e^{h·λ}, which is not the step's instability: at
+    each step the n of them that grow beyond GROWTH_TOL are set aside and the step is
+    unstable where the next one grows."""
+    h = np.asarray(s, float) / rate
+    mu = -np.sort(-np.abs(np.linalg.eigvals(rkn4_map(J, nq, h))), axis=1)
+    n = (np.exp(np.outer(h, re)) > 1.0 + GROWTH_TOL).sum(axis=1)
+    rho = mu[np.arange(len(h)), np.minimum(n, mu.shape[1] - 1)]
+    bad = np.nonzero((rho > 1.0 + GROWTH_TOL) & (n < mu.shape[1]))[0]
+    return int(bad[0]) if len(bad) else None
+
+
+def admits(chain, q, qd, z, integrator, h) -> bool:
+    """Whether a fixed step ``h`` of the explicit ``integrator`` is stable about the state
+    (q, q̇, z): RK4 h ≤ RK4_STABILITY/|λ|max, RKN4 by :func:`rkn4_admits` on every
+    Jacobian of :func:`~flexarm_ros.model.linear.jacobians` — the answer of
+    ``h <= stability(...)[1]`` without RKN4's limit itself (a scene's fixed step: a
+    quarter of the scan's eigenvalue calls on two_link_free)."""
+    Js = jacobians(chain, q, qd, z)
+    rate = max(float(np.abs(np.linalg.eigvals(J)).max()) for J in Js)
+    if integrator != "rkn4":
+        return not rate > 0 or h <= RK4_STABILITY / rate
+    return all(rkn4_admits(J, len(chain.free), rate, h) for J in Js)
 
 
 def stability(chain, q, qd, z, integrator="rk4") -> tuple[float, float, float]:

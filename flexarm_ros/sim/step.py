@@ -16,8 +16,8 @@ import numpy as np
 
 from flexarm_ros.errors import StepTooLarge
 from flexarm_ros.model.contact import constrained_rate
-from flexarm_ros.model.explicit import (nystrom_positions, rk4_step, rkn4_limit, rkn4_map,
-                                        stability)
+from flexarm_ros.model.explicit import (admits, nystrom_positions, rk4_step, rkn4_limit,
+                                        rkn4_map, stability)
 from flexarm_ros.model.linear import RK4_AUTO, RK4_STABILITY, grid_step
 
 #: the automatic step with a wall is this fraction of RK4_AUTO/|λ|max: impacts excite the
@@ -54,13 +54,17 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     if integrator not in ("rk4", "rkn4"):
         return dt
     q, qd = chain.full_state(t0, x0)
-    rate, limit, auto = stability(chain, q, qd, x0[2 * len(chain.free):], integrator)
+    z = x0[2 * len(chain.free):]
     if dt > 0:
-        if dt > limit:
+        # a given step needs only its own stability (RKN4: the scan up to it); the
+        # limit itself is computed for the refusal's text
+        if not admits(chain, q, qd, z, integrator, dt):
+            rate, limit, _ = stability(chain, q, qd, z, integrator)
             raise _refusal(dt, limit, t0, f"the highest model rate {rate / (2 * np.pi):.4g} Hz",
                            implicit=contact is None, integrator=integrator)
         h = dt
     else:
+        rate, limit, auto = stability(chain, q, qd, z, integrator)
         h = auto if rate > 0 else output_dt
     h = grid_step(h, output_dt, dense)
     if contact is None or contact.method == "compliant":

@@ -460,8 +460,8 @@ class ProcessGraph:
                     1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
                             progress, fidelity, sim)
-                cmd = [sys.executable, "-m", f"flexarm_ros.nodes.{name}", "--ros-args",
-                       "-r", f"__ns:={namespace}"]
+                cmd = environment.python_module(f"flexarm_ros.nodes.{name}") + [
+                    "--ros-args", "-r", f"__ns:={namespace}"]
                 if not progress:
                     cmd += ["--log-level", "warn"]
                 for k, v in p.items():

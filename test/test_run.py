@@ -438,3 +438,34 @@ def test_colcon_install_has_the_node_executables(tmp_path):
             env=env, capture_output=True, text=True, cwd=tmp_path).stdout
     assert (prefix / "share" / "flexarm_ros" / "config" / "two_link_position.yaml").exists()
     assert (prefix / "share" / "flexarm_ros" / "config" / "two_link_sanding.yaml").exists()
+
+
+@pytest.mark.parametrize("flag", [True, False])
+def test_a_child_never_imports_the_package_from_its_working_directory(tmp_path, monkeypatch,
+                                                                      flag):
+    """A folder named ``flexarm_ros`` in the working directory (the directory that holds
+    a clone) must not shadow the installed package in the graph's child processes: with
+    ``-P`` (Python ≥ 3.11) and with the bootstrap used before it."""
+    from flexarm_ros.nodes.environment import python_module
+    shadow = tmp_path / "flexarm_ros"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text("raise ImportError('the shadowing folder')\n")
+    if flag and sys.version_info < (3, 11):
+        pytest.skip("-P needs Python 3.11")
+    r = subprocess.run(python_module("flexarm_ros.nodes.environment", flag) + ["--x"],
+                       cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    # the same command as a plain -m fails there: the folder is a real shadow
+    r = subprocess.run([sys.executable, "-m", "flexarm_ros.nodes.environment"],
+                       cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode != 0 and "the shadowing folder" in r.stderr
+
+
+def test_a_recorded_run_next_to_a_clone_writes_its_bag(tmp_path, monkeypatch):
+    """``flexarm run`` from the directory that holds a clone named flexarm_ros (the bag
+    writer is a child process)."""
+    from flexarm_ros.cli import main
+    (tmp_path / "flexarm_ros").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "link", "--duration", "0.05", "--quiet", "--record", "x.mcap"]) == 0
+    assert read_bag(tmp_path / "x.mcap")

@@ -56,7 +56,8 @@ class WriterProcess:
         import tempfile
         self.names = names
         self._err = tempfile.TemporaryFile()     # never a pipe nobody reads while it runs
-        self.proc = subprocess.Popen([sys.executable, "-m", "flexarm_ros.bag.writer_process"],
+        from flexarm_ros.nodes.environment import python_module
+        self.proc = subprocess.Popen(python_module("flexarm_ros.bag.writer_process"),
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=self._err)
         try:                        # room for ~1 s of ticks: the child's hiccups never block

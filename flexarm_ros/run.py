@@ -66,6 +66,7 @@ class RunResult:
     overruns: int | None = None
     rejected_commands: int | None = None     # on both command topics
     rejected: dict | None = None              # topic -> {reason: count}, every node input
+    extra_commands: int | None = None         # lockstep, driver in this process: beyond 1/state
     diverged: str | None = None               # the divergence message (exit status 3)
     stalled: str | None = None                # lockstep ended without answers (status 3)
     interrupted: bool = False
@@ -114,7 +115,8 @@ class RunResult:
                                       is not None else
                                       (sum(sum(by.values()) for by in self.rejected.values())
                                        if self.rejected is not None else None)),
-                "rejected": self.rejected, "diverged": self.diverged,
+                "rejected": self.rejected, "extra_commands": self.extra_commands,
+                "diverged": self.diverged,
                 "stalled": self.stalled,
                 "interrupted": self.interrupted, "returncodes": self.returncodes,
                 "recovered": self.recovered,
@@ -163,6 +165,9 @@ class RunResult:
             s += ", diverged"
         if self.stalled:
             s += ", stalled"
+        if self.extra_commands:
+            s += (f"; {self.extra_commands} command(s) beyond one per state (lockstep: the "
+                  f"pairing shifted from the first on)")
         if self.rejected:
             s += "; rejected: " + "; ".join(
                 f"{t} {sum(by.values())} (" + ", ".join(f"{n} {r}" for r, n in
@@ -710,6 +715,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                             rejected_commands=(driver.rejected if driver else 0) +
                             sim.rejected,
                             rejected=_node_rejections(g.nodes),
+                            extra_commands=driver.extra_commands if driver else None,
                             interrupted=stop.set, nodes=tuple(g.nodes))
             sim_summary = sim.summary()
             _take_summary(res, sim_summary, namespace)
@@ -823,6 +829,7 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
                         rejected_commands=(driver.rejected if driver else 0) + sum(
                             (sim_summary.get("rejected_efforts") or {}).values()),
                         rejected=_node_rejections(g.graph.nodes),
+                        extra_commands=driver.extra_commands if driver else None,
                         interrupted=stop.set, returncodes=codes,
                         nodes=tuple(n for n in NODES if n in nodes or
                                     (n == "recorder" and record)),

@@ -299,3 +299,68 @@ def test_the_end_waits_for_what_the_nodes_accepted_not_only_what_they_sent():
     drv = Node(published={T.EFFORTS: 0}, accepted={T.COMMANDS: 5})
     assert not _all_arrived({T.COMMANDS: 4, T.EFFORTS: 0}, [drv])
     assert _all_arrived({T.COMMANDS: 5, T.EFFORTS: 0}, [drv])
+
+
+EXTRA_CONTROLLER = '''
+import sys
+import rclpy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                 reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+rclpy.init(args=sys.argv)
+node = rclpy.create_node("my_controller")
+pub = node.create_publisher(Float64MultiArray, "motor_driver/commands", QOS)
+n = [0, 0]
+
+
+def on_state(msg):                    # holds 0 V, and every 25th state answers twice
+    n[0] += 1
+    pub.publish(Float64MultiArray(data=[0.0] * len(msg.position)))
+    if n[0] % 25 == 0:
+        n[1] += 1
+        pub.publish(Float64MultiArray(data=[1.0] * len(msg.position)))
+        print("extra", n[1], flush=True)
+
+
+node.create_subscription(JointState, "joint_states", on_state, QOS)
+try:
+    rclpy.spin(node)
+except (KeyboardInterrupt, Exception):
+    pass
+finally:
+    node.destroy_node()
+    rclpy.try_shutdown()
+'''
+
+
+def test_commands_beyond_one_per_state_in_lockstep_are_counted_and_said(tmp_path, capfd):
+    """A controller that answers some states twice: a Float64MultiArray has no stamp, so
+    the driver cannot tell the extra from the next state's answer, but the run counts
+    them (the controller's own count is the truth: every extra it sent, less at most the
+    one the last state's answer takes) and says so at WARN level."""
+    script = tmp_path / "extra.py"
+    script.write_text(EXTRA_CONTROLLER)
+    log = open(tmp_path / "extra.log", "w")
+    proc = subprocess.Popen([sys.executable, str(script), "--ros-args", "-r", f"__ns:={NS}"],
+                            stdout=log, stderr=subprocess.STDOUT)
+    try:
+        res = run("link_motor", 0.2, "lockstep", record=None, namespace=NS, progress=False,
+                  nodes=("simulator", "motor_driver"))
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+        log.close()
+    sent = sum(1 for line in (tmp_path / "extra.log").read_text().splitlines()
+               if line.startswith("extra"))
+    assert sent >= 7                             # 200 ticks: 8 extras (the 8th may be late)
+    assert res.extra_commands in (sent - 1, sent), (res.extra_commands, sent)
+    s = res.to_json()
+    assert s["extra_commands"] == res.extra_commands
+    assert "beyond one per state" in res.summary()
+    assert "beyond one per state" in capfd.readouterr().err

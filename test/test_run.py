@@ -53,6 +53,7 @@ def test_lockstep_run_records_exactly_the_cosimulation(tmp_path, scene, duration
     res = _lockstep_run(scene, duration, path)
     ticks = round(duration / control_period(load_scene(scene)))
     assert res.ticks == ticks and res.rejected_commands == 0
+    assert res.extra_commands == 0                  # the twin's controller: one per state
     ref = cosimulate(load_scene(scene), duration)
     raw = _raw(path)
     topics = {m.topic for m in ref.messages}

@@ -18,7 +18,11 @@ are taken from the ``simulator`` only.
 
 Time: the ground-truth stamp is the driver's time. ``lockstep`` pairs the k-th accepted
 command with the k-th state (a FIFO of accepted commands: a rejected one never takes a
-state's place); ``realtime`` / ``fast`` take each accepted command when it arrives and
+state's place). A Float64MultiArray carries no stamp, so a valid command beyond one per
+state cannot be told from the next state's answer: it shifts the pairing from there on.
+What the run shows of it is counted at the end (:attr:`extra_commands`: the accepted
+commands beyond the states answered and the one the last state may have had) and said
+at WARN level; ``realtime`` / ``fast`` take each accepted command when it arrives and
 answer every state with the latest one (the source's latest wins). A command older than
 ``control.watchdog_s`` of simulated time gives 0 V / a closed valve (``tripped``), so a
 dead controller lets the arm coast. The final log line gives the rejected messages by
@@ -84,6 +88,7 @@ class MotorDriverNode(Node):
         self.rejections = Rejections(self)
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
         self.accepted = {T.COMMANDS: 0}
+        self.paired = 0                         # lockstep: states answered with a command
         self._started = False                   # the start barrier passed
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
@@ -129,8 +134,26 @@ class MotorDriverNode(Node):
         self.states.append(m)
         self._drain()
 
+    @property
+    def extra_commands(self) -> int | None:
+        """Lockstep: accepted commands beyond one per state answered, less the one the
+        last state may have had (a lower bound of the extra commands a controller sent);
+        None in realtime and fast, where the latest command wins by design."""
+        if not self.lockstep:
+            return None
+        return max(0, self.accepted[T.COMMANDS] - self.paired - 1)
+
     def finish(self, executor=None):
-        """The final log line: what was published and what was rejected."""
+        """The final log line: what was published and what was rejected (and, lockstep,
+        a warning when more commands came than states to answer)."""
+        extra = self.extra_commands
+        if extra:
+            self.get_logger().warning(
+                f"lockstep: {extra} command(s) on {self._cmd_sub.topic_name} beyond one per "
+                f"state ({self.accepted[T.COMMANDS]} accepted for {self.paired} states): the "
+                f"k-th command answers the k-th state, so from the first extra on each state "
+                f"took an earlier command. Publish exactly one command per joint_states "
+                f"message")
         self.get_logger().info(f"{self.published[T.EFFORTS]} efforts published; "
                                f"{T.COMMANDS}: {self.core.validator.summary()}"
                                + (f"; {self.rejections.summary()}"
@@ -173,6 +196,7 @@ class MotorDriverNode(Node):
             self.t = t = self.sim_time(t_ns)
             if self.lockstep:
                 self.core.accept(t, self.commands.popleft())
+                self.paired += 1
             angles = list(gt.position[self.n:2 * self.n])
             rates = list(gt.velocity[self.n:2 * self.n])
             tau = self.core.update(t, self.period, rates, list(gt.effort[self.n:2 * self.n]))

@@ -364,3 +364,60 @@ def test_commands_beyond_one_per_state_in_lockstep_are_counted_and_said(tmp_path
     assert s["extra_commands"] == res.extra_commands
     assert "beyond one per state" in res.summary()
     assert "beyond one per state" in capfd.readouterr().err
+
+
+WRONG_TYPES = '''
+import sys
+import rclpy
+from std_msgs.msg import Float32MultiArray, String
+rclpy.init(args=sys.argv)
+node = rclpy.create_node("my_controller")
+pub = node.create_publisher(Float32MultiArray, "motor_driver/commands", 10)
+node.create_subscription(String, "joint_states", lambda m: None, 10)
+try:
+    rclpy.spin(node)
+except (KeyboardInterrupt, Exception):
+    pass
+'''
+
+
+def test_a_wait_names_an_endpoint_of_the_wrong_type(tmp_path):
+    """A controller whose command publisher and state subscription have the wrong types
+    is never matched by DDS: the simulator's and the driver's waits say what is on their
+    topics instead of waiting as if nobody were there."""
+    from flexarm_ros.nodes.environment import child_environment, python_module
+    script = tmp_path / "wrong.py"
+    script.write_text(WRONG_TYPES)
+    env = child_environment()
+    args = ["--ros-args", "-r", f"__ns:={NS}", "-p", "scene:=two_link_position",
+            "-p", "duration:=0.1"]
+    wrong = subprocess.Popen([sys.executable, str(script), "--ros-args", "-r", f"__ns:={NS}"],
+                             stderr=subprocess.DEVNULL, env=env)
+    procs = {n: subprocess.Popen(python_module(f"flexarm_ros.nodes.{n}") + args,
+                                 stderr=subprocess.PIPE, text=True, env=env)
+             for n in ("simulator", "motor_driver")}
+    want = {"simulator": "has a subscription of std_msgs/msg/String, which DDS never "
+                         "connects to sensor_msgs/msg/JointState",
+            "motor_driver": "has a publisher of std_msgs/msg/Float32MultiArray, which DDS "
+                            "never connects to std_msgs/msg/Float64MultiArray"}
+    seen = {}
+    try:
+        t0 = time.monotonic()
+        while len(seen) < 2 and time.monotonic() - t0 < 90:
+            streams = {p.stderr: n for n, p in procs.items() if n not in seen}
+            ready, _, _ = select.select(list(streams), [], [], 1.0)
+            for f in ready:
+                line = f.readline()
+                if want[streams[f]] in line:
+                    seen[streams[f]] = line
+    finally:
+        for p in (*procs.values(), wrong):
+            p.terminate()
+        for p in (*procs.values(), wrong):
+            try:
+                p.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.communicate(timeout=10)
+    assert set(seen) == {"simulator", "motor_driver"}, seen
+    assert all("WARN" in line for line in seen.values())

@@ -181,6 +181,32 @@ class SimTime:
 GRAPH = ("simulator", "controller", "motor_driver", "recorder")
 
 
+def other_types(node, topic: str, msgtype: str, kind: str = "publisher") -> str:
+    """What a wait for a ``kind`` ("publisher" or "subscription") on ``topic`` should add
+    when the graph holds one of another type there: DDS never matches endpoints of
+    different types, so such a node waits unseen (a controller publishing
+    Float32MultiArray commands, met in a new-user trial); "" when there is none."""
+    try:
+        infos = (node.get_publishers_info_by_topic(topic) if kind == "publisher" else
+                 node.get_subscriptions_info_by_topic(topic))
+    except Exception:                            # a graph query is advice, never a failure
+        return ""
+    wrong = sorted({(i.node_name, i.topic_type) for i in infos if i.topic_type != msgtype})
+    if not wrong:
+        return ""
+    return ("; on it " + ", ".join(f"{name or '?'} has a {kind} of {typ}" for name, typ in wrong)
+            + f", which DDS never connects to {msgtype}")
+
+
+def _type_name(pub) -> str:
+    """'pkg/msg/Name' of a publisher's message type (the twin's BusPublisher or rclpy's)."""
+    cls = getattr(pub, "msg_type", None) or getattr(getattr(pub, "pub", None), "msg_type", None)
+    if cls is None:
+        return ""
+    mod = cls.__module__.split(".")                 # e.g. std_msgs.msg._float64_multi_array
+    return f"{mod[0]}/msg/{cls.__name__}"
+
+
 class Barrier:
     """The start condition of a node: true once every publisher in ``needs`` — (publisher,
     subscribers it needs, who they are) — has that many matched subscriptions and, with
@@ -203,7 +229,9 @@ class Barrier:
         n = n() if callable(n) else n            # a need that depends on the graph
         have = pub.get_subscription_count()
         if have < n:
-            return f"{pub.topic_name} ({have}/{n} subscribers: {who})"
+            return (f"{pub.topic_name} ({have}/{n} subscribers: {who}"
+                    + other_types(self.node, pub.topic_name, _type_name(pub), "subscription")
+                    + ")")
         if self.recorders:
             ns = self.node.get_namespace()
             if not any(name == "recorder" and nns == ns

@@ -179,7 +179,8 @@ class MotorDriverNode(Node):
                     self.get_logger().warning(
                         f"not started after {waited:.0f} s: waiting for a publisher on "
                         f"{self._cmd_sub.topic_name} (a controller; lockstep steps on its "
-                        f"answers)")
+                        f"answers" + C.other_types(self, self._cmd_sub.topic_name,
+                                                   T.TYPES[T.COMMANDS]) + ")")
                 return
             self._subscribe_states()
         if not self._started:

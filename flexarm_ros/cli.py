@@ -380,6 +380,11 @@ def cmd_run(args):
     if (args.late_bound is not None or args.ground_truth_rate is not None
             or args.thread_priority is not None):
         _check_pacing_flags(args)
+    if args.start_timeout is not None and not (args.start_timeout >= 0
+                                               and math.isfinite(args.start_timeout)):
+        from flexarm_ros.errors import SceneError
+        raise SceneError(f"--start-timeout: got {args.start_timeout:g} s, expected a "
+                         f"finite number >= 0 (0: wait for ever)")
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record
@@ -407,7 +412,8 @@ def cmd_run(args):
               fidelity={k: v for k, v in _overrides(args).items() if k != "tolerance"},
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
                          "ground_truth_rate_hz": args.ground_truth_rate,
-                         "thread_priority": args.thread_priority})
+                         "thread_priority": args.thread_priority,
+                         "start_timeout_s": args.start_timeout})
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
         from flexarm_ros.run import run_with_view
         from flexarm_ros.viz.rerun_view import RerunUnavailable
@@ -588,6 +594,11 @@ def build_parser():
                         "controller of yours on the same host). "
                         "Where the kernel refuses it the run goes on at normal priority "
                         "and says so")
+    r.add_argument("--start-timeout", type=number, metavar="S",
+                   help="end the run as stalled (exit 3) when the twin has not started "
+                        "after S seconds — its driver, in lockstep a controller on "
+                        "joint_states, the recorder — naming what it waited for (default "
+                        "0: wait for ever, as a bench waits for its controller)")
     r.add_argument("--ground-truth-rate", type=number, metavar="HZ",
                    help="rate of ground_truth/tip and ground_truth/coordinates (default: "
                         "every control tick; 100 Hz in realtime; 0: every tick)")

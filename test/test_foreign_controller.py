@@ -7,6 +7,7 @@ waits for it in lockstep (the twin steps on its answers) and not in realtime."""
 from __future__ import annotations
 
 import ast
+import json
 import select
 import subprocess
 import sys
@@ -421,3 +422,22 @@ def test_a_wait_names_an_endpoint_of_the_wrong_type(tmp_path):
                 p.communicate(timeout=10)
     assert set(seen) == {"simulator", "motor_driver"}, seen
     assert all("WARN" in line for line in seen.values())
+
+
+def test_a_start_timeout_ends_a_twin_whose_controller_never_came(tmp_path, capsys):
+    """``--start-timeout``: lockstep without a controller ends as stalled (exit 3) after
+    the timeout, naming what it waited for, with no tick; a bad value is one line."""
+    from flexarm_ros.cli import main
+    t0 = time.monotonic()
+    code = main(["run", "two_link_position", "--without", "controller", "--duration", "0.1",
+                 "--start-timeout", "2", "--record", str(tmp_path / "x.mcap"), "--quiet",
+                 "--json"])
+    s = json.loads(capsys.readouterr().out)
+    assert code == 3 and time.monotonic() - t0 < 60
+    assert s["ticks"] == 0 and s["stalled"].startswith(
+        "not started within start_timeout_s = 2 s: waiting for /flexarm/joint_states ")
+    assert "subscribers: a controller)" in s["stalled"]
+    assert read_bag(tmp_path / "x.mcap") is not None            # finalized, empty
+    assert main(["run", "link", "--start-timeout", "-1", "--no-record"]) == 2
+    assert "--start-timeout: got -1 s, expected a finite number >= 0" in \
+        capsys.readouterr().err

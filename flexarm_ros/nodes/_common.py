@@ -224,6 +224,12 @@ class Barrier:
         self.recorders = recorders
         self._since = time.monotonic()
         self._said = 0.0
+        self.missing: list = []                 # what the last call found missing
+
+    @property
+    def since(self) -> float:
+        """Monotonic time the wait began."""
+        return self._since
 
     def _missing(self, pub, n, who) -> str | None:
         n = n() if callable(n) else n            # a need that depends on the graph
@@ -242,7 +248,7 @@ class Barrier:
     def __call__(self) -> bool:
         if not self.ok:
             missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
-            self.ok = not missing
+            self.ok, self.missing = not missing, missing
             waited = time.monotonic() - self._since
             if missing and waited > self.WARN_AFTER_S and waited - self._said > 5.0:
                 self._said = waited

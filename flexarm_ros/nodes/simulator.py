@@ -113,6 +113,11 @@ class SimulatorNode(Node):
               "stall_timeout_s": (30.0, "lockstep: s without an effort after a published "
                                   "state before the run ends as stalled (0: waits for "
                                   "ever); after 3 s a WARN says what the twin waits for"),
+              "start_timeout_s": (0.0, "s to wait for the start condition (the driver, "
+                                  "in lockstep a controller, the recorder) before the run "
+                                  "ends as stalled without a tick (0: waits for ever, as a "
+                                  "bench waits for its controller); after 3 s a WARN says "
+                                  "what the twin waits for"),
               "ground_truth_rate_hz": (-1.0, "rate of ground_truth/tip and "
                                        "ground_truth/coordinates (0: every tick; -1: "
                                        f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)")}
@@ -254,6 +259,19 @@ class SimulatorNode(Node):
         self.report()
 
     STALL_WARN_S = 3.0
+
+    def _start_timeout(self):
+        """Not started: past ``start_timeout_s`` (> 0) the run ends as stalled, naming what
+        it waited for (exit status 3, the bag keeps its metadata)."""
+        limit = float(self.p["start_timeout_s"])
+        if self.finished or not limit > 0:
+            return
+        waited = time.monotonic() - self.ready.since
+        if waited >= limit:
+            self.stalled = (f"not started within start_timeout_s = {limit:g} s: waiting for "
+                            + ", ".join(self.ready.missing or ["its start condition"]))
+            self.get_logger().error(self.stalled)
+            self.halt()
 
     def _watchdog(self):
         """Lockstep: the twin steps only on an effort answering its last state, so a lost
@@ -406,6 +424,7 @@ class SimulatorNode(Node):
     def _on_timer(self):
         if not self.started:
             if not self.ready():
+                self._start_timeout()
                 return
             self.started, self.t_wall0 = True, time.monotonic()
             self.cpu0 = time.process_time()

@@ -632,6 +632,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     ``realtime`` only); ``layout``: ``"one"`` process, ``"split"`` (the simulator in a
     process of its own, :class:`SplitGraph`) or ``"processes"`` (one per node; also
     ``processes=True``); None: :func:`default_layout`."""
+    t0 = time.monotonic()                    # the summary's "with start-up" counts from here
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes._common import StopFlag
     if mode not in MODES:
@@ -644,6 +645,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     # fails early on a bad scene or override (SceneError, exit 2)
     loaded = load_scene(scene).with_fidelity(**(fidelity or {}))
     name = loaded.name
+    _compile_once(loaded, progress)
     from flexarm_ros.sim.budget import check_plant_work
     check_plant_work(loaded, duration)          # the work budget, before any node starts
     from flexarm_ros.twin.cores import control_period
@@ -655,7 +657,6 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     record = Path(record) if record else None
     cpus = len(os.sched_getaffinity(0))       # before a split graph pins this process
     stop = StopFlag()
-    t0 = time.monotonic()
     try:
         if processes:
             summary_file = _summary_path()
@@ -760,6 +761,22 @@ def _roles(nodes) -> str:
     simulator first."""
     order = ("simulator", "motor_driver", "controller", "recorder")
     return "+".join(sorted(nodes, key=lambda n: order.index(n) if n in order else 9))
+
+
+def _compile_once(scene, progress: bool) -> None:
+    """On a cold numba cache (a fresh install), compile the plant's and the driver's
+    kernels here, once, saying so after 2 s (``progress``): else every node process of
+    the graph compiled them at once on a first run (a new-user trial waited 80 s with
+    nothing on the screen), and the nodes' start barriers waited on each other meanwhile.
+    A warm cache costs nothing here (its loads would cost ~0.9 s: not done)."""
+    from flexarm_ros.model.compiled import cache_is_cold
+    if not cache_is_cold():
+        return
+    from flexarm_ros.io.progress import CompileNotice
+    from flexarm_ros.twin.cores import DriverCore, SimulatorCore, control_period
+    with CompileNotice(enabled=progress):
+        SimulatorCore(scene, control_period(scene))
+        DriverCore(scene)
 
 
 def _cpu_sampler(root_role: str):

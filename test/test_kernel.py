@@ -143,3 +143,38 @@ def test_the_cache_digest_covers_every_module_numba_compiles():
     users = {p.resolve() for p in pkg.rglob("*.py") if uses.search(p.read_text())}
     assert users and users <= covered, sorted(str(p) for p in users - covered)
     assert cache_dir("/x").name == f"flexarm-{source_key()}"
+
+
+def test_a_cold_cache_is_told_from_a_warm_one(tmp_path, monkeypatch):
+    """``cache_is_cold``: no compiled function in numba's cache directory (what
+    ``flexarm run`` compiles once in the parent for)."""
+    numba = pytest.importorskip("numba")
+    from flexarm_ros.model.compiled import HAVE_NUMBA, cache_is_cold
+    if not HAVE_NUMBA:
+        pytest.skip("numba disabled")
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    assert cache_is_cold()
+    (tmp_path / "chain.span-1.py311.nbi").write_bytes(b"")
+    assert not cache_is_cold()
+
+
+@pytest.mark.slow
+def test_a_first_run_in_processes_compiles_once_and_says_so(tmp_path):
+    """``flexarm run --processes`` on an empty numba cache: the parent compiles the
+    kernels once, saying so, and the run's wall time with start-up covers it (a
+    new-user trial saw 80 s of silence and a summary of half that)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import time
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-m", "flexarm_ros.cli", "run", "link",
+                        "--processes", "--duration", "0.05", "--no-record", "--json"],
+                       env=env, capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    wall = time.monotonic() - t0
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "compiling the numba kernels" in r.stderr
+    s = json.loads(r.stdout)
+    assert s["wall_time_s"] > 0.6 * wall

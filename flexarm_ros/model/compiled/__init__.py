@@ -99,3 +99,12 @@ except ImportError:
 
     jit_inline = jit
     jit_raw = jit
+
+
+def cache_is_cold() -> bool:
+    """numba is in use and its cache for these sources holds no compiled function yet (a
+    fresh install or an edited kernel): the first run compiles for tens of seconds."""
+    if not HAVE_NUMBA:
+        return False
+    import numba
+    return not any(Path(numba.config.CACHE_DIR).glob("*.nbi"))

@@ -47,6 +47,17 @@ def _stop(proc, log):
     log.close()
 
 
+def _end(proc):
+    """SIGTERM a stand-in node of a test, SIGKILL it if it outlives 30 s (the run is what
+    is tested; the example controller's own exit is held strictly by _stop)."""
+    proc.terminate()
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
+
+
 def _start_example(tmp_path):
     log = open(tmp_path / "controller.log", "w")
     proc = subprocess.Popen([sys.executable, str(EXAMPLE), "--ros-args", "-r",
@@ -213,7 +224,8 @@ def test_a_run_for_your_own_nodes_says_which_ros_domain_to_join(monkeypatch, cap
            f"ROS_DOMAIN_ID={chosen} " in err
 
 
-AMPLIFIER = '''
+# a node of plain rclpy on the twin's QoS (the scripts below start with it)
+SCRIPT_HEAD = '''
 import sys
 import rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -222,6 +234,19 @@ from std_msgs.msg import Float64MultiArray
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 rclpy.init(args=sys.argv)
+'''
+
+SCRIPT_TAIL = '''
+try:
+    rclpy.spin(node)
+except (KeyboardInterrupt, Exception):
+    pass
+finally:
+    node.destroy_node()
+    rclpy.try_shutdown()
+'''
+
+AMPLIFIER = SCRIPT_HEAD + '''
 node = rclpy.create_node("foreign_amplifier")
 pub = node.create_publisher(Float64MultiArray, "effort_controller/commands", QOS)
 
@@ -235,14 +260,7 @@ node.create_subscription(Float64MultiArray, "motor_driver/commands", on_command,
 # ignores it, but the twin starts once its driver's inputs are subscribed
 node.create_subscription(JointState, "ground_truth/joint_states", lambda m: None, QOS)
 print("ready", flush=True)
-try:
-    rclpy.spin(node)
-except (KeyboardInterrupt, Exception):
-    pass
-finally:
-    node.destroy_node()
-    rclpy.try_shutdown()
-'''
+''' + SCRIPT_TAIL
 
 
 @pytest.mark.parametrize("layout", ["one", "split"])
@@ -265,12 +283,7 @@ def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
         # the stand-in amplifier is this test's, not the project's (the example controller's
         # exit is held strictly by _stop): once in CI under load (session 15) it outlived
         # SIGTERM by 30 s after a complete run; SIGKILL it then, the run is what is tested
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        _end(proc)
         log.close()
     s = res.to_json()
     assert not res.diverged and not res.stalled and s["ticks"] == 300, s
@@ -302,15 +315,7 @@ def test_the_end_waits_for_what_the_nodes_accepted_not_only_what_they_sent():
     assert _all_arrived({T.COMMANDS: 5, T.EFFORTS: 0}, [drv])
 
 
-EXTRA_CONTROLLER = '''
-import sys
-import rclpy
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
-QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                 reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-rclpy.init(args=sys.argv)
+EXTRA_CONTROLLER = SCRIPT_HEAD + '''
 node = rclpy.create_node("my_controller")
 pub = node.create_publisher(Float64MultiArray, "motor_driver/commands", QOS)
 n = [0, 0]
@@ -326,14 +331,7 @@ def on_state(msg):                    # holds 0 V, and every 25th state answers 
 
 
 node.create_subscription(JointState, "joint_states", on_state, QOS)
-try:
-    rclpy.spin(node)
-except (KeyboardInterrupt, Exception):
-    pass
-finally:
-    node.destroy_node()
-    rclpy.try_shutdown()
-'''
+''' + SCRIPT_TAIL
 
 
 def test_commands_beyond_one_per_state_in_lockstep_are_counted_and_said(tmp_path, capfd):
@@ -350,12 +348,7 @@ def test_commands_beyond_one_per_state_in_lockstep_are_counted_and_said(tmp_path
         res = run("link_motor", 0.2, "lockstep", record=None, namespace=NS, progress=False,
                   nodes=("simulator", "motor_driver"))
     finally:
-        proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        _end(proc)
         log.close()
     sent = sum(1 for line in (tmp_path / "extra.log").read_text().splitlines()
                if line.startswith("extra"))

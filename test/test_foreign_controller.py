@@ -58,6 +58,16 @@ def _end(proc):
         proc.wait(10)
 
 
+def _start_script(tmp_path, name, text):
+    """A stand-in node: ``text`` run as tmp_path/<name>.py in the namespace, its output
+    in tmp_path/<name>.log; (process, log file)."""
+    script = tmp_path / f"{name}.py"
+    script.write_text(text)
+    log = open(tmp_path / f"{name}.log", "w")
+    return subprocess.Popen([sys.executable, str(script), "--ros-args", "-r", f"__ns:={NS}"],
+                            stdout=log, stderr=subprocess.STDOUT), log
+
+
 def _start_example(tmp_path):
     log = open(tmp_path / "controller.log", "w")
     proc = subprocess.Popen([sys.executable, str(EXAMPLE), "--ros-args", "-r",
@@ -270,11 +280,7 @@ def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
     simulator steps on each of its efforts in lockstep, and the run ends only when the
     recorder has taken every one of them (session 13 found the last one missing from
     1 bag in 5: the graph waited for its own nodes' messages only)."""
-    script = tmp_path / "amplifier.py"
-    script.write_text(AMPLIFIER)
-    log = open(tmp_path / "amplifier.log", "w")
-    proc = subprocess.Popen([sys.executable, str(script), "--ros-args", "-r", f"__ns:={NS}"],
-                            stdout=log, stderr=subprocess.STDOUT)
+    proc, log = _start_script(tmp_path, "amplifier", AMPLIFIER)
     try:
         res = run("two_link_case1", 0.3, "lockstep", record=tmp_path / "run.mcap",
                   namespace=NS, progress=False, nodes=("simulator", "controller"),
@@ -339,11 +345,7 @@ def test_commands_beyond_one_per_state_in_lockstep_are_counted_and_said(tmp_path
     the driver cannot tell the extra from the next state's answer, but the run counts
     them (the controller's own count is the truth: every extra it sent, less at most the
     one the last state's answer takes) and says so at WARN level."""
-    script = tmp_path / "extra.py"
-    script.write_text(EXTRA_CONTROLLER)
-    log = open(tmp_path / "extra.log", "w")
-    proc = subprocess.Popen([sys.executable, str(script), "--ros-args", "-r", f"__ns:={NS}"],
-                            stdout=log, stderr=subprocess.STDOUT)
+    proc, log = _start_script(tmp_path, "extra", EXTRA_CONTROLLER)
     try:
         res = run("link_motor", 0.2, "lockstep", record=None, namespace=NS, progress=False,
                   nodes=("simulator", "motor_driver"))

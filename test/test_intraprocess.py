@@ -1,6 +1,6 @@
 """The intra-process bus of the one-process graph (flexarm_ros/nodes/intraprocess.py):
 the same bag as DDS delivery, byte for byte; no DDS reader between the process's own
-nodes; every message still on DDS for a foreign subscriber; bytes that are not a
+nodes; every message still on DDS while a foreign subscriber is there; bytes that are not a
 message dropped with a count, nothing changed."""
 
 import json
@@ -255,3 +255,28 @@ def test_a_publisher_announced_over_the_bridge_is_the_expected_source_before_dds
         del intraprocess._BUSES[context]
         sending.close()
         receiving.close()
+
+
+def test_a_message_goes_on_dds_only_while_a_dds_reader_is_there(monkeypatch):
+    """BusPublisher: with no DDS reader the message goes only to the in-process
+    subscribers; a reader that appears is served from the next graph look-up on
+    (GRAPH_POLL_S of wall time), and one that leaves stops it the same way."""
+    from types import SimpleNamespace
+    from flexarm_ros.nodes import intraprocess as ip
+    clock = [100.0]
+    monkeypatch.setattr(ip.time, "monotonic", lambda: clock[0])
+    readers, sent = [0], []
+    fake = SimpleNamespace(topic_name="/flexarm/joint_states", publish=sent.append,
+                           get_subscription_count=lambda: readers[0])
+    bus = SimpleNamespace(pubs={}, subs={}, bridge=None)
+    pub = ip.BusPublisher(bus, None, fake)
+    pub.publish(b"a")
+    readers[0] = 1                        # a reader matches
+    pub.publish(b"b")                     # not looked up yet
+    clock[0] += ip.GRAPH_POLL_S
+    pub.publish(b"c")
+    pub.publish(b"d")
+    readers[0] = 0
+    clock[0] += ip.GRAPH_POLL_S
+    pub.publish(b"e")
+    assert sent == [b"c", b"d"]

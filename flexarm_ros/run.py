@@ -82,6 +82,7 @@ class RunResult:
     integrator: str | None = None             # what the plant stepped with (rk4, rkn4)
     step_s: float | None = None               # ... and its step
     cpu: dict | None = None                   # twin/cpu_load.cpu_budget over the ticking
+    kept_previous: bool = False               # no tick: the bag already at `record` kept
 
     @property
     def ticking_s(self) -> float | None:
@@ -116,6 +117,7 @@ class RunResult:
                                       (sum(sum(by.values()) for by in self.rejected.values())
                                        if self.rejected is not None else None)),
                 "rejected": self.rejected, "extra_commands": self.extra_commands,
+                "record_kept_previous": self.kept_previous,
                 "diverged": self.diverged,
                 "stalled": self.stalled,
                 "interrupted": self.interrupted, "returncodes": self.returncodes,
@@ -175,7 +177,11 @@ class RunResult:
                 for t, by in sorted(self.rejected.items()))
         elif self.rejected is not None:
             s += "; no message rejected"
-        s += f" → {self.record}" if self.record else ""
+        if self.record and self.kept_previous:
+            s += (f"; no tick recorded: {self.record} keeps the bag that was there (the "
+                  f"empty one discarded)")
+        elif self.record:
+            s += f" → {self.record}"
         return s + (f" ({self.recovered})" if self.recovered else "")
 
 
@@ -622,6 +628,37 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
         fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
         layout=None) -> RunResult:
+    """:func:`_run`, and a bag already at ``record`` is not lost to a run that never
+    ticked (a twin whose controller never came, a bad argument, Ctrl-C before the start):
+    it is set aside as ``<name>.previous.mcap`` while the graph runs and put back when the
+    run ticked and recorded nothing (a new-user trial lost a good run.mcap to an empty one that way);
+    after a run that ticked it is removed, as an overwrite would. Should this process die
+    meanwhile, it stays there under that name."""
+    path = Path(record) if record else None
+    previous = None
+    if path is not None and path.is_file():
+        previous = path.with_name(path.stem + ".previous" + path.suffix)
+        os.replace(path, previous)
+    res = None
+    try:
+        res = _run(scene, duration, mode, record, processes, namespace, progress, fidelity,
+                   simulator, nodes, pin, layout)
+        return res
+    finally:
+        if previous is not None and previous.exists():
+            if res is not None and (res.ticks or sum((res.recorded or {}).values())):
+                previous.unlink()
+            elif res is not None or not path.exists():
+                os.replace(previous, path)
+                if res is not None:
+                    res.kept_previous = True
+            # else: an error after a new bag began: both stay
+
+
+def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
+         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
+         fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
+         layout=None) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
@@ -697,8 +734,10 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             return _run_split(scene, mode, duration, record, namespace, progress, fidelity,
                               simulator, nodes, (mode == "realtime") if pin is None else pin,
                               stop, name, t0, cpus)
-        g = InProcessGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
-                           fidelity=fidelity, simulator=simulator)
+        from flexarm_ros.io.progress import CompileNotice
+        with CompileNotice(enabled=progress):   # a scene's first use of other kernels
+            g = InProcessGraph(scene, mode, duration, record, namespace, progress,
+                               nodes=nodes, fidelity=fidelity, simulator=simulator)
         roles = _roles(g.nodes)
         sampler = _cpu_sampler(roles)
         try:

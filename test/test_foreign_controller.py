@@ -417,6 +417,9 @@ def test_a_wait_names_an_endpoint_of_the_wrong_type(tmp_path):
                 p.communicate(timeout=10)
     assert set(seen) == {"simulator", "motor_driver"}, seen
     assert all("WARN" in line for line in seen.values())
+    # the simulator waits for the driver, which waits for a command publisher: it names
+    # the mistyped one as well
+    assert want["motor_driver"] in seen["simulator"], seen["simulator"]
 
 
 def test_a_start_timeout_ends_a_twin_whose_controller_never_came(tmp_path, capsys):

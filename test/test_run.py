@@ -470,3 +470,21 @@ def test_a_recorded_run_next_to_a_clone_writes_its_bag(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["run", "link", "--duration", "0.05", "--quiet", "--record", "x.mcap"]) == 0
     assert read_bag(tmp_path / "x.mcap")
+
+
+def test_a_run_that_never_started_keeps_the_bag_already_there(tmp_path, capsys):
+    """A good bag at --record survives a run that never ticked (here: lockstep without a
+    controller, ended by --start-timeout); a run that ticks replaces it, as an overwrite
+    would, and no .previous file is left either way."""
+    from flexarm_ros.cli import main
+    path = tmp_path / "run.mcap"
+    assert main(["run", "link", "--duration", "0.02", "--record", str(path), "--quiet"]) == 0
+    good = path.read_bytes()
+    assert main(["run", "link", "--without", "controller", "--duration", "0.02",
+                 "--start-timeout", "1", "--record", str(path), "--quiet"]) == 3
+    assert path.read_bytes() == good
+    assert "keeps the bag that was there" in capsys.readouterr().out
+    assert not (tmp_path / "run.previous.mcap").exists()
+    assert main(["run", "link", "--duration", "0.03", "--record", str(path), "--quiet"]) == 0
+    assert path.read_bytes() != good and len(read_bag(path)[f"{NS}/{T.JOINT_STATES}"]) == 31
+    assert not (tmp_path / "run.previous.mcap").exists()

@@ -104,7 +104,7 @@ class CompileNotice:
                 except ImportError:             # pragma: no cover - only numba compiles
                     pass
                 print("flexarm: compiling the numba kernels (once after an install or an "
-                      f"update of flexarm_ros, up to a minute{where}) ...", file=self.stream,
+                      f"update of flexarm_ros, a minute or two{where}) ...", file=self.stream,
                       flush=True)
                 self.said = True
                 return

@@ -223,7 +223,7 @@ class Barrier:
                       for who in [rest[0] if rest else "subscribers"]]
         self.recorders = recorders
         self._since = time.monotonic()
-        self._said = 0.0
+        self._said = None                       # when the last WARN was said (waited s)
         self.missing: list = []                 # what the last call found missing
 
     @property
@@ -233,6 +233,7 @@ class Barrier:
 
     def _missing(self, pub, n, who) -> str | None:
         n = n() if callable(n) else n            # a need that depends on the graph
+        who = who() if callable(who) else who    # ... and a text that does
         have = pub.get_subscription_count()
         if have < n:
             return (f"{pub.topic_name} ({have}/{n} subscribers: {who}"
@@ -250,7 +251,8 @@ class Barrier:
             missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
             self.ok, self.missing = not missing, missing
             waited = time.monotonic() - self._since
-            if missing and waited > self.WARN_AFTER_S and waited - self._said > 5.0:
+            if missing and waited > self.WARN_AFTER_S and (
+                    self._said is None or waited - self._said > 5.0):
                 self._said = waited
                 self.node.get_logger().warning(
                     f"not started after {waited:.0f} s: waiting for " + ", ".join(missing))

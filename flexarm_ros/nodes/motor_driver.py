@@ -82,7 +82,7 @@ class MotorDriverNode(Node):
         self._state_sub = None
         self.state_source = None
         self._since = time.monotonic()
-        self._said = 0.0
+        self._said = None                       # when the last WARN was said (waited s)
         if not self.lockstep:
             self._subscribe_states()
         self.rejections = Rejections(self)
@@ -150,7 +150,8 @@ class MotorDriverNode(Node):
         if extra:
             self.get_logger().warning(
                 f"lockstep: {extra} command(s) on {self._cmd_sub.topic_name} beyond one per "
-                f"state ({self.accepted[T.COMMANDS]} accepted for {self.paired} states): the "
+                f"state ({self.accepted[T.COMMANDS]} accepted for {self.paired} states "
+                f"answered, one more allowed for the last state's answer): the "
                 f"k-th command answers the k-th state, so from the first extra on each state "
                 f"took an earlier command. Publish exactly one command per joint_states "
                 f"message")
@@ -174,7 +175,8 @@ class MotorDriverNode(Node):
         if self._state_sub is None:
             if self._cmd_sub.get_publisher_count() < 1:
                 waited = time.monotonic() - self._since
-                if waited > self.WARN_AFTER_S and waited - self._said > 5.0:
+                if waited > self.WARN_AFTER_S and (self._said is None or
+                                                   waited - self._said > 5.0):
                     self._said = waited
                     self.get_logger().warning(
                         f"not started after {waited:.0f} s: waiting for a publisher on "

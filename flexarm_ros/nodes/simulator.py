@@ -170,9 +170,17 @@ class SimulatorNode(Node):
             ns = self.get_namespace()
             return int(any(name == UNKNOWN or (name == "controller" and nns == ns)
                            for name, nns in C.subscriber_names(self, pubs[T.JOINT_STATES])))
-        needs = {T.GT_JOINT_STATES: (1, "the motor driver" + (
-                     ", which in lockstep subscribes once a controller publishes on "
-                     "motor_driver/commands" if lockstep else "")),
+        def driver():
+            """Whom ground_truth/joint_states waits for; in lockstep the driver subscribes
+            once a controller publishes commands, so a command publisher of another type
+            (which DDS never connects) is named here too."""
+            if not lockstep:
+                return "the motor driver"
+            return ("the motor driver, which in lockstep subscribes once a controller "
+                    "publishes on motor_driver/commands" + C.other_types(
+                        self, T.resolve(self.get_namespace(), T.COMMANDS),
+                        T.TYPES[T.COMMANDS]))
+        needs = {T.GT_JOINT_STATES: (1, driver),
                  T.JOINT_STATES: (int(lockstep) if self.p["controllers"] < 0 else
                                   int(self.p["controllers"]), "a controller"),
                  T.TOOL_CONTACT: (own_controller, "the twin's controller"),

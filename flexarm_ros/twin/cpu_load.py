@@ -26,21 +26,31 @@ import time
 from bisect import bisect_left
 from pathlib import Path
 
-#: the sampling period (s): 20 reads of a few ``/proc`` files per second, ~0.1 % of a CPU
+#: the sampling period (s): 20 readings of the process tree per second, ~0.1 % of a CPU
 SAMPLE_S = 0.05
-#: how often the process tree is listed again (children started or ended), in samples
-TREE_EVERY = 10
 
 
 def process_cpu_s(pid: int) -> float | None:
     """User + system CPU time (s) of process ``pid`` (all its threads) from
     ``/proc/<pid>/stat``; None where it has ended or there is no ``/proc``."""
+    st = _stat(pid)
+    return None if st is None else (int(st[11]) + int(st[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def process_start_s(pid: int) -> float | None:
+    """When process ``pid`` started, on the clock of ``time.monotonic`` (both count from
+    the boot on Linux: ``/proc/<pid>/stat``'s start time in clock ticks); None if gone."""
+    st = _stat(pid)
+    return None if st is None else int(st[19]) / os.sysconf("SC_CLK_TCK")
+
+
+def _stat(pid: int) -> list | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name (which may hold spaces):
+    state is [0], utime [11], stime [12], starttime [19]."""
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
         return None
-    fields = stat.rsplit(")", 1)[1].split()       # the command name may hold spaces
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def children(pid: int) -> list[int]:
@@ -69,21 +79,24 @@ def descendants(pid: int) -> list[int]:
     return out
 
 
-def role(pid: int) -> str:
+def role(pid: int) -> str | None:
     """What a graph's process runs, from its command line: the node of
     ``python -m flexarm_ros.nodes.<node>``, ``bag_writer`` for the bag's writer process,
-    else the program's name."""
+    else the program's name; None when the command line cannot be read or is empty (an
+    exited process not yet reaped)."""
     try:
         argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except OSError:
-        return str(pid)
+        return None
     args = [a.decode(errors="replace") for a in argv if a]
+    if not args:
+        return None
     for a in args:
         if a.startswith("flexarm_ros.nodes."):
             return a.rsplit(".", 1)[1]
         if a == "flexarm_ros.bag.writer_process":
             return "bag_writer"
-    return Path(args[0]).name if args else str(pid)
+    return Path(args[0]).name
 
 
 class CpuSampler:
@@ -116,23 +129,30 @@ class CpuSampler:
             self.sample()                       # the last one, after the ticking's end
 
     def _loop(self):
-        n = 0
         while not self._stop.is_set():
-            if n % TREE_EVERY == 0:
-                self._pids = [self.root] + descendants(self.root)
             self.sample()
-            n += 1
             self._stop.wait(self.period)
 
     def sample(self) -> None:
-        """One reading of every known process, stamped with ``time.monotonic()``."""
+        """One reading of the process tree, each process stamped with ``time.monotonic()``.
+        A process seen for the first time gets a reading of 0 s at its start (so a child
+        born between two readings is counted from its birth, not from the next reading);
+        its role is read again while it runs (a child is its parent's copy until exec)."""
+        self._pids = [self.root] + descendants(self.root)
         for pid in self._pids:
             t, cpu = time.monotonic(), process_cpu_s(pid)
             if cpu is None:
                 continue
-            if pid not in self.roles:
-                self.roles[pid] = role(pid)
-            self.samples.setdefault(pid, []).append((t, cpu))
+            s = self.samples.get(pid)
+            if s is None:
+                born = process_start_s(pid)
+                s = self.samples[pid] = ([(born, 0.0)] if born is not None and born < t
+                                         and pid != self.root else [])
+            if pid != self.root:
+                name = role(pid)                # None for a zombie: keep what it ran
+                if name is not None:
+                    self.roles[pid] = name
+            s.append((t, cpu))
 
     def between(self, t0: float, t1: float) -> dict[str, float]:
         """CPU seconds of each process from monotonic time ``t0`` to ``t1`` (linear

@@ -327,6 +327,12 @@ pub = node.create_publisher(Float64MultiArray, "motor_driver/commands", QOS)
 n = [0, 0]
 
 
+# subscribe to the states only once the driver's command subscription is matched on this
+# side too: an answer published before that would be lost (volatile), and lockstep waits
+while pub.get_subscription_count() < 1:
+    rclpy.spin_once(node, timeout_sec=0.05)
+
+
 def on_state(msg):                    # holds 0 V, and every 25th state answers twice
     n[0] += 1
     pub.publish(Float64MultiArray(data=[0.0] * len(msg.position)))

@@ -10,7 +10,9 @@ flexarm_ros. Use it as the template of your own controller.
 In: ``joint_states`` (sensor_msgs/JointState: encoder angles in rad; stamps in simulation
 time). Out: ``motor_driver/commands`` (std_msgs/Float64MultiArray: one voltage per joint,
 V). It answers every joint_states message with exactly one command: that is what the
-twin's lockstep mode steps on; in realtime the motor driver holds the latest one.
+twin's lockstep mode steps on; in realtime the motor driver holds the latest one. It
+subscribes to joint_states only once its command publisher is matched with the motor
+driver, so that its first answer cannot be lost.
 
 Law, per joint i (the joint PD of seed 000 Eq. 5.16 through the static motor map of
 Eq. 5.17, written out here so that nothing of the twin is imported):
@@ -68,7 +70,16 @@ class ForeignController(Node):
         self.last_rx = None
         self.answered = 0
         self.pub = self.create_publisher(Float64MultiArray, "motor_driver/commands", QOS)
-        self.create_subscription(JointState, "joint_states", self.on_state, QOS)
+        # the states only once the motor driver's subscription is matched on this side: an
+        # answer published before that is lost (volatile QoS), and lockstep waits for it
+        self.sub = None
+        self.matching = self.create_timer(0.05, self.subscribe_when_matched)
+
+    def subscribe_when_matched(self):
+        if self.sub is None and self.pub.get_subscription_count() >= 1:
+            self.sub = self.create_subscription(JointState, "joint_states", self.on_state,
+                                                QOS)
+            self.matching.cancel()
 
     def on_state(self, msg):
         self.last_rx = time.monotonic()

@@ -632,9 +632,9 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     """:func:`_run`, and a bag already at ``record`` is not lost to a run that never
     ticked (a twin whose controller never came, a bad argument, Ctrl-C before the start):
     it is set aside as ``<name>.previous.mcap`` while the graph runs and put back when the
-    run ticked and recorded nothing (a new-user trial lost a good run.mcap to an empty one that way);
-    after a run that ticked it is removed, as an overwrite would. Should this process die
-    meanwhile, it stays there under that name."""
+    run recorded no tick (a new-user trial lost a good run.mcap to an empty one that
+    way); after a run that ticked it is removed, as an overwrite would. Should this
+    process die meanwhile, it stays there under that name."""
     path = Path(record) if record else None
     previous = None
     if path is not None and path.is_file():
@@ -826,7 +826,7 @@ def _busy_hint(cpu: dict, period_ms: float, layout: str) -> str:
 def _roles(nodes) -> str:
     """The role of a process that runs ``nodes``: their names joined by '+', the
     simulator first."""
-    order = ("simulator", "motor_driver", "controller", "recorder")
+    order = GRAPH_NODES + ("recorder",)
     return "+".join(sorted(nodes, key=lambda n: order.index(n) if n in order else 9))
 
 
@@ -853,12 +853,11 @@ def _cpu_sampler(root_role: str):
 
 def _take_cpu(res: RunResult, sampler, sim: dict | None, sim_role: str,
               cpus: int) -> None:
-    """``res.cpu`` from ``sampler``'s readings over the simulator's ticking (its summary
-    ``sim``), the simulator's own process taken exactly from its ``process_cpu_s``
-    (``sim_role``: the role its process has in the sampler); ``cpus``: how many the graph
-    could run on (this process's affinity when the run began)."""
+    """``res.cpu`` from the (stopped) ``sampler``'s readings over the simulator's ticking
+    (its summary ``sim``), the simulator's own process taken exactly from its
+    ``process_cpu_s`` (``sim_role``: the role its process has in the sampler); ``cpus``:
+    how many the graph could run on (this process's affinity when the run began)."""
     from flexarm_ros.twin.cpu_load import cpu_budget
-    sampler.stop()
     span = (sim or {}).get("ticking_monotonic_s")
     if not span or not res.ticks or not sampler.samples:
         return

@@ -151,14 +151,20 @@ def _first_unstable(J, nq, rate, re, s):
     return int(bad[0]) if len(bad) else None
 
 
+def _linearized(chain, q, qd, z):
+    """The Jacobians of :func:`~flexarm_ros.model.linear.jacobians` about (q, q̇, z) and
+    their largest |λ| (what :func:`admits` and :func:`stability` both start from)."""
+    Js = jacobians(chain, q, qd, z)
+    return Js, max(float(np.abs(np.linalg.eigvals(J)).max()) for J in Js)
+
+
 def admits(chain, q, qd, z, integrator, h) -> bool:
     """Whether a fixed step ``h`` of the explicit ``integrator`` is stable about the state
     (q, q̇, z): RK4 h ≤ RK4_STABILITY/|λ|max, RKN4 by :func:`rkn4_admits` on every
     Jacobian of :func:`~flexarm_ros.model.linear.jacobians` — the answer of
     ``h <= stability(...)[1]`` without RKN4's limit itself (a scene's fixed step: a
     quarter of the scan's eigenvalue calls on two_link_free)."""
-    Js = jacobians(chain, q, qd, z)
-    rate = max(float(np.abs(np.linalg.eigvals(J)).max()) for J in Js)
+    Js, rate = _linearized(chain, q, qd, z)
     if integrator != "rkn4":
         return not rate > 0 or h <= RK4_STABILITY / rate
     return all(rkn4_admits(J, len(chain.free), rate, h) for J in Js)
@@ -170,8 +176,7 @@ def stability(chain, q, qd, z, integrator="rk4") -> tuple[float, float, float]:
     limit from its step map on the linearization (:func:`rkn4_limit`, the least over the
     Jacobians of :func:`~flexarm_ros.model.linear.jacobians`) and the automatic step the
     same share of it as RK4's, RK4_AUTO/RK4_STABILITY, at most RK4_AUTO/|λ|max."""
-    Js = jacobians(chain, q, qd, z)
-    rate = max(float(np.abs(np.linalg.eigvals(J)).max()) for J in Js)
+    Js, rate = _linearized(chain, q, qd, z)
     if not rate > 0:
         return rate, np.inf, np.inf
     if integrator != "rkn4":

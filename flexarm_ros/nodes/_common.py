@@ -181,6 +181,24 @@ class SimTime:
 GRAPH = ("simulator", "controller", "motor_driver", "recorder")
 
 
+class WaitWarning:
+    """When a wait for the start should be said at WARN level: first after
+    ``after`` s, then every ``every`` s (the start barriers and the driver's wait for a
+    controller share it)."""
+
+    def __init__(self, after: float = 3.0, every: float = 5.0):
+        self.since, self.after, self.every = time.monotonic(), after, every
+        self._said = None                       # when the last WARN was said (waited s)
+
+    def due(self) -> float | None:
+        """The seconds waited when a WARN is due now (and counted as said), else None."""
+        waited = time.monotonic() - self.since
+        if waited > self.after and (self._said is None or waited - self._said > self.every):
+            self._said = waited
+            return waited
+        return None
+
+
 def other_types(node, topic: str, msgtype: str, kind: str = "publisher") -> str:
     """What a wait for a ``kind`` ("publisher" or "subscription") on ``topic`` should add
     when the graph holds one of another type there: DDS never matches endpoints of
@@ -222,14 +240,13 @@ class Barrier:
         self.needs = [(p, n, who) for p, n, *rest in needs if callable(n) or n > 0
                       for who in [rest[0] if rest else "subscribers"]]
         self.recorders = recorders
-        self._since = time.monotonic()
-        self._said = None                       # when the last WARN was said (waited s)
+        self._warn = WaitWarning(self.WARN_AFTER_S)
         self.missing: list = []                 # what the last call found missing
 
     @property
     def since(self) -> float:
         """Monotonic time the wait began."""
-        return self._since
+        return self._warn.since
 
     def _missing(self, pub, n, who) -> str | None:
         n = n() if callable(n) else n            # a need that depends on the graph
@@ -250,10 +267,8 @@ class Barrier:
         if not self.ok:
             missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
             self.ok, self.missing = not missing, missing
-            waited = time.monotonic() - self._since
-            if missing and waited > self.WARN_AFTER_S and (
-                    self._said is None or waited - self._said > 5.0):
-                self._said = waited
+            waited = missing and self._warn.due()
+            if waited:
                 self.node.get_logger().warning(
                     f"not started after {waited:.0f} s: waiting for " + ", ".join(missing))
         return self.ok

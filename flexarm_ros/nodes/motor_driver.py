@@ -32,7 +32,6 @@ topic and reason.
 from __future__ import annotations
 
 import sys
-import time
 from collections import deque
 
 from rclpy.node import Node
@@ -81,8 +80,7 @@ class MotorDriverNode(Node):
         # itself, a foreign one cannot know to)
         self._state_sub = None
         self.state_source = None
-        self._since = time.monotonic()
-        self._said = None                       # when the last WARN was said (waited s)
+        self._wait_warning = C.WaitWarning(self.WARN_AFTER_S)
         if not self.lockstep:
             self._subscribe_states()
         self.rejections = Rejections(self)
@@ -174,10 +172,8 @@ class MotorDriverNode(Node):
     def _drain(self):
         if self._state_sub is None:
             if self._cmd_sub.get_publisher_count() < 1:
-                waited = time.monotonic() - self._since
-                if waited > self.WARN_AFTER_S and (self._said is None or
-                                                   waited - self._said > 5.0):
-                    self._said = waited
+                waited = self._wait_warning.due()
+                if waited:
                     self.get_logger().warning(
                         f"not started after {waited:.0f} s: waiting for a publisher on "
                         f"{self._cmd_sub.topic_name} (a controller; lockstep steps on its "

@@ -348,7 +348,8 @@ def _say_domain() -> None:
 
 
 def _check_pacing_flags(args) -> None:
-    """--late-bound and --ground-truth-rate checked before the graph starts, with the
+    """The pacing flags (--late-bound, --ground-truth-rate, --thread-priority,
+    --start-timeout) checked before the graph starts, with the
     flags' names (the simulator node checks the same values as its parameters)."""
     from flexarm_ros.errors import SceneError
     from flexarm_ros.scene import load_scene
@@ -359,11 +360,13 @@ def _check_pacing_flags(args) -> None:
                        0.1 if args.late_bound is None else args.late_bound,
                        0.0 if args.ground_truth_rate is None else args.ground_truth_rate,
                        THREAD_PRIORITY if args.thread_priority is None else
-                       args.thread_priority)
+                       args.thread_priority,
+                       0.0 if args.start_timeout is None else args.start_timeout)
     except SceneError as exc:
         raise SceneError(str(exc).replace("parameter late_bound", "--late-bound").replace(
             "parameter ground_truth_rate_hz", "--ground-truth-rate").replace(
-            "parameter thread_priority", "--thread-priority")) from None
+            "parameter thread_priority", "--thread-priority").replace(
+            "parameter start_timeout_s", "--start-timeout")) from None
 
 
 def cmd_run(args):
@@ -378,13 +381,8 @@ def cmd_run(args):
                          f"the held efforts, which the step-halving pilots cannot "
                          f"replay; set --dt)")
     if (args.late_bound is not None or args.ground_truth_rate is not None
-            or args.thread_priority is not None):
+            or args.thread_priority is not None or args.start_timeout is not None):
         _check_pacing_flags(args)
-    if args.start_timeout is not None and not (args.start_timeout >= 0
-                                               and math.isfinite(args.start_timeout)):
-        from flexarm_ros.errors import SceneError
-        raise SceneError(f"--start-timeout: got {args.start_timeout:g} s, expected a "
-                         f"finite number >= 0 (0: wait for ever)")
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record

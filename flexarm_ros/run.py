@@ -691,7 +691,8 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     check_settings(control_period(loaded), **{k: v for k, v in (simulator or {}).items()
                                               if v is not None and k in (
                                                   "late_policy", "late_bound",
-                                                  "ground_truth_rate_hz", "thread_priority")})
+                                                  "ground_truth_rate_hz", "thread_priority",
+                                                  "start_timeout_s")})
     record = Path(record) if record else None
     cpus = len(os.sched_getaffinity(0))       # before a split graph pins this process
     stop = StopFlag()

@@ -135,6 +135,17 @@ def test_thread_priority_is_checked_with_its_name():
     check_settings(1e-3, thread_priority=99)
 
 
+def test_the_start_timeout_is_checked_with_its_name():
+    from flexarm_ros.errors import SceneError
+    from flexarm_ros.twin.pacing import check_settings
+    for bad in (-1.0, math.nan, math.inf, "5", True):
+        with pytest.raises(SceneError, match=r"parameter start_timeout_s: got .*expected a "
+                                             r"finite number >= 0"):
+            check_settings(1e-3, start_timeout_s=bad)
+    check_settings(1e-3, start_timeout_s=0.0)
+    check_settings(1e-3, start_timeout_s=5)
+
+
 def _in_a_thread(fn):
     import threading
     out = {}

@@ -199,7 +199,7 @@ class SimulatorNode(Node):
         self._line = ProgressLine(0)
         rate = ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode)
         check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate,
-                       self.p["thread_priority"])
+                       self.p["thread_priority"], self.p["start_timeout_s"])
         self.scheduling = None                      # realtime: what the pacing thread got
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1

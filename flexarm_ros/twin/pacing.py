@@ -121,8 +121,17 @@ def ground_truth_rate(rate: float, mode: str) -> float:
 
 def check_settings(period: float, late_policy: str = "slow", late_bound: float = 0.1,
                    ground_truth_rate_hz: float = 0.0,
-                   thread_priority: int = THREAD_PRIORITY) -> None:
+                   thread_priority: int = THREAD_PRIORITY,
+                   start_timeout_s: float = 0.0) -> None:
     """The simulator's pacing parameters, or a SceneError naming the one that is wrong."""
+    if isinstance(start_timeout_s, bool) or not (
+            isinstance(start_timeout_s, (int, float)) and math.isfinite(start_timeout_s)
+            and start_timeout_s >= 0):
+        raise SceneError(f"parameter start_timeout_s: got {start_timeout_s:g} s, expected a "
+                         f"finite number >= 0 (0: wait for ever)"
+                         if isinstance(start_timeout_s, (int, float)) else
+                         f"parameter start_timeout_s: got {start_timeout_s!r}, expected a "
+                         f"finite number >= 0 (0: wait for ever)")
     if isinstance(thread_priority, bool) or not isinstance(thread_priority, int) or not (
             0 <= thread_priority <= 99):
         raise SceneError(f"parameter thread_priority: got {thread_priority!r}, expected an "

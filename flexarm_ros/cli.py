@@ -354,7 +354,7 @@ def _check_pacing_flags(args) -> None:
     from flexarm_ros.errors import SceneError
     from flexarm_ros.scene import load_scene
     from flexarm_ros.twin.pacing import THREAD_PRIORITY, check_settings
-    period = 1.0 / load_scene(args.scene or DEFAULT_SCENE).control.rate_hz
+    period = 1.0 / load_scene(args.scene or DEFAULT_SCENE).twin_control.rate_hz
     try:
         check_settings(period, args.late_policy or "slow",
                        0.1 if args.late_bound is None else args.late_bound,

@@ -30,7 +30,7 @@ def test_message_dicts_survive_rclpy_objects_bit_for_bit(scene):
     sc = load_scene(scene)
     if scene == "hydraulic_2kg":       # its 6 ms sensor grid needs a matching control rate
         import dataclasses
-        sc = dataclasses.replace(sc, control=dataclasses.replace(sc.control, rate_hz=500 / 3))
+        sc = dataclasses.replace(sc, control=dataclasses.replace(sc.twin_control, rate_hz=500 / 3))
     res = cosimulate(sc, 0.02)
     assert {m.topic for m in res.messages} >= {T.CLOCK, T.JOINT_STATES, T.EFFORTS}
     for m in res.messages:
@@ -149,7 +149,7 @@ def _check_watchdog(path, scene, duration, slack_ticks=5):
     time is checked to ``slack_ticks`` control periods."""
     bag = read_bag(path)
     n = len(scene.links)
-    period = 1.0 / scene.control.rate_hz
+    period = 1.0 / scene.twin_control.rate_hz
     cmds = bag.messages[f"{NS}/{T.COMMANDS}"]
     efforts = bag.messages[f"{NS}/{T.EFFORTS}"]
     states = bag.messages[f"{NS}/{T.MOTOR_STATES}"]
@@ -169,7 +169,7 @@ def _check_watchdog(path, scene, duration, slack_ticks=5):
     assert last_live < len(zero) - 20                   # 0 V from then on, to the end
     t_trip = zero[last_live + 1][0]
     held = (t_trip - t_last) * 1e-9
-    assert held == pytest.approx(scene.control.watchdog_s + period, abs=slack_ticks * period)
+    assert held == pytest.approx(scene.twin_control.watchdog_s + period, abs=slack_ticks * period)
     assert sum(not z for _, z in zero) > 50             # it was driving before
 
 

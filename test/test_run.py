@@ -229,7 +229,7 @@ def test_position_control_reaches_the_tip_target():
     scene = load_scene("two_link_position")
     scene = dataclasses.replace(scene, sensors=tuple(s for s in scene.sensors
                                                      if s.kind == "encoder"))
-    t, err, volts = _tip_error(scene, 7.0, scene.control.tip_target)
+    t, err, volts = _tip_error(scene, 7.0, scene.twin_control.tip_target)
     assert err[0] == pytest.approx(math.hypot(0.15, 0.2), abs=1e-3)
     assert np.all(np.diff(err) <= 1e-6)
     assert err[t >= 4.9].max() < 0.02
@@ -282,7 +282,7 @@ def test_sanding_keeps_contact_force_band_and_reverses():
     assert sliding.sum() > 4000
     first = np.argmax(sliding)
     assert contact[first:].all()
-    sd = scene.control.sanding
+    sd = scene.twin_control.sanding
     assert np.all(np.abs(force[sliding] - sd.normal_force) <= 0.5 * sd.normal_force)
     assert abs(np.median(force[sliding]) - sd.normal_force) < 0.1 * sd.normal_force
     assert "slide_back" in phase

@@ -643,7 +643,7 @@ class _Analysis:
             fem = _Linear(*self._memo_chain("fem", CROSS_CHECK_ELEMENTS))
             yf = fem.exact(self.grid, self.bps)
             self.cross_check = float(np.max(np.linalg.norm(yf - self.y_ref, axis=1)))
-        mode = self.scene.control.mode
+        mode = self.scene.twin_control.mode
         if mode != "open_loop" and not np.any(self.y_ref != self.y_ref[0]):
             raise SceneError(
                 f"{key}: got {got} for a scene whose arm only its controller moves "

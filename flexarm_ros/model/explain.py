@@ -142,9 +142,9 @@ def explain(scene, chain=None) -> str:
     lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
                  f"{m.frequencies_hz[-1]:.4g} Hz {sets})")
     from flexarm_ros.model.limits import joint_limits
-    lines.append(f"ROS twin: control every {1e3 / scene.control.rate_hz:.4g} ms "
-                 f"({scene.control.rate_hz:.6g} Hz), efforts held over it; commands older "
-                 f"than {scene.control.watchdog_s:g} s trip the driver to 0 "
+    lines.append(f"ROS twin: control every {1e3 / scene.twin_control.rate_hz:.4g} ms "
+                 f"({scene.twin_control.rate_hz:.6g} Hz), efforts held over it; commands older "
+                 f"than {scene.twin_control.watchdog_s:g} s trip the driver to 0 "
                  f"(V, N·m; a servovalve to closed)")
     lines.append("wire limits (ROS twin: commands and efforts beyond them are rejected):")
     lines.extend(f"  {lim.text()}" for lim in joint_limits(scene))

@@ -41,7 +41,7 @@ class ControllerNode(Node):
         self.lockstep = self.p["mode"] == "lockstep"
         self.scene = scene
         self.core = ControllerCore(scene)
-        self.period = 1.0 / scene.control.rate_hz
+        self.period = 1.0 / scene.twin_control.rate_hz
         self.sim_time = C.SimTime(scene)
         self.pub = C.publisher(self, T.TYPES[T.COMMANDS], T.COMMANDS)
         self._cdr = CdrBuilder()                # wire bytes from a template

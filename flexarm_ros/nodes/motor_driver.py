@@ -58,7 +58,7 @@ class MotorDriverNode(Node):
         self.scene = scene
         self.core = DriverCore(scene)
         self.n = len(scene.links)
-        self.period = 1.0 / scene.control.rate_hz
+        self.period = 1.0 / scene.twin_control.rate_hz
         self.sim_time = C.SimTime(scene)
         self.t = 0.0
         r = self.p["recorders"]

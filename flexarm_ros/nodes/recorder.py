@@ -156,7 +156,7 @@ class RecorderNode(Node):
             embed.update(rung=c.rung, refine=c.refine, dt=c.dt_request, tolerance=0.0)
         info = {"scene": scene.name, "scene_yaml": scene_yaml(self.p["scene"], embed),
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],
-                "namespace": ns, "control_mode": scene.control.mode,
+                "namespace": ns, "control_mode": scene.twin_control.mode,
                 "fidelity_overrides": json.dumps(over, sort_keys=True)}
         self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
         extra = {"model": {"explain": explain(scene)}}

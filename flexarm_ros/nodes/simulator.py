@@ -128,7 +128,7 @@ class SimulatorNode(Node):
         self.mode = self.p["mode"]
         # the work budget of a finite run, checked here too (a node started on its own)
         self.core = SimulatorCore(scene, None if self.n_end is None else
-                                  self.n_end / scene.control.rate_hz)
+                                  self.n_end / scene.twin_control.rate_hz)
         plant = self.core.plant
         asked = plant.chain.fidelity.integrator
         if asked != plant.integrator:       # batch-only integrators: said, not ignored
@@ -202,7 +202,7 @@ class SimulatorNode(Node):
                        self.p["thread_priority"], self.p["start_timeout_s"])
         self.scheduling = None                      # realtime: what the pacing thread got
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
-        self.gt_every = max(1, int(round(scene.control.rate_hz / rate))) if rate else 1
+        self.gt_every = max(1, int(round(scene.twin_control.rate_hz / rate))) if rate else 1
         self._thread = None
         self._bus = bus_of(self.context)
         # realtime: the plant waits for the effort answering a recent state, so an
@@ -373,7 +373,7 @@ class SimulatorNode(Node):
         latest accepted effort, publish."""
         try:
             lag = int(self.p["effort_lag"])
-            wait_s = self.core.scene.control.watchdog_s
+            wait_s = self.core.scene.twin_control.watchdog_s
             if self._bus is not None:
                 self._bus.self_delivering.add(threading.current_thread())
             # the kernel's name comes after the policy: a thread that ps -L / chrt -p show

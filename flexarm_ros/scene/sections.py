@@ -601,11 +601,22 @@ class Scene:
     walls: tuple[Wall, ...] = param((), doc="walls the tool can touch (none: no contact "
                                            "model)")
     tool: Tool = param(default_factory=Tool, doc="the tool point on the last body")
-    control: Control = param(default_factory=Control, doc="controller node (ROS twin)")
+    control: Optional[Control] = param(
+        None, doc="the bench's controller and motor driver. Declared: every run of the scene "
+                  "— the ROS twin and every batch command — runs them in the loop at "
+                  "control.rate_hz with the efforts held over each period (--open-loop: the "
+                  "input programs alone). Left out: batch runs apply the input programs "
+                  "continuously, and the twin samples them at the default 1 kHz")
     fidelity: Fidelity = param(default_factory=Fidelity, doc="model and integrator")
     initial: Initial = param(default_factory=Initial, doc="initial condition")
     duration: float = param(1.0, unit="s", gt=0.0, doc="default simulated duration")
     assumptions: tuple[Assumption, ...] = param((), doc="values not given in the source")
+
+    @property
+    def twin_control(self) -> Control:
+        """The control section the ROS twin runs: the scene's, or the default (open loop at
+        1 kHz) when it declares none."""
+        return self.control if self.control is not None else Control()
 
     def validate(self, where):
         if not self.links:
@@ -642,7 +653,7 @@ class Scene:
                                      f"{program_fields(inp.current, f'inputs[{k}].current')}), "
                                      f"expected within the valve's rated current ±{imax:.6g} "
                                      f"A (links[{inp.joint - 1}].joint.drive.rated_current)")
-        ctl = self.control
+        ctl = self.twin_control
         nj = len(self.links)
         for key in ("kp", "kd", "joint_target"):
             val = getattr(ctl, key)

@@ -37,7 +37,7 @@ def _ns(t: float) -> int:
 
 
 def control_period(scene) -> float:
-    return 1.0 / scene.control.rate_hz
+    return 1.0 / scene.twin_control.rate_hz
 
 
 # ============================================================================ simulator
@@ -63,7 +63,7 @@ class SimulatorCore:
         self.period = control_period(scene)
         g = self.plant.grid_ns
         if g and abs(self.period * 1e9 / g - round(self.period * 1e9 / g)) > 1e-6:
-            raise SceneError(f"control.rate_hz: got {scene.control.rate_hz}, expected a rate "
+            raise SceneError(f"control.rate_hz: got {scene.twin_control.rate_hz}, expected a rate "
                              f"whose period is a multiple of the sensor grid {g * 1e-9:g} s")
         ch = self.plant.chain
         self.names = [lm.name for lm in ch.links]
@@ -273,7 +273,7 @@ class DriverCore:
         self.valve = np.array([kd == drives.HYDRAULIC for kd in self.kind], bool)
         self.command = np.zeros(self.n)
         self.t_command = 0.0
-        self.watchdog = scene.control.watchdog_s
+        self.watchdog = scene.twin_control.watchdog_s
         self.validator = Validator(scene, "command")
         self.torque_limit = np.array([lim.torque_limit for lim in joint_limits(scene)])
         self.held = 0
@@ -407,7 +407,7 @@ class ControllerCore:
 
     def __init__(self, scene):
         self.scene = scene
-        ctl = scene.control
+        ctl = scene.twin_control
         self.mode = ctl.mode
         self.n = len(scene.links)
         self.status = "ok"

@@ -71,6 +71,11 @@ def _scene_arg(p):
     p.add_argument("scene", nargs="?", help=SCENE_HELP)
 
 
+def _open_loop_arg(p):
+    from flexarm_ros.io.arguments import OPEN_LOOP_HELP
+    p.add_argument("--open-loop", action="store_true", help=OPEN_LOOP_HELP)
+
+
 def _fidelity_args(p):
     from flexarm_ros.scene import INTEGRATORS, RUNG_CHOICES
     g = p.add_argument_group("fidelity overrides (default: the scene's)")
@@ -141,7 +146,7 @@ class _Progress:
 
 
 def cmd_simulate(args):
-    from flexarm_ros.sim.simulate import simulate
+    from flexarm_ros.twin.batch import run_scene
     from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.io.tables import write_table
     from flexarm_ros.io.units import table_units
@@ -154,7 +159,8 @@ def cmd_simulate(args):
     from flexarm_ros.io.progress import CompileNotice
     try:
         with CompileNotice(enabled=not args.quiet):
-            res = simulate(scene, args.duration, progress=progress.callback)
+            res = run_scene(scene, args.duration, progress=progress.callback,
+                            open_loop=args.open_loop)
     finally:
         progress.clear()
     summ = res.summary()
@@ -174,6 +180,11 @@ def cmd_simulate(args):
               f"rung {summ['rung']}, {summ['integrator']}, {summ['steps']} steps, "
               f"{summ['rhs_evaluations']} RHS evaluations)"
               + (f" → {args.out}" if args.out else ""))
+        if summ.get("loop") == "closed":
+            print(f"  closed loop: control.mode {summ['control_mode']} at "
+                  f"{summ['control_rate_hz']:.6g} Hz, efforts held over each period, "
+                  f"{summ['control_ticks']} ticks ({summ['lane']} lane; --open-loop: the "
+                  f"input programs alone)")
         for rate, path in summ.get("sensor_tables", {}).items():
             print(f"  sensors at {rate} Hz → {path}")
         if summ.get("auto"):
@@ -312,6 +323,7 @@ def cmd_study(args):
         _fail(f"--workers: got {args.workers}, expected an integer >= 0 (0: in this process)")
     with open_executor(args.workers or 0, args.scheduler) as ex:   # rows as runner tasks
         rows = run_study(scene, duration=args.duration, quick=args.quick, executor=ex,
+                         open_loop=args.open_loop,
                          progress=None if quiet else
                          (lambda text: print(f"  {text}", file=sys.stderr, flush=True)))
     if args.png:
@@ -489,6 +501,7 @@ def build_parser():
                         "rung (rk4; rung auto always does): a-priori analysis, then a check "
                         "with a finer model; 0.1-1 s more, up to a few s on a busy machine "
                         "(fidelity.estimate; docs/accuracy.md)")
+    _open_loop_arg(s)
     s.set_defaults(func=cmd_simulate)
 
     m = sub.add_parser("modes", help="natural frequencies of the linearized chain")
@@ -530,6 +543,7 @@ def build_parser():
     # rung, refinement, integrator and tolerances are what the ladder varies: not options
     st.add_argument("--no-foreshortening", action="store_true",
                     help="drop the geometric-stiffening terms in every rung")
+    _open_loop_arg(st)
     st.add_argument("--workers", type=integer, metavar="N",
                     help="run the ladder rows on N local Dask worker processes (default 0: "
                          "in this process, one at a time, so that each row's wall time is "

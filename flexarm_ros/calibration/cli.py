@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.io.arguments import integer, number
+from flexarm_ros.io.arguments import OPEN_LOOP_HELP, integer, number
 
 _TARGET = re.compile(r"^(.+?)=([-+0-9.eE]+)(?:\+-|±)([-+0-9.eE]+)$")
 
@@ -63,6 +63,9 @@ def add_parsers(sub) -> None:
                         "correlation map")
     c.add_argument("--json", action="store_true", help="print the result as JSON")
     c.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    c.add_argument("--open-loop", action="store_true",
+                   help=OPEN_LOOP_HELP + "; a twin bag is otherwise fitted with the twin's "
+                        "loop (its control rate, efforts held), whatever the scene declares")
     c.set_defaults(func=cmd_calibrate)
 
 
@@ -120,13 +123,16 @@ def _problem(args):
                          f"record")
     channels = [n.strip() for v in args.channels or () for n in v.split(",") if n.strip()]
     start = start_assignment(params)
+    from flexarm_ros.calibration.setup import system_of_record
+    scene = system_of_record(scene, args.record, args.open_loop)
     probe = None
     if args.record is not None:
-        from flexarm_ros.sim.simulate import simulate
-        probe = simulate(set_keys(scene, start), args.duration or scene.duration)
+        from flexarm_ros.twin.batch import run_scene
+        probe = run_scene(set_keys(scene, start), args.duration or scene.duration,
+                          open_loop=args.open_loop)
     case = make_case(Path(str(args.scene)).stem, scene, args.record, args.map, channels,
                      _pairs(args.sigma, "--sigma"), None, args.window, args.offset,
-                     args.duration, targets, probe)
+                     args.duration, targets, probe, args.open_loop)
     from flexarm_ros.scene.loading import resolve_scene_path
     case.scene_file = str(resolve_scene_path(args.scene))
     return Problem(params, [case]), {}

@@ -74,6 +74,9 @@ class Case:
     offset_s: float = 0.0
     record: str | None = None
     scene_file: str | None = None     # the scene's file (its own spelling for --out)
+    # the input programs alone even where the scene declares a controller (--open-loop);
+    # else the run is twin.batch.run_scene's: a controller in the loop when declared
+    open_loop: bool = False
 
     @property
     def size(self) -> int:

@@ -141,12 +141,36 @@ def check_targets(name, scene, duration, feats) -> None:
                 raise SceneError(f"{where}: {str(exc).split(': ', 1)[1]}") from None
 
 
+def system_of_record(scene, record=None, open_loop: bool = False):
+    """``scene`` as the system that made ``record`` runs it. A twin bag (an MCAP with the
+    twin's embedded scene) was made by the twin's loop — controller and driver at the
+    control rate, the efforts held over each period — so a scene that declares no
+    controller gets the bag's control section (its default: the input programs sampled
+    at 1 kHz); a scene that declares one keeps it. With ``open_loop`` (--open-loop) or
+    any other record the scene is returned as it is (batch runs follow
+    :func:`flexarm_ros.twin.batch.run_scene`)."""
+    import dataclasses
+    if open_loop or record is None or scene.control is not None \
+            or Path(str(record)).suffix.lower() == ".csv" or not Path(str(record)).is_file():
+        return scene
+    from flexarm_ros.analysis.channels import scene_of_bag
+    from flexarm_ros.bag.reader import BagError, read_bag
+    try:
+        bag_scene, _ = scene_of_bag(read_bag(str(record)))
+    except (BagError, OSError):
+        return scene                       # make_case reports what is wrong with it
+    if bag_scene is None:                  # a foreign bag: a rig's record
+        return scene
+    return dataclasses.replace(scene, control=bag_scene.twin_control)
+
+
 def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=None,
               weights=None, window=None, offset="none", duration=None, targets=(),
-              probe=None) -> Case:
+              probe=None, open_loop: bool = False) -> Case:
     """A checked :class:`Case`. ``probe``: the twin's run at the start values (to learn
-    its channel names, and for ``offset='auto'``); made here when None."""
-    from flexarm_ros.sim.simulate import simulate
+    its channel names, and for ``offset='auto'``); made here when None. ``open_loop``:
+    the input programs alone where the scene declares a controller."""
+    from flexarm_ros.twin.batch import run_scene
     duration = float(duration if duration is not None else scene.duration)
     if not (math.isfinite(duration) and duration > 0):
         raise SceneError(f"{name}: duration got {duration}, expected a finite number > 0 s")
@@ -172,14 +196,14 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
                              f"(CSV or MCAP) to take them from")
         if not feats:
             raise SceneError(f"{name}: nothing to fit, expected a record or targets")
-        return Case(name, scene, duration, [], feats, 0.0, None)
+        return Case(name, scene, duration, [], feats, 0.0, None, open_loop=open_loop)
     from flexarm_ros.analysis.channels import load_channels, same_unit
     from flexarm_ros.io.experiment import load_channel_map
     cmap = load_channel_map(channel_map) if channel_map else None
     cs = load_channels(record, cmap)
     if probe is None:
         with np.errstate(all="ignore"):
-            probe = simulate(scene, duration)
+            probe = run_scene(scene, duration, open_loop=open_loop)
     twin = _twin_channels(probe, scene)
     if channels:
         want = list(channels)
@@ -247,7 +271,8 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
             s = float(np.max(np.abs(y))) or 1.0
         series.append(SeriesTarget(c, t, y, s, given, ch.unit or u_tw,
                                    float(weights.get(c, 1.0))))
-    return Case(name, scene, duration, series, feats, float(off), str(record))
+    return Case(name, scene, duration, series, feats, float(off), str(record),
+                open_loop=open_loop)
 
 
 def _mapping(data, where):
@@ -324,20 +349,26 @@ def load_spec(path):
         if cmap is not None and not Path(str(cmap)).is_absolute():
             cmap = p.parent / str(cmap)
         extra = set(c) - {"name", "scene", "record", "map", "channels", "sigma", "weights",
-                          "window", "offset", "duration", "set", "targets"}
+                          "window", "offset", "duration", "set", "targets", "open_loop"}
         if extra:
             raise SceneError(f"cases[{i}]: unknown key {sorted(extra)[0]!r}, expected name, "
                              f"scene, record, map, channels, sigma, weights, window, offset, "
-                             f"duration, set, targets")
+                             f"duration, set, targets, open_loop")
+        open_loop = c.get("open_loop", False)
+        if not isinstance(open_loop, bool):
+            raise SceneError(f"cases[{i}].open_loop: got {open_loop!r}, expected true or "
+                             f"false")
+        sc = system_of_record(sc, rec, open_loop)
         probe = None
         if rec is not None:
-            from flexarm_ros.sim.simulate import simulate
+            from flexarm_ros.twin.batch import run_scene
             with np.errstate(all="ignore"):
-                probe = simulate(set_keys(sc, start), c.get("duration", sc.duration))
+                probe = run_scene(set_keys(sc, start), c.get("duration", sc.duration),
+                                  open_loop=open_loop)
         case = make_case(c.get("name", f"case{i + 1}"), sc, rec, cmap,
                          c.get("channels"), c.get("sigma"), c.get("weights"),
                          c.get("window"), c.get("offset", "none"), c.get("duration"),
-                         c.get("targets") or (), probe)
+                         c.get("targets") or (), probe, open_loop)
         case.scene_file = None if c.get("set") else str(files[i])
         cases.append(case)
     names = [c.name for c in cases]

@@ -33,22 +33,23 @@ class CaseTask:
         self._parsed = [[parse_feature(f.metric) for f in c.features] for c in self.cases]
 
     def warm_up(self) -> None:
-        from flexarm_ros.sim.simulate import simulate
+        from flexarm_ros.twin.batch import probe_duration, run_scene
         c = self.cases[0]
         try:
             with np.errstate(all="ignore"):
-                simulate(c.scene, 2 * c.scene.fidelity.output_dt)
+                run_scene(c.scene, probe_duration(c.scene, c.open_loop), open_loop=c.open_loop)
         except (SceneError, SimulationDiverged):
             pass
 
     def simulate(self, item):
         """The SimResult of one item (for the report's overlays)."""
         from flexarm_ros.ensemble.keys import set_keys
-        from flexarm_ros.sim.simulate import simulate
+        from flexarm_ros.twin.batch import run_scene
         k, assignment = item
         case = self.cases[k]
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            return simulate(set_keys(case.scene, assignment), case.duration)
+            return run_scene(set_keys(case.scene, assignment), case.duration,
+                             open_loop=case.open_loop)
 
     def __call__(self, item) -> dict:
         from flexarm_ros.calibration.observables import case_residuals, only_modes

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.io.arguments import integer, number
+from flexarm_ros.io.arguments import OPEN_LOOP_HELP, integer, number
 
 SCENE_HELP = "scene YAML path or shipped scene name (default two_link_case1)"
 
@@ -78,6 +78,7 @@ def add_parsers(sub) -> None:
                         "final_error:CHANNEL=TARGET, energy_drift, wall_s_per_sim_s; "
                         "repeatable (impact_time is always in a wall scene's table)")
     s.add_argument("--duration", type=number, help="simulated seconds per sample")
+    s.add_argument("--open-loop", action="store_true", help=OPEN_LOOP_HELP)
     executor_args(s)
     _output_args(s)
     s.set_defaults(func=cmd_sweep)
@@ -90,6 +91,7 @@ def add_parsers(sub) -> None:
     u.add_argument("--seed", type=integer, help="default: the spec's, else 0")
     u.add_argument("--design", choices=("random", "lhs"), default="random")
     u.add_argument("--channel", help="the envelope's channel (default: the spec's)")
+    u.add_argument("--open-loop", action="store_true", help=OPEN_LOOP_HELP)
     executor_args(u)
     _output_args(u, series=False)
     u.set_defaults(func=cmd_uncertainty)
@@ -104,6 +106,7 @@ def add_parsers(sub) -> None:
     e.add_argument("--seed", type=integer)
     e.add_argument("--markdown", type=Path, metavar="FILE.md",
                    help="write the ranked tables as Markdown")
+    e.add_argument("--open-loop", action="store_true", help=OPEN_LOOP_HELP)
     executor_args(e)
     _output_args(e, series=False)
     e.set_defaults(func=cmd_sensitivity)
@@ -134,18 +137,16 @@ def _check_out(args):
         raise SceneError(f"--timeout: got {args.timeout}, expected a finite number > 0 s")
 
 
-def check_channels(scene, metrics, series=(), duration=None) -> None:
+def check_channels(scene, metrics, series=(), duration=None, open_loop=False) -> None:
     """Every channel a metric or --series names exists in a run of the scene (a probe of
-    two output samples), else SceneError listing the channels."""
+    a few output samples, run as the samples run), else SceneError listing the channels."""
     from flexarm_ros.ensemble.metrics import channel
-    from flexarm_ros.sim.simulate import simulate
+    from flexarm_ros.twin.batch import probe_duration, run_scene
     wanted = [m.channel for m in metrics if m.channel] + list(series)
     if not wanted:
         return
-    dt = scene.fidelity.output_dt
-    sensor_dt = max([1.0 / s.rate_hz for s in scene.sensors], default=dt)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        res = simulate(scene, 2 * max(dt, sensor_dt))
+        res = run_scene(scene, probe_duration(scene, open_loop), open_loop=open_loop)
     for name in wanted:
         try:
             channel(res, name)
@@ -216,8 +217,8 @@ def cmd_sweep(args):
     assignments = make_design(params, args.design, args.samples, args.seed)
     metrics = resolve_metrics(_names(args.metric), scene)
     series = _names(args.series)
-    check_channels(scene, metrics, series, args.duration)
-    model = SceneModel(scene, metrics, args.duration, series)
+    check_channels(scene, metrics, series, args.duration, args.open_loop)
+    model = SceneModel(scene, metrics, args.duration, series, args.open_loop)
     meta = {"kind": "sweep", "design": args.design, "seed": args.seed,
             "params": [p.__dict__ for p in params]}
     with _executor(args, model) as ex:
@@ -251,8 +252,10 @@ def cmd_uncertainty(args):
     _check_out(args)
     spec, base, metrics = _spec(args)
     channel = args.channel or spec.channel
-    check_channels(base, metrics, [channel] if channel else [], spec.duration)
-    model = SceneModel(base, metrics, spec.duration, (channel,) if channel else ())
+    check_channels(base, metrics, [channel] if channel else [], spec.duration,
+                   args.open_loop)
+    model = SceneModel(base, metrics, spec.duration, (channel,) if channel else (),
+                       args.open_loop)
     with _executor(args, model) as ex:
         table, stats, env = run_uncertainty(spec, args.samples, args.seed, args.design,
                                             channel, model=model, executor=ex,
@@ -297,8 +300,8 @@ def cmd_sensitivity(args):
     from flexarm_ros.ensemble.uq import format_sensitivity, run_sensitivity
     _check_out(args)
     spec, base, metrics = _spec(args)
-    check_channels(base, metrics, (), spec.duration)
-    model = SceneModel(base, metrics, spec.duration)
+    check_channels(base, metrics, (), spec.duration, args.open_loop)
+    model = SceneModel(base, metrics, spec.duration, open_loop=args.open_loop)
     from flexarm_ros.ensemble.uq import sensitivity_design
     sensitivity_design(spec, args.method, args.samples or (8 if args.method == "morris"
                                                            else 64), 0)   # checks first

@@ -66,29 +66,33 @@ class SceneModel:
     ``__call__(assignment)`` returns ``{"status", "message", "metrics": {column: float},
     "series": {name: array} or None}``; it never raises for a sample's own failure."""
 
-    def __init__(self, base, metrics, duration=None, series: Sequence[str] = ()):
+    def __init__(self, base, metrics, duration=None, series: Sequence[str] = (),
+                 open_loop: bool = False):
         self.base = base
         self.metrics = tuple(metrics)
         self.duration = duration
         self.series = tuple(series)
+        # False: a scene with a controller runs it in the loop (twin.batch.run_scene)
+        self.open_loop = bool(open_loop)
 
     @property
     def columns(self) -> list[str]:
         return [m.column for m in self.metrics]
 
     def warm_up(self) -> None:
-        """Load the compiled kernels (a run of two output samples of the base scene)."""
-        from flexarm_ros.sim.simulate import simulate
+        """Load the compiled kernels (a short run of the base scene, as the samples run)."""
+        from flexarm_ros.twin.batch import probe_duration, run_scene
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                simulate(self.base, 2 * self.base.fidelity.output_dt)
+                run_scene(self.base, probe_duration(self.base, self.open_loop),
+                          open_loop=self.open_loop)
         except (SceneError, SimulationDiverged):
             pass
 
     def __call__(self, assignment: dict) -> dict:
         from flexarm_ros.ensemble.keys import set_keys
         from flexarm_ros.ensemble.metrics import channel, evaluate
-        from flexarm_ros.sim.simulate import simulate
+        from flexarm_ros.twin.batch import run_scene
         nan = {c: math.nan for c in self.columns}
         try:
             scene = set_keys(self.base, assignment)
@@ -96,7 +100,7 @@ class SceneModel:
             return {"status": "refused", "message": _one_line(exc), "metrics": nan}
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                res = simulate(scene, self.duration)
+                res = run_scene(scene, self.duration, open_loop=self.open_loop)
                 values = evaluate(res, self.metrics)
                 series = None
                 if self.series:

@@ -21,3 +21,10 @@ def integer(text):
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"got {text!r}, expected an integer") from None
+
+
+#: ``--open-loop`` of every batch command (flexarm_ros.twin.batch.run_scene)
+OPEN_LOOP_HELP = ("run the scene's input programs alone, continuously, even when it "
+                  "declares a controller (control:); by default such a scene runs as the "
+                  "twin does: controller and motor driver in the loop at control.rate_hz, "
+                  "efforts held over each period")

@@ -148,15 +148,15 @@ def stamp_ns(stamp) -> int:
 
 
 class SimTime:
-    """The simulator core's time of a tick, bit for bit. The plant advances on the integer
-    sensor grid (t = k·g·1e-9) when sensors are declared, else by repeated ``t +=
-    period``; replaying that lets the controller and driver use the very float the core
-    used (``__call__``: stamp → t) and the recorder stamp tick n (``tick_ns``), so a
-    lockstep run equals :func:`~flexarm_ros.twin.cosim.cosimulate` exactly."""
+    """The simulator core's time of a tick, bit for bit. The plant advances on its integer
+    grid (t = k·g·1e-9, :func:`~flexarm_ros.sim.plant.plant_grid_ns`); replaying that lets
+    the controller and driver use the very float the core used (``__call__``: stamp → t)
+    and the recorder stamp tick n (``tick_ns``), so a lockstep run equals
+    :func:`~flexarm_ros.twin.cosim.cosimulate` exactly."""
 
     def __init__(self, scene):
-        from flexarm_ros.model.sensors import sample_grid_ns
-        self.grid = sample_grid_ns([1.0 / s.rate_hz for s in scene.sensors])
+        from flexarm_ros.sim.plant import plant_grid_ns
+        self.grid = plant_grid_ns(scene)
         self.period = control_period(scene)
         self.per_tick = int(round(self.period * 1e9 / self.grid)) if self.grid else 0
         self._t = self._tick_t = 0.0

@@ -50,8 +50,18 @@ from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.step import choose_step
 from flexarm_ros.scene import Input, Program
 from flexarm_ros.scene.sections import ENCODER_REVOLUTIONS, INT32_MAX
+from flexarm_ros.model.linear import smooth_rhs
 from flexarm_ros.model.sensors import build_sensors, measure, sample_grid_ns, true_value
 from flexarm_ros.model.statics import initial_state
+
+
+def plant_grid_ns(scene) -> int:
+    """The grid the plant stops on (ns): the gcd of every sensor's sample period and the
+    batch output period fidelity.output_dt. The closed-loop batch run records the state
+    there; a step ends on it only where the model is not smooth, and then the step divides
+    the output period anyway, so the twin steps as a plant without it would."""
+    return sample_grid_ns([1.0 / s.rate_hz for s in scene.sensors]
+                          + [scene.fidelity.output_dt])
 
 
 def plant_integrator(scene) -> str:
@@ -115,8 +125,7 @@ class Plant:
         self.t = 0.0
         self.k = 0                                   # grid index of self.t
         self.sensors = build_sensors(ch, scene)
-        periods = [1.0 / s.spec.rate_hz for s in self.sensors]
-        self.grid_ns = sample_grid_ns(periods) if periods else 0
+        self.grid_ns = plant_grid_ns(scene)
         self._every = [int(round(1e9 / s.spec.rate_hz)) for s in self.sensors]
         # which sensors are due at a grid instant depends only on t mod the periods' lcm
         self._cycle = math.lcm(*self._every) if self._every else 1
@@ -139,10 +148,20 @@ class Plant:
                        if a.kind == drives.HYDRAULIC}
         self.inputs = np.zeros(len(ch.links))
         fid = ch.fidelity
-        # the step of a batch run (fidelity.dt checked against the stability limit)
+        # the step (fidelity.dt checked against the stability limit). A smooth model steps
+        # each control period in equal steps no longer than h, its grid instants from the
+        # steps' dense output (Hermite); otherwise the step divides the output period and
+        # the plant steps grid interval by grid interval
         self.integrator = plant_integrator(ch.scene)
+        self.dense = (self.contact is None and not len(ch.presc_idx) and smooth_rhs(ch))
         self.h = h = choose_step(ch, self.x, self.integrator, fid.dt, fid.output_dt,
-                                 contact=self.contact)
+                                 contact=self.contact, dense=self.dense)
+        self._periods: dict = {}                     # grid intervals -> (RK4 steps, buffer)
+        # the closed-loop batch run's record: the state at every grid instant whose index
+        # is a multiple of trace_every (None: no record)
+        self.trace: list | None = None
+        self.trace_every = 1
+        self.trace_contact: list | None = None   # with a wall: (R row, phase) per record
         if duration is not None:        # the work budget of a run of that length
             check_work(ch, self.x, h, duration, self.integrator, self.contact)
         self.guard = DivergenceGuard(ch, fid.max_deflection_ratio, self.integrator, h)
@@ -216,14 +235,60 @@ class Plant:
                                  f"grid periods ({self.grid_ns * 1e-9:g} s)")
             if self.stepper is not None:
                 return self._step_contact(int(round(n)))
+            if self.dense:
+                return self._step_dense(int(round(n)))
             for _ in range(int(round(n))):
                 self.k += 1
                 self._advance(self.k * self.grid_ns * 1e-9)
+                self._record(self.x)
                 row = self._read_due()
                 if row is not None:
                     rows.append(row)
         else:
             self._advance(self.t + dt)
+        return rows
+
+    def _record(self, x) -> None:
+        if self.trace is not None and self.k % self.trace_every == 0:
+            self.trace.append(x.copy())
+
+    def steps_per_period(self, n: int) -> int:
+        """RK4 steps the smooth plant takes over ``n`` grid intervals: the fewest equal
+        steps no longer than its step h."""
+        T = n * self.grid_ns * 1e-9
+        return max(1, int(math.ceil(T / self.h - 1e-9)))
+
+    def _step_dense(self, n: int) -> list[tuple]:
+        """``n`` grid intervals of a smooth model in one compiled call
+        (:func:`~flexarm_ros.model.compiled.loops.rk4_period`): equal steps no longer than
+        h over the whole span, the grid instants from the steps' dense output; then the
+        sensors due at each instant, read as :meth:`step_rows` reads them."""
+        per = self._periods.get(n)
+        if per is None:
+            per = self._periods[n] = (self.steps_per_period(n), np.empty((n, len(self.x))))
+        nsteps, xs = per
+        ch = self.chain
+        code, t_fail, _, _, x_last, x_bad = kloops.rk4_period(
+            self.x, self.k, self.grid_ns, n, nsteps, ch.fidelity.max_deflection_ratio,
+            xs, ch.kernel_args, self.ws, self.integrator == "rkn4")
+        if code != kchain.OK:
+            self.guard.last = x_last
+            self.guard.check(t_fail, x_bad)
+        if not math.isfinite(float(xs.sum())):
+            # the numpy test nothing non-finite gets past (see _advance)
+            self.guard.last = self.x
+            bad = xs[~np.all(np.isfinite(xs), axis=1)]
+            self.guard.check(float((self.k + n) * self.grid_ns * 1e-9), bad[0])
+        rows: list = []
+        g = self.grid_ns
+        for i in range(n):
+            self.k += 1
+            self.t = self.k * g * 1e-9
+            self.x = xs[i].copy()
+            self._record(self.x)
+            row = self._read_due()
+            if row is not None:
+                rows.append(row)
         return rows
 
     def _step_contact(self, n: int) -> list[tuple]:
@@ -256,6 +321,9 @@ class Plant:
         tl = ts.tolist()
         for i in range(n):
             self.k += 1
+            self._record(buf.X[i])
+            if self.trace_contact is not None and self.k % self.trace_every == 0:
+                self.trace_contact.append((buf.R[i].copy(), int(buf.phase[i])))
             if numpy_acc:       # the numpy read-out takes q̈ from the current sample
                 self._set_row(buf, i)
             row = self._read_due(None if acc is None else acc[i], tl[i], buf.X[i])

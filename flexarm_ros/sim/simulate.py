@@ -38,6 +38,7 @@ class SimResult:
     auto: object = None          # autofidelity.AutoChoice when the scene said rung auto
     check: object = None         # accuracy.PosteriorCheck of an auto or assessed run
     assessed: object = None      # autofidelity.AutoChoice of fidelity.estimate (named rung)
+    warning: str | None = None   # what the user should know of this run (summary "warning")
 
     def summary(self) -> dict:
         r = self.run
@@ -78,6 +79,8 @@ class SimResult:
                 # the tolerance chose the step: its own (temporal) figure beside the estimate
                 out["tolerance_m"] = self.accuracy.tolerance_m
                 out["step_estimate_m"] = self.accuracy.estimated_tip_error_m
+        if self.warning:
+            out["warning"] = "; ".join(w for w in (out.get("warning"), self.warning) if w)
         return out
 
 
@@ -268,8 +271,10 @@ def _decimate(run: Integration, every: int) -> Integration:
                                z=run.z[::every])
 
 
-def output_columns(chain: Chain, run: Integration) -> dict:
-    """Named columns: t, every coordinate and rate, tip_x/tip_y, tip deflections, energy."""
+def output_columns(chain: Chain, run: Integration, actuators: bool = True) -> dict:
+    """Named columns: t, every coordinate and rate, tip_x/tip_y, tip deflections, energy,
+    and (``actuators``) the drives' columns from the input programs
+    (:func:`actuator_columns`)."""
     cols = {"t": run.t}
     for j, name in enumerate(chain.names):
         cols[name] = run.q[:, j]
@@ -280,7 +285,8 @@ def output_columns(chain: Chain, run: Integration) -> dict:
     for lm in chain.links:           # w(L) = φ(L)ᵀη (Chain.tip_deflections, all samples)
         cols[f"{lm.name}_tip_deflection"] = run.q[:, lm.eta] @ lm.beam.phi_tip
     cols["energy"] = energy
-    cols.update(actuator_columns(chain, run))
+    if actuators:
+        cols.update(actuator_columns(chain, run))
     return cols
 
 

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from flexarm_ros.errors import SceneError, SimulationDiverged
-from flexarm_ros.sim.simulate import simulate
+from flexarm_ros.twin.batch import run_scene
 from flexarm_ros.ensemble.runner import run_tasks
 
 BOUNCE_WINDOW = 0.2          # s after the first impact
@@ -92,7 +92,7 @@ class ContactRow:
         try:
             best = math.inf
             for _ in range(self.repeats):
-                res = simulate(sc, T)
+                res = run_scene(sc, T)
                 best = min(best, res.run.wall_time_s)
                 if best * 3 > 60:
                     break
@@ -126,12 +126,13 @@ def run_contact_study(scene, duration=None, quick=False, progress=None,
         raise SceneError("study: the contact trade needs a scene with a wall")
     T = duration or scene.duration
     base = scene.with_fidelity(integrator="rk4", contact="impulse")
-    probe = simulate(base, min(T, 0.01))
+    probe = run_scene(base, min(T, 0.01) if base.control is None else
+                      max(min(T, 0.01), 2.0 / base.twin_control.rate_hz))
     h_auto = probe.run.dt
     ref_scene = base.with_fidelity(dt=h_auto / 4)
     if progress:
         progress(f"reference: {scene.fidelity.rung}, impulse, dt {h_auto / 4:.3g} s")
-    ref = simulate(ref_scene, T)
+    ref = run_scene(ref_scene, T)
     m_ref = _metrics(ref)
     specs = [dict(contact="impulse")]
     specs += [dict(contact="compliant", stiffness=k)

@@ -76,7 +76,7 @@ from flexarm_ros.sim.integrate import integrate
 from flexarm_ros.sim.step import choose_step
 from flexarm_ros.model.linear import natural_modes
 from flexarm_ros.model.statics import initial_state, initial_x
-from flexarm_ros.sim.simulate import simulate
+from flexarm_ros.twin.batch import closed_loop, open_loop_scene, run_scene
 from flexarm_ros.ensemble.runner import run_tasks
 
 #: duration cap of the study window when none is given, s
@@ -251,7 +251,8 @@ def _warm_up(scene):
     for s in (spec("cubic", 1, "rk4"), spec("cubic", 1, *ADAPTIVE)):
         try:
             sc = _apply(scene, s)
-            simulate(sc, 2 * sc.fidelity.output_dt)
+            run_scene(sc, 2 * max(sc.fidelity.output_dt,
+                                  1.0 / sc.twin_control.rate_hz))
         except ROW_ERRORS:
             pass
 
@@ -267,7 +268,7 @@ def _reference_run(scene, ref: dict, T: float):
         if 2 * math.pi * f1 * h > REFERENCE_PHASE_STEP:
             sc = sc.with_fidelity(dt=REFERENCE_PHASE_STEP / (2 * math.pi * f1))
             chain = Chain(sc)
-    return simulate(sc, T, chain=chain), f1
+    return run_scene(sc, T, chain=chain), f1
 
 
 def _row(scene, s: dict, T: float, ref_res, f_ref, ref_label) -> dict:
@@ -288,7 +289,7 @@ def _row(scene, s: dict, T: float, ref_res, f_ref, ref_label) -> dict:
         row["first_frequency_hz"] = f1
         if f1 is not None and f_ref:
             row["first_frequency_error"] = abs(f1 - f_ref) / f_ref
-        res = simulate(sc, T, chain=chain)
+        res = run_scene(sc, T, chain=chain)
         summ = res.summary()
         sim, wall = summ["sim_time_s"], summ["wall_time_s"]
         wall, row["timing_runs"] = _repeat_timing(chain, sc, T, wall)
@@ -331,8 +332,11 @@ def _repeat_timing(chain, sc, T, wall):
     fid = sc.fidelity
     x0 = initial_x(chain)
     while spent < MIN_TIMING_S and runs < MAX_TIMING_RUNS:
-        w = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol, fid.output_dt,
-                      fid.max_deflection_ratio).wall_time_s
+        if closed_loop(sc):        # the loop again (the controller and driver count)
+            w = run_scene(sc, T).run.wall_time_s
+        else:
+            w = integrate(chain, x0, T, fid.integrator, fid.dt, fid.rtol, fid.atol,
+                          fid.output_dt, fid.max_deflection_ratio).wall_time_s
         best, spent, runs = min(best, w), spent + w, runs + 1
     return best, runs
 
@@ -357,7 +361,7 @@ def _choose_duration(scene, ladder, ref, quick, budget_s, progress):
                 sc = _apply(scene, s)
                 chain = Chain(sc)
                 first_frequency(chain)
-                simulate(sc, T_p, chain=chain)
+                run_scene(sc, T_p, chain=chain)
         except ROW_ERRORS:
             pass
         total += time.perf_counter() - t0
@@ -369,7 +373,8 @@ def _choose_duration(scene, ladder, ref, quick, budget_s, progress):
 def run_study(scene, duration: Optional[float] = None, quick: bool = False,
               progress: Optional[Callable[[str], None]] = None, *,
               ladder: Optional[list] = None, reference: Optional[dict] = None,
-              budget_s: Optional[float] = DEFAULT_BUDGET_S, executor=None) -> StudyRows:
+              budget_s: Optional[float] = DEFAULT_BUDGET_S, executor=None,
+              open_loop: bool = False) -> StudyRows:
     """Run the speed–accuracy study of ``scene``; returns the rows (see module doc). A
     scene with a wall gets the contact trade instead (:mod:`contact_study`).
 
@@ -387,7 +392,13 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     side by side share the machine, so their ``wall_s_per_sim_s`` (and the Pareto flags
     drawn from it) measure a loaded machine; the default keeps one run at a time.
     A scene with rung auto is studied about the model auto chooses for it.
+
+    A scene with a controller is studied as every command runs it, closed loop
+    (:func:`flexarm_ros.twin.batch.run_scene`; ``open_loop``: its input programs alone):
+    its plant steps RK4, so only the ladder's RK4 rows are run.
     """
+    if open_loop:
+        scene = open_loop_scene(scene)
     if scene.fidelity.rung == "auto":
         from flexarm_ros.model.autofidelity import resolve
         scene = resolve(scene)[0].with_fidelity(dt=0.0)
@@ -405,6 +416,8 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
             r["pareto"] = p
         return StudyRows(rows, {"kind": "contact"})
     ladder = [dict(s) for s in (ladder if ladder is not None else default_ladder(quick))]
+    if closed_loop(scene):     # the plant of the loop steps RK4 (twin.batch)
+        ladder = [s for s in ladder if s.get("integrator", "rk4") == "rk4"]
     for s in ladder:
         s.setdefault("refine", 0)
         s["refine"] = int(s["refine"] or DEFAULT_REFINE[s["rung"]])

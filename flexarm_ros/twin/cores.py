@@ -93,6 +93,7 @@ class SimulatorCore:
                                           >= 0 else ch.links[link].i_joint]), sm.gain)
                           for link, sm in self.encoders.items()]
         self.k = 0
+        self.sink: list | None = None      # the sensor rows of every step, when a list
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -123,6 +124,23 @@ class SimulatorCore:
         for link, q0, gain in self._enc_zero:
             ang[link] = q0 + self.counts[link] / gain
         return ang
+
+    def bench_view(self) -> tuple:
+        """What the controller and the driver read now, without messages: the joint angles
+        of ``joint_states`` (encoder counts where an encoder is declared), the tool's
+        contact flag and normal force (``tool/contact``, ``tool/wrench``; False and 0 without
+        a wall), and the ground truth's drive-coordinate rates and joint torques — the
+        values :meth:`outputs` puts in those messages."""
+        plant = self.plant
+        ch = plant.chain
+        qf, qdf = ch.full_state(plant.t, plant.x)
+        qfl = qf.tolist()
+        ang = self._encoder_angles([qfl[i] for i in self._i_joint])
+        contact, fn = False, 0.0
+        if plant.contact is not None:
+            cs = plant.contact_state()
+            contact, fn = cs["phase"] != "free", cs["normal_force"]
+        return ang, contact, fn, qdf[self._i_drive], plant.torques.tolist()
 
     def outputs(self, ground_truth: bool = True, build=msg) -> list[tuple]:
         """(topic, type, message) of this instant, in publication order. With
@@ -229,6 +247,8 @@ class SimulatorCore:
                 self.counts[link] = int(vals[pos])
             for topic, positions in groups:
                 self.batch[topic].append([vals[i] for i in positions])
+        if self.sink is not None:
+            self.sink.extend(rows)
         self.k += 1
 
 

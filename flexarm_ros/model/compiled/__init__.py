@@ -91,6 +91,10 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     # comparison; a fallback should a numba release refuse the option)
     jit_raw = (jit if os.environ.get("FLEXARM_KERNEL_NRT") else
                numba.njit(cache=True, error_model="numpy", fastmath=_FLAGS, _nrt=False))
+    # IEEE arithmetic as numpy and Python do it (no contraction into fused multiply-adds):
+    # the closed loop's controller and encoder read-out, which must give the bits the
+    # Python cores give — an encoder count is a floor, and one ulp can flip it
+    jit_exact = numba.njit(cache=True, error_model="numpy")
 except ImportError:
     HAVE_NUMBA = False
 
@@ -99,6 +103,7 @@ except ImportError:
 
     jit_inline = jit
     jit_raw = jit
+    jit_exact = jit
 
 
 def cache_is_cold() -> bool:

@@ -232,6 +232,84 @@ def _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, 
     return OK, t, steps, calls, k
 
 
+@_jit_inline
+def _rk4_period(x, k0, g_ns, J, nsteps, max_ratio, model, ws, xs, sc, nystrom):
+    """One control period of the plant with its inputs held: ``nsteps`` equal RK4 steps
+    (RKN4 with ``nystrom``) from t₀ = k₀·g to t₁ = (k₀ + J)·g (g = ``g_ns`` ns, the sensor
+    and output grid), x advanced in place; the state at every grid instant t₀ + j·g,
+    j = 1..J, into xs[j − 1]: a step's own state on its end, else the cubic Hermite
+    interpolant of the step that holds it (:func:`hermite`, ẋ at both ends; O(h⁴), as the
+    batch run's dense output, :func:`rk4_dense`). Grid instants are (k₀ + j)·g_ns·1e-9 s
+    exactly as the plant computes them. ``sc``: (9, m) scratch.
+
+    Returns (status, time reached, steps, rhs evaluations); on NON_FINITE or DEFLECTION x
+    is the last good state and sc[0] the offending one."""
+    m = x.shape[0]
+    xn = sc[0]
+    tmp = sc[1]
+    k1 = sc[2]
+    k2 = sc[3]
+    k3 = sc[4]
+    k4 = sc[5]
+    f1 = sc[6]
+    row = sc[8]
+    t0 = float(k0 * g_ns) * 1e-9
+    t_end = float((k0 + J) * g_ns) * 1e-9
+    h = (t_end - t0) / nsteps
+    eps = 1e-12 * max(1.0, t_end)
+    j = 1
+    calls = 0
+    t = t0
+    for s in range(nsteps):
+        t1 = t_end if s == nsteps - 1 else t0 + (s + 1) * h
+        hh = t1 - t
+        if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws, False, nystrom):
+            return NON_FINITE, t1, s + 1, calls + 4
+        calls += 4
+        if _deflection_ratio(xn, model) > max_ratio:
+            return DEFLECTION, t1, s + 1, calls
+        tj = float((k0 + j) * g_ns) * 1e-9
+        if j <= J and tj < t1 - eps:
+            # samples inside the step: ẋ at its end too (left limit: same held inputs)
+            rhs_into(t + (1.0 - STAGE_EPS) * hh, xn, f1, model, ws)
+            calls += 1
+            while j <= J and tj < t1 - eps:
+                hermite((tj - t) / hh, hh, x, k1, xn, f1, row)
+                for i in range(m):
+                    xs[j - 1, i] = row[i]
+                j += 1
+                tj = float((k0 + j) * g_ns) * 1e-9
+        if j <= J and abs(tj - t1) <= eps:
+            for i in range(m):
+                xs[j - 1, i] = xn[i]
+            j += 1
+        for i in range(m):
+            x[i] = xn[i]
+        t = t1
+    return OK, t_end, nsteps, calls
+
+
+@_jit
+def rk4_period(x0, k0, g_ns, J, nsteps, max_ratio, xs, model_args, ws_args, nystrom):
+    """:func:`_rk4_period` from a copy of x0: the plant's control period when its model is
+    smooth (:meth:`flexarm_ros.sim.plant.Plant.step_rows`). Returns (status, time, steps,
+    rhs evaluations, last good state, offending state)."""
+    m = x0.shape[0]
+    x = x0.copy()
+    sc = np.empty((9, m))
+    status, t, steps, calls = _rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc,
+                                              model_args, ws_args, nystrom)
+    return status, t, steps, calls, x, (x if status == OK else sc[0].copy())
+
+
+@_jit_raw
+def _rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc, model_args, ws_args,
+                    nystrom):
+    """:func:`rk4_period` without reference counting."""
+    model, ws = named(model_args, ws_args)
+    return _rk4_period(x, k0, g_ns, J, nsteps, max_ratio, model, ws, xs, sc, nystrom)
+
+
 @_jit
 def _torque_jumps(t, model):
     """True when a torque program differs just before and just after time t."""

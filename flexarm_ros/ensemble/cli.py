@@ -191,6 +191,34 @@ def _table_text(table, limit=40) -> str:
     return "\n".join(lines)
 
 
+def _outcome(command: str, table) -> int:
+    """The exit status of an ensemble: 0 when a sample ran; when none did, one line on
+    stderr with the counts and the first sample's reason, and 2 (every sample refused:
+    its values), 3 (every sample diverged) or 1. A warning when every metric came out the
+    same in every sample although the parameters varied: they had no effect on them."""
+    counts = table.counts()
+    rows = table.rows
+    if counts["ok"] == 0 and rows:
+        first = next((r["message"] for r in rows if r["message"]), "")
+        print(f"flexarm {command}: no sample ran: "
+              + ", ".join(f"{v} {k}" for k, v in counts.items() if v)
+              + f" of {len(rows)}" + (f" (sample 0: {first})" if first else ""),
+              file=sys.stderr)
+        if counts["refused"] == len(rows):
+            return 2
+        return 3 if counts["diverged"] == len(rows) else 1
+    ok = [r for r in rows if r["status"] == "ok"]
+    cols = [c for c in table.metrics if c != "wall_s_per_sim_s"]
+    if len(ok) > 1 and cols and table.params:
+        varied = any(len({repr(r[p]) for r in ok}) > 1 for p in table.params)
+        same = all(len({repr(r[c]) for r in ok}) == 1 for c in cols)
+        if varied and same:
+            print(f"flexarm {command}: warning: every metric ({', '.join(cols)}) is the "
+                  f"same in all {len(ok)} samples: {', '.join(table.params)} had no effect "
+                  f"on them in this scene", file=sys.stderr)
+    return 0
+
+
 def _write(args, table):
     if args.out:
         table.write(args.out)
@@ -215,7 +243,7 @@ def cmd_sweep(args):
     if len(set(keys)) != len(keys):
         raise SceneError(f"--param: got {keys}, expected each key once")
     assignments = make_design(params, args.design, args.samples, args.seed)
-    metrics = resolve_metrics(_names(args.metric), scene)
+    metrics = resolve_metrics(_names(args.metric), scene, args.open_loop)
     series = _names(args.series)
     check_channels(scene, metrics, series, args.duration, args.open_loop)
     model = SceneModel(scene, metrics, args.duration, series, args.open_loop)
@@ -233,7 +261,7 @@ def cmd_sweep(args):
         print(json.dumps(table.to_json(), indent=1))
     else:
         print(_table_text(table))
-    return 0
+    return _outcome("sweep", table)
 
 
 # ------------------------------------------------------------------------ uncertainty
@@ -242,7 +270,7 @@ def _spec(args):
     from flexarm_ros.ensemble.spec import load_spec
     spec = load_spec(args.spec)
     base = spec.base_scene()
-    metrics = resolve_metrics(spec.metrics, base)
+    metrics = resolve_metrics(spec.metrics, base, args.open_loop)
     return spec, base, metrics
 
 
@@ -291,7 +319,7 @@ def cmd_uncertainty(args):
                       + f" ({s['n']} values)")
             else:
                 print(f"  {m}: no ok values")
-    return 0
+    return _outcome("uncertainty", table)
 
 
 # ------------------------------------------------------------------------ sensitivity
@@ -321,4 +349,4 @@ def cmd_sensitivity(args):
         print(json.dumps(result, indent=1))
     else:
         print(format_sensitivity(result))
-    return 0
+    return _outcome("sensitivity", table)

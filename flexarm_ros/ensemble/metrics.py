@@ -127,10 +127,39 @@ def parse_metric(text: str) -> Metric:
     return Metric(t, kind, ch, target=value)
 
 
-def resolve_metrics(names, scene) -> list[Metric]:
+#: input programs whose value changes during a run (a step or ramp in the command)
+_CHANGING = ("step", "pulse", "square", "piecewise_constant", "piecewise_linear",
+             "spin_up", "smooth_step")
+
+
+def command_steps(scene, open_loop: bool = False) -> list[str]:
+    """What steps or ramps the command of a run of ``scene`` (what a settling time settles
+    after): a controller target away from the start (position mode), the sanding task's
+    moves, an input program that changes or starts from rest at a non-zero value. Empty
+    when the arm is only released (free vibration, a hold)."""
+    out = []
+    ctl = scene.control
+    if ctl is not None and not open_loop and ctl.mode != "open_loop":
+        if ctl.mode == "sanding":
+            out.append("the sanding task's moves")
+        elif ctl.joint_target and any(abs(a - lk.joint.angle0) > 0 for a, lk in
+                                      zip(ctl.joint_target, scene.links)):
+            out.append("control.joint_target")
+        elif ctl.tip_target is not None:
+            out.append("control.tip_target")
+        return out
+    for k, inp in enumerate(scene.inputs):
+        prog = inp.program
+        if prog.type in _CHANGING or (prog.type == "constant" and prog.value != 0.0):
+            out.append(f"inputs[{k}].{inp.kind} ({prog.type})")
+    return out
+
+
+def resolve_metrics(names, scene, open_loop: bool = False) -> list[Metric]:
     """The metrics of an ensemble: the names given (default: max tip deflection), with
     impact_time first on a scene with a wall; duplicates dropped; checks that
-    impact/bounce metrics have a wall."""
+    impact/bounce metrics have a wall and a settling time a step in the command
+    (:func:`command_steps`)."""
     names = list(names or [])
     if not names:
         names = ["impact_time", "bounce_height", "max_tip_deflection"] if scene.walls else \
@@ -144,6 +173,14 @@ def resolve_metrics(names, scene) -> list[Metric]:
             if m.kind in ("impact_time", "bounce_height"):
                 raise SceneError(f"--metric: got {m.name!r} on scene {scene.name!r}, which has "
                                  f"no wall (walls: []), expected a scene with a wall")
+    for m in out:
+        if m.kind == "settling_time" and not command_steps(scene, open_loop):
+            raise SceneError(f"--metric: got {m.name!r} on scene {scene.name!r}, whose "
+                             f"command has no step or ramp (no input program changes, no "
+                             f"controller target), expected a scene with a step in its "
+                             f"command (a step/pulse/square/piecewise program, or "
+                             f"control.mode position with a target): a settling time "
+                             f"settles after one")
     seen, uniq = set(), []
     for m in out:
         if m.column not in seen:

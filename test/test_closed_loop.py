@@ -280,3 +280,18 @@ def test_a_settling_time_without_a_command_step_is_refused_before_the_run(tmp_pa
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert "settling_time:link1_joint" in err[0] and "no step or ramp" in err[0]
+
+
+@pytest.mark.parametrize("name", ["two_link_position", "link_motor", "hydraulic_2kg",
+                                  "two_link_case3_backlash", "spin_up", "link"])
+def test_the_driver_built_on_the_plant_equals_the_one_built_alone(name):
+    """DriverCore(scene, plant) (batch: no second model) and DriverCore(scene) (the ROS
+    node): the same drive kinds, parameters (null bias included) and initial states."""
+    from flexarm_ros.twin.cores import DriverCore, SimulatorCore
+    scene = load_scene(name)
+    sim = SimulatorCore(scene, warm_up=False)
+    a, b = DriverCore(scene), DriverCore(scene, sim.plant)
+    assert a.kind == b.kind
+    for pa, pb in zip(a.par, b.par):
+        assert np.array_equal(pa, pb)
+    assert np.array_equal(a.z, b.z) and np.array_equal(a.valve, b.valve)

@@ -178,6 +178,8 @@ def _text(out: dict) -> str:
         else:
             lines.append(f"  {p['key']} = {p['value']:.6g}{unit}  not identifiable "
                          f"(start {p['start']:.6g})")
+    for name, text in out.get("systems", {}).items():
+        lines.append(f"  {name}: {text}")
     for u in out["unidentifiable"]:
         lines.append(f"  ! {u['text']}")
     for w in out["warnings"][:5]:
@@ -226,6 +228,8 @@ def cmd_calibrate(args) -> int:
         from flexarm_ros.calibration.report import write_report
         written.append(write_report(problem, out, args.report))
     out["written"] = [str(p) for p in written]
+    from flexarm_ros.calibration.setup import describe_system
+    out["systems"] = {c.name: describe_system(c) for c in problem.cases}
     if args.json:
         print(json.dumps(_clean(public(out)), indent=1, default=_json_default))
     else:

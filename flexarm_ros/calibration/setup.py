@@ -164,6 +164,17 @@ def system_of_record(scene, record=None, open_loop: bool = False):
     return dataclasses.replace(scene, control=bag_scene.twin_control)
 
 
+def describe_system(case) -> str:
+    """How a case's model runs, in words (the calibration's summary)."""
+    from flexarm_ros.twin.batch import closed_loop
+    sc = case.scene
+    if closed_loop(sc, case.open_loop):
+        ctl = sc.control
+        return (f"closed loop: control.mode {ctl.mode} at {ctl.rate_hz:.6g} Hz, the efforts "
+                f"held over each period (the twin's loop)")
+    return "open loop: the input programs applied continuously"
+
+
 def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=None,
               weights=None, window=None, offset="none", duration=None, targets=(),
               probe=None, open_loop: bool = False) -> Case:

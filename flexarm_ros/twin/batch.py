@@ -179,9 +179,9 @@ def simulate_closed_loop(scene, duration=None, progress=None, lane: str = "auto"
     from flexarm_ros.twin.cores import ControllerCore, DriverCore, SimulatorCore
     T = scene.duration if duration is None else duration
     K = _check_closed_loop(scene, T)
-    sim = SimulatorCore(scene, duration=K * control_period(scene))
+    sim = SimulatorCore(scene, duration=K * control_period(scene), warm_up=False)
     ctl = ControllerCore(scene)
-    drv = DriverCore(scene)
+    drv = DriverCore(scene, sim.plant)
     from flexarm_ros.twin.compiled_loop import eligible
     why_not = eligible(sim, ctl)
     if lane == "compiled" and why_not:

@@ -54,7 +54,7 @@ class SimulatorCore:
     diverged state can be built: every sample is checked, and the plant checks its state
     after every sensor-grid interval."""
 
-    def __init__(self, scene, duration: float | None = None):
+    def __init__(self, scene, duration: float | None = None, warm_up: bool = True):
         self.scene = scene
         # with a finite ``duration`` the work budget is checked before the first step
         # (:func:`flexarm_ros.sim.budget.check_work`), as ``flexarm simulate`` does
@@ -94,7 +94,8 @@ class SimulatorCore:
                           for link, sm in self.encoders.items()]
         self.k = 0
         self.sink: list | None = None      # the sensor rows of every step, when a list
-        self._warm_up()
+        if warm_up:                 # a twin's first tick must not compile (a batch may)
+            self._warm_up()
 
     def _warm_up(self) -> None:
         """One tick and one set of messages on a copy of this core, thrown away: numba
@@ -273,15 +274,31 @@ class DriverCore:
     reject it): it is held there (``held`` counts the periods), which only a DC drive
     without ``current_limit`` turned beyond its no-load speed can reach."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, plant: Plant | None = None):
+        """``plant``: the simulator's plant of the same scene, when at hand (a batch run):
+        its model gives the hydraulic actuators' parameters and holding pressures, so no
+        second model is built (an eigen-solve per modal beam; test_closed_loop checks the
+        two ways agree)."""
         self.scene = scene
-        chain = Chain(scene)
-        q0, qd0, z0 = initial_state(chain)         # hydraulic hold pressure and null bias
         self.n = len(scene.links)
         self.kind = [drives.IDEAL] * self.n
         self.par = [np.zeros(drives.N_PAR) for _ in range(self.n)]
         self.z = np.zeros(self.n)
-        for a in chain.actuators:
+        if plant is None:
+            chain = Chain(scene)
+            q0, qd0, z0 = initial_state(chain)     # hydraulic hold pressure and null bias
+            actuators = chain.actuators
+        else:
+            chain = plant.chain                    # the plant keeps the hydraulic drives
+            z0 = plant.x[2 * len(chain.free):]
+            motions = {inp.joint - 1 for inp in scene.inputs if inp.motion is not None}
+            actuators = [a for a in chain.actuators if a.kind == drives.HYDRAULIC]
+            for k, lk in enumerate(scene.links):
+                d = lk.joint.drive
+                if d is not None and d.type != "hydraulic" and k not in motions:
+                    self.kind[k], self.par[k], _ = drives.encode(
+                        d, scene.fidelity.motor_current)
+        for a in actuators:
             self.kind[a.link] = a.kind
             self.par[a.link] = a.par.copy()
             if a.state >= 0:

@@ -112,6 +112,10 @@ def test_no_step_and_setpoint_from_the_start():
     r = tracking_metrics(T, 1 - np.exp(-T / tau), T, np.ones_like(T))
     assert (r["command"].kind, r["command"].onset_s) == ("step", 0.0)
     assert r["metrics"]["settling_time_s"] == pytest.approx(tau * math.log(50), abs=1e-6)
+    # a span (--window) that starts after the setpoint was given holds only the tail
+    late = T >= 0.5
+    r = tracking_metrics(T[late], 1 - np.exp(-T[late] / tau), T, np.ones_like(T))
+    assert r["command"].kind == "none" and "before the analysed span" in r["why"]["overshoot"]
 
 
 # ------------------------------------------------------------------ compare on control runs

@@ -15,11 +15,12 @@ Franklin, Powell & Emami-Naeini, Sec. 3.4):
   :func:`target_tolerance` of ``final``. Before the hold the target moved (walking back
   from the hold while it keeps moving the same way): one sample apart it is a **step**,
   applied at the first sample at its new value; longer, a **ramp**, from the last sample at
-  the old value to the hold. A target constant over the whole record is a step at the
-  record's start when it differs from the output's first value by more than the output's
-  resolution (:func:`step_threshold`: a setpoint given at t = 0, as the twin's position
-  controller does), else there is **no step** (regulation: only the final and RMS
-  tracking errors mean something). A target still moving at the last sample is a ramp
+  the old value to the hold. A target constant over the output's span is a step at the
+  span's start when it was set there (its last change before, or its first sample, at
+  most one output sample before the span) and differs from the output's first value by
+  more than the output's resolution (:func:`step_threshold`): a setpoint given at t = 0,
+  as the twin's position controller does. Otherwise there is **no step** (regulation, or
+  a step before the analysed span: only the final and RMS tracking errors are measured). A target still moving at the last sample is a ramp
   that does not end (no overshoot, rise or settling time).
 * ``initial`` = the output at the command's onset (interpolated), ``step = final -
   initial`` (the change the loop has to make), direction d = sign(step).
@@ -155,6 +156,15 @@ def detect_command(t, y, tt, target, quantum: float = 0.0) -> Command:
             return Command("none", None, None, initial, final, None,
                            f"the target is constant ({final:.6g}) and equal to the output's "
                            f"first value within {thr:.3g} (no step or ramp to respond to)")
+        # when was this setpoint given? the target's last change before the span, else
+        # its first sample; a step before the span is not in the analysed response
+        before = (tt <= t[0]) & (np.abs(target - final) > tol)
+        given = float(tt[np.flatnonzero(before)[-1] + 1]) if before.any() else float(tt[0])
+        if given < t[0] - float(np.median(np.diff(t))):
+            return Command("none", None, None, initial, final, None,
+                           f"the target ({final:.6g}) was set at {given:.6g} s, before the "
+                           f"analysed span starting at {t[0]:.6g} s: the step response is "
+                           f"not in the span (widen --window to include it)")
         return Command("step", float(t[0]), float(t[0]), initial, final, step)
     d = math.copysign(1.0, final - gs[h - 1])
     i = h - 1

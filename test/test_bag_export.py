@@ -10,6 +10,7 @@ compare`` of the bag against its export finds every error exactly 0.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +20,6 @@ from flexarm_ros.cli import main, sensor_table_path as cli_sensor_table_path
 from flexarm_ros.io.experiment import read_experiment_csv
 from flexarm_ros.io.tables import sensor_table_path
 from flexarm_ros.scene import resolve_scene_path
-from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "bags" / "golden_case1.mcap"
@@ -124,10 +124,13 @@ def test_resampling_onto_the_ticks(tmp_path, capsys):
                 w.write(f"{NS}/tool/contact", "std_msgs/msg/Bool",
                         messages.boolean(k == 3), t)
     out = tmp_path / "rates.csv"
-    code, text, _ = _export(capsys, bag, "--out", out, "--json", "--topics",
-                            "ground_truth/tip,tool/contact")
+    (tmp_path / "rates.sensors_4000hz.csv").write_text("t [s],acc_A [V]\n0,1\n")
+    code, text, err = _export(capsys, bag, "--out", out, "--json", "--topics",
+                              "ground_truth/tip,tool/contact")
     rep = json.loads(text)
     assert code == 0 and set(rep["columns"]) == {"tip_x", "tip_y", "contact"}
+    # a sensor table of an earlier run beside --out would be read with it: said, not removed
+    assert "rates.sensors_4000hz.csv" in rep["warnings"][0] and "warning" in err
     assert rep["columns"]["tip_x"]["resampling"] == "linear"
     assert rep["columns"]["contact"]["resampling"] == "previous"
     cols, _ = read_experiment_csv(out)

@@ -20,8 +20,9 @@ Franklin, Powell & Emami-Naeini, Sec. 3.4):
   most one output sample before the span) and differs from the output's first value by
   more than the output's resolution (:func:`step_threshold`): a setpoint given at t = 0,
   as the twin's position controller does. Otherwise there is **no step** (regulation, or
-  a step before the analysed span: only the final and RMS tracking errors are measured). A target still moving at the last sample is a ramp
-  that does not end (no overshoot, rise or settling time).
+  a step before the analysed span: only the final and RMS tracking errors are measured).
+  A target still moving at the last sample is a ramp that does not end (no overshoot,
+  rise or settling time).
 * ``initial`` = the output at the command's onset (interpolated), ``step = final -
   initial`` (the change the loop has to make), direction d = sign(step).
 * **Final error** = |y(T) - target(T)| at the last output sample T.

@@ -25,7 +25,8 @@ docs/compare.md), written as ``flexarm simulate --out`` lays out a run:
   run.csv`` reads them with the main table.
 
 Values and times are written as the shortest decimal that reads back as the same double
-(Python's ``repr``): read back, they equal the bag's messages bit for bit (log times in ns → s as ``flexarm compare`` computes them).
+(Python's ``repr``): read back, they equal the bag's messages bit for bit (log times in
+ns → s as ``flexarm compare`` computes them).
 A channel whose unit the bag does not tell (a sensor without a scene) is written
 ``[unknown]`` (it then matches any unit in ``flexarm compare``).
 

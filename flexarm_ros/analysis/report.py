@@ -304,8 +304,8 @@ def _control_section(cmp: Comparison) -> list[str]:
                       for n in tracking})
     lines = ["", "## Control (channels that track a command)", "",
              f"A channel whose reference command (its target: "
-             f"{', '.join(f'`{t}`' for t in targets)}) is a step or a ramp is judged by these criteria instead of the frequency and "
-             f"amplitude ones: {m['tolerances']}. Rise time {100 * m['rise'][0]:g}–"
+             f"{', '.join(f'`{t}`' for t in targets)}) is a step or a ramp is judged by "
+             f"these criteria instead of the frequency and amplitude ones: {m['tolerances']}. Rise time {100 * m['rise'][0]:g}–"
              f"{100 * m['rise'][1]:g} % of the step, settling time into ±"
              f"{100 * m['settling_band']:g} % of the step around the final target, overshoot "
              f"beyond the final target in the direction of travel (% of the step), times from "

@@ -33,6 +33,17 @@ Steps (every number in the result comes from :mod:`.metrics` and :mod:`.spectra`
    error ``max_i |p_run(t_i) - p_ref(t_i)| / L`` (Table 4.2; L = the arm length, the sum of
    the scene's hub radii and beam lengths) and the tip frequency error, both against the
    threshold. The comparison passes when every evaluated criterion does.
+   A channel with a target (a command: ``<name>_target``, ``tip_target_x/_y``, a twin
+   bag's ``controller/joint_targets``; each record's own, else the other's) gets a
+   ``control`` block: :func:`~flexarm_ros.analysis.control.tracking_metrics` of each
+   record over the span (final error, overshoot, rise and settling time, RMS tracking
+   error), their differences and tolerances. When the reference's command is a step or a
+   ramp the channel is judged by those (``judged_by: control``): the final end errors
+   within max(``final_band`` x |step|, one encoder count), the overshoots within
+   max(``overshoot_points``, ``threshold`` x the reference's), rise and settling times
+   within max(``threshold`` x the reference's, one sample period), the RMS tracking
+   errors within max(``threshold`` x the reference's, one count); its frequency and
+   amplitude are then reported, not judged (nor the tip frequency of such a tip channel).
 5. Contact (seed 000 Sec. 5): impact time = first rise of ``contact`` through 0.5 (else
    the first fall of ``wall_gap`` through ``IMPACT_GAP_M``, else the first rise of
    ``normal_force`` above 0), bounce height = largest ``wall_gap`` within

@@ -265,11 +265,12 @@ def test_scaled_copy_amplitude_error(golden):
 
 # ------------------------------------------------------------------ JSON and report
 
-TOP = ["channels", "contact", "failed", "frequency_method", "offset", "pass", "reference",
-       "run", "schema", "threshold", "tip", "warnings", "window"]
-CHANNEL = ["amplitude_error", "criteria", "events", "frequency_bound_hz", "frequency_error",
-           "frequency_reference_hz", "frequency_resolution_hz", "frequency_run_hz",
-           "null_reasons", "pass", "peak_error", "relative_rms_error", "rms_error",
+TOP = ["channels", "contact", "control_method", "failed", "frequency_method", "offset", "pass",
+       "reference", "run", "schema", "threshold", "tip", "warnings", "window"]
+CHANNEL = ["amplitude_error", "control", "criteria", "events", "frequency_bound_hz",
+           "frequency_error", "frequency_reference_hz", "frequency_resolution_hz",
+           "frequency_run_hz", "judged_by", "null_reasons", "pass", "peak_error",
+           "relative_rms_error", "rms_error",
            "sample_rate_reference_hz", "sample_rate_run_hz", "samples_reference",
            "samples_run", "signal", "span_s", "unit"]
 CONTACT = ["bounce_height_abs_error_m", "bounce_height_error", "bounce_height_reference_m",
@@ -295,7 +296,7 @@ def test_json_stable_and_keys_pinned(capsys):
     assert out1 == out2
     r = json.loads(out1, parse_constant=_no_nan)
     assert sorted(r) == TOP
-    assert r["schema"] == "flexarm-compare/1"
+    assert r["schema"] == "flexarm-compare/2"
     assert sorted(r["run"]) == sorted(r["reference"]) == SOURCE
     assert sorted(r["offset"]) == OFFSET
     assert sorted(r["contact"]) == CONTACT

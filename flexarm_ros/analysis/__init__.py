@@ -9,7 +9,10 @@ amplitude errors, Gannon's normalized tip-amplitude and frequency errors, the 10
 :mod:`flexarm_ros.analysis.compare` computes a
 :class:`~flexarm_ros.analysis.comparison.Comparison` (result schema in
 :mod:`flexarm_ros.analysis.comparison`), :mod:`flexarm_ros.analysis.report` draws it and
-:mod:`flexarm_ros.analysis.compare_cli` is the ``flexarm compare`` command that calls both.
+:mod:`flexarm_ros.analysis.compare_cli` is the ``flexarm compare`` command that calls both;
+:mod:`flexarm_ros.analysis.control` measures a step or ramp response against its target
+(final error, overshoot, rise and settling time, RMS tracking error);
+:mod:`flexarm_ros.analysis.export` is ``flexarm bag export`` (a twin bag's channels as CSV).
 Nothing here imports rclpy or the physics core (``flexarm_ros.model``, ``flexarm_ros.sim``);
 scenes come from :mod:`flexarm_ros.scene`.
 """

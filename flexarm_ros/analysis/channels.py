@@ -26,6 +26,10 @@ names and units from the scene embedded there):
 * ``normal_force``, ``friction_force`` — N, ``tool/wrench`` force x, y;
 * ``contact`` — 1 in contact, 0 free, ``tool/contact``;
 * ``<link>_command`` — V, A or N·m, ``motor_driver/commands``;
+* ``<link>_joint_target`` — rad, ``controller/joint_targets`` (sensor_msgs/JointState,
+  names ``<link>_joint``, position = the commanded joint angles), when the bag has it: the
+  target :mod:`flexarm_ros.analysis.control` measures ``<link>_joint`` and
+  ``<link>_joint_measured`` against (:func:`target_names`);
 * ``wall_gap`` — m, derived: ``min_k (p_tool - a_k) · n_k`` over the scene's walls: the
   tool point is the recorded tip when the scene's ``tool.position`` is (0, 0), else the
   last tip frame o + A(ψ)·``tool.position`` of the coordinates of
@@ -64,11 +68,28 @@ from flexarm_ros.io.experiment import ChannelMap, CompareInputError, MapEntry, r
 from flexarm_ros.io.units import TEXT, beam_coordinate, coordinate_unit
 from flexarm_ros.twin import topics as T
 
-__all__ = ["Channel", "ChannelSet", "add_wall_gap", "bag_channels", "load_channels",
-           "mapped_bag_channels", "same_unit", "scene_of_bag"]
+__all__ = ["Channel", "ChannelSet", "JOINT_TARGETS", "add_wall_gap", "bag_channels",
+           "load_bag", "load_channels", "mapped_bag_channels", "same_unit", "scene_of_bag",
+           "target_names"]
 
 _SI_UNIT = {"accelerometer": "m/s^2", "strain": "1", "potentiometer": "rad"}
 _DRIVE_UNIT = {"dc_motor": "V", "hydraulic": "A", None: "N*m"}
+#: The controller's commanded joint angles (sensor_msgs/JointState, names ``<link>_joint``):
+#: the topic contract's name when :mod:`flexarm_ros.twin.topics` declares it.
+JOINT_TARGETS = getattr(T, "JOINT_TARGETS", "controller/joint_targets")
+
+
+def target_names(name: str) -> list[str]:
+    """The channels that may hold the target (the command) of channel ``name``, in order of
+    preference: ``<name>_target``; for a measured joint angle ``<link>_joint_measured`` also
+    ``<link>_joint_target``; for the tip ``tip_target_x`` / ``tip_target_y`` (the names the
+    batch simulator writes for closed-loop scenes)."""
+    out = [f"{name}_target"]
+    if name.endswith("_measured"):
+        out.append(f"{name[:-len('_measured')]}_target")
+    if name in ("tip_x", "tip_y"):
+        out.append(f"tip_target_{name[-1]}")
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,6 +102,7 @@ class Channel:
     y: np.ndarray
     source: str = ""
     vibration: bool = False
+    topic: str = ""                 # the bag topic it was read from ('' for a CSV column)
 
     def __len__(self) -> int:
         return int(self.t.size)
@@ -135,11 +157,11 @@ def _clean(t, y) -> tuple[np.ndarray, np.ndarray]:
     return t, y
 
 
-def _channel(name, unit, t, y, source, vibration=False) -> Channel | None:
+def _channel(name, unit, t, y, source, vibration=False, topic="") -> Channel | None:
     t, y = _clean(t, y)
     if t.size == 0:
         return None
-    return Channel(name, unit, t, y, source, vibration)
+    return Channel(name, unit, t, y, source, vibration, topic)
 
 
 # ----------------------------------------------------------------------------- twin bags
@@ -172,7 +194,7 @@ def _batch_channels(bag, topic, scene, ns, notes) -> list[Channel]:
     out = []
     for j, (name, unit) in enumerate(zip(sb.names, units)):
         ch = _channel(name, unit, t, sb.values[:, j], f"{sb.topic} [sample, {j}]",
-                      sb.kind in ("accelerometer", "strain"))
+                      sb.kind in ("accelerometer", "strain"), sb.topic)
         if ch is not None:
             out.append(ch)
     return out
@@ -193,7 +215,7 @@ def _joint_state(messages, topic, rename=lambda n: n, unit=_coordinate_unit,
     out = {}
     for name, (ts, ys) in cols.items():
         ch = _channel(rename(name), unit(name), ts, ys, f"{topic} position[{name!r}]",
-                      vibration(name))
+                      vibration(name), topic)
         if ch is not None:
             out[ch.name] = ch
     return out
@@ -204,7 +226,7 @@ def _scalar(messages, get, name, unit, topic, src, vibration=False) -> Channel |
         return None
     t = [m[0] * 1e-9 for m in messages]
     y = [float(get(m[1])) for m in messages]
-    return _channel(name, unit, t, y, f"{topic} {src}", vibration)
+    return _channel(name, unit, t, y, f"{topic} {src}", vibration, topic)
 
 
 def bag_channels(bag, scene=None, notes: list | None = None) -> dict[str, Channel]:
@@ -278,6 +300,10 @@ def bag_channels(bag, scene=None, notes: list | None = None) -> dict[str, Channe
                 name, unit = f"joint{j + 1}_command", ""
             put(_scalar(m, lambda msg, j=j: msg.data[j], name, unit,
                         T.resolve(ns, T.COMMANDS), f"data[{j}]"))
+    for ch in _joint_state(msgs(JOINT_TARGETS), T.resolve(ns, JOINT_TARGETS),
+                           rename=lambda n: f"{n}_target", unit=lambda n: "rad",
+                           vibration=lambda n: False).values():
+        put(ch)
     return out
 
 
@@ -545,6 +571,24 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
                     cs.channels.setdefault(name, ch)
                 cs.comments.append(f"sensor channels from {side.name}")
         return cs
+    return load_bag(p, channel_map)[0]
+
+
+def load_bag(path, channel_map: ChannelMap | None = None,
+             foreign_hint: str = "pass a channel map (--map MAP.yaml) that names its "
+                                 "topics"):
+    """``(ChannelSet, Bag)`` of an MCAP bag: the channels :func:`load_channels` gives (a
+    twin bag's, or a map's), and the decoded bag they came from (for the tools that need
+    its topics and tick times besides the channels, e.g. ``flexarm bag export``).
+    ``foreign_hint`` completes the error for a bag the twin did not record.
+
+    Raises:
+        CompareInputError: unreadable or empty bag, a foreign bag without a map, no
+            channel found.
+    """
+    p = str(path)
+    if not Path(p).exists():
+        raise CompareInputError(f"{p}: no such file, expected an MCAP bag")
     caught = []
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
@@ -574,8 +618,7 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
         cs.channels = mapped_bag_channels(bag, channel_map)
     elif meta is None:
         raise CompareInputError(f"{p}: not recorded by flexarm run (no flexarm_ros "
-                                f"metadata); pass a channel map (--map MAP.yaml) that "
-                                f"names its topics")
+                                f"metadata); {foreign_hint}")
     else:
         try:
             cs.channels = bag_channels(bag, cs.scene, cs.warnings)
@@ -587,4 +630,4 @@ def load_channels(path, channel_map: ChannelMap | None = None) -> ChannelSet:
             f"{p}: no channel found (the bag holds {bag.message_count} messages"
             f"{'; it is truncated' if bag.truncated else ''}); expected the twin's topics "
             f"under {twin_bag.namespace(bag) if meta is not None else 'the map'}")
-    return cs
+    return cs, bag

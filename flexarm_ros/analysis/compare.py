@@ -33,6 +33,17 @@ Steps (every number in the result comes from :mod:`.metrics` and :mod:`.spectra`
    error ``max_i |p_run(t_i) - p_ref(t_i)| / L`` (Table 4.2; L = the arm length, the sum of
    the scene's hub radii and beam lengths) and the tip frequency error, both against the
    threshold. The comparison passes when every evaluated criterion does.
+   A channel with a target (a command: ``<name>_target``, ``tip_target_x/_y``, a twin
+   bag's ``controller/joint_targets``; each record's own, else the other's) gets a
+   ``control`` block: :func:`~flexarm_ros.analysis.control.tracking_metrics` of each
+   record over the span (final error, overshoot, rise and settling time, RMS tracking
+   error), their differences and tolerances. When the reference's command is a step or a
+   ramp the channel is judged by those (``judged_by: control``): the final end errors
+   within max(``final_band`` x |step|, one encoder count), the overshoots within
+   max(``overshoot_points``, ``threshold`` x the reference's), rise and settling times
+   within max(``threshold`` x the reference's, one sample period), the RMS tracking
+   errors within max(``threshold`` x the reference's, one count); its frequency and
+   amplitude are then reported, not judged (nor the tip frequency of such a tip channel).
 5. Contact (seed 000 Sec. 5): impact time = first rise of ``contact`` through 0.5 (else
    the first fall of ``wall_gap`` through ``IMPACT_GAP_M``, else the first rise of
    ``normal_force`` above 0), bounce height = largest ``wall_gap`` within
@@ -58,16 +69,19 @@ import statistics
 import numpy as np
 
 from flexarm_ros.analysis import metrics as M
-from flexarm_ros.analysis.channels import ChannelSet, add_wall_gap, load_channels, same_unit
-from flexarm_ros.analysis.comparison import (CHANNEL_KEYS, CONTACT_KEYS, FREQ_DETREND,
+from flexarm_ros.analysis import control as K
+from flexarm_ros.analysis.channels import (ChannelSet, add_wall_gap, load_channels, same_unit,
+                                           target_names)
+from flexarm_ros.analysis.comparison import (CHANNEL_KEYS, CONTACT_KEYS, CONTROL_KEYS,
+                                             CONTROL_SIDE_KEYS, FINAL_BAND, FREQ_DETREND,
                                              FREQ_MIN_BINS, FREQ_WINDOW, FREQ_ZERO_PAD,
-                                             SCHEMA, TIP_KEYS, Comparison)
+                                             OVERSHOOT_POINTS, SCHEMA, TIP_KEYS, Comparison)
 from flexarm_ros.analysis.spectra import MIN_SAMPLES, crop, dominant_frequency, uniform_record
 from flexarm_ros.io.experiment import CompareInputError, load_channel_map
 
 __all__ = ["BOUNCE_WINDOW_S", "DEFAULT_MAX_SHIFT_S", "IMPACT_GAP_M", "IMPACT_SOURCES",
-           "arm_length", "compare", "compare_files", "parse_offset", "parse_window",
-           "to_json"]
+           "arm_length", "compare", "compare_files", "encoder_quantum", "parse_offset",
+           "parse_window", "to_json"]
 
 #: Seconds after the impact searched for the bounce (seed 000: the tip leaves the wall by
 #: ~5 mm and is driven back within a few tenths of a second).
@@ -248,8 +262,11 @@ def _frequencies(blk, why, run_rec, ref_rec):
             "frequency_run_hz")
 
 
-def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
+def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration, control=None):
+    """One channel's block; ``control(span)`` -> ``(control block, criteria, judged)``
+    (:func:`_control_block`) for a channel that may have a target."""
     blk = {k: None for k in CHANNEL_KEYS}
+    blk["judged_by"] = "oscillation"
     why = {}
     blk["unit"] = ref_ch.unit or run_ch.unit
     boolean = (same_unit(blk["unit"], "1") and M.is_boolean(run_ch.y)
@@ -269,6 +286,8 @@ def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
                   "relative_rms_error", "amplitude_error"):
             why[k] = msg
         blk.update(samples_run=0, samples_reference=0, criteria={}, null_reasons=why)
+        if control is not None:
+            blk["control"] = control(None)[0]
         return blk
     blk["span_s"] = [_num(a), _num(b)]
     t_ref, y_ref = crop(ref_ch.t, ref_ch.y, a, b)
@@ -310,7 +329,151 @@ def _channel_block(name, run_ch, ref_ch, off, window, threshold, vibration):
     if vibration:
         if blk["frequency_error"] is not None:
             crit["frequency_error"] = M.passes(blk["frequency_error"], threshold)
+    if control is not None:
+        blk["control"], ctl_crit, judged = control((a, b))
+        if judged:          # a step or ramp response: the control criteria, not FFT / p-p
+            blk["judged_by"] = "control"
+            crit = ctl_crit
     return _verdict(blk, crit, why, "no criterion could be evaluated")
+
+
+# ----------------------------------------------------------------------------- control
+
+def encoder_quantum(scene, name: str) -> float | None:
+    """One encoder count as a link-side angle (rad) for a joint-angle channel
+    (``<link>_joint``, ``<link>_joint_measured``) whose joint the scene's encoder reads:
+    2π / (lines × quadrature × gear ratio on a motor shaft). None otherwise."""
+    if scene is None:
+        return None
+    base = name[:-len("_measured")] if name.endswith("_measured") else name
+    for k, lk in enumerate(scene.links):
+        if base != f"{lk.name}_joint":
+            continue
+        for sn in scene.sensors:
+            if sn.kind == "encoder" and sn.joint == k + 1:
+                drive = lk.joint.drive
+                ratio = drive.gear_ratio if sn.on_motor_shaft and drive is not None else 1.0
+                return 2.0 * math.pi / (sn.lines_per_rev * sn.quadrature * ratio)
+    return None
+
+
+def _target(run, ref, name):
+    """``({side: its own target channel or None}, {side: the record whose target it
+    uses})`` for channel ``name``: each record's own target channel
+    (:func:`~flexarm_ros.analysis.channels.target_names`), else the other's; None when
+    neither has one."""
+    cands = target_names(name)
+    own = {side: next((c for c in cands if c in cs), None)
+           for side, cs in (("run", run), ("reference", ref))}
+    if own["run"] is None and own["reference"] is None:
+        return None
+    src = {side: side if own[side] is not None else ("reference" if side == "run" else "run")
+           for side in own}
+    for side, cs in (("run", run), ("reference", ref)):
+        if own[side] is not None and not same_unit(cs[own[side]].unit, cs[name].unit):
+            raise CompareInputError(
+                f"{cs.path}: target channel {own[side]!r} is in {cs[own[side]].unit!r}, "
+                f"the channel {name!r} it commands in {cs[name].unit!r}; expected the same "
+                f"unit")
+    return own, src
+
+
+def _control_block(name, run, ref, off, span, threshold, quantum, final_band,
+                   overshoot_points):
+    """The ``control`` block of a channel with a target (None without one): each record's
+    :func:`~flexarm_ros.analysis.control.tracking_metrics` over the span (run on the
+    reference clock), their differences, the tolerances and the control criteria.
+    Returns ``(block, criteria, judged)``."""
+    found = _target(run, ref, name)
+    if found is None:
+        return None, {}, False
+    own, src = found
+    blk = {k: None for k in CONTROL_KEYS}
+    why: dict = {}
+    blk["target_channel"] = {side: own[src[side]] for side in ("run", "reference")}
+    blk["target_from"] = src
+    blk["quantum"] = _num(quantum)
+    if quantum is None:
+        why["quantum"] = ("no encoder of the scene measures this channel (its resolution is "
+                          "taken as 0)")
+    q = quantum or 0.0
+    recs = {"run": (run, off), "reference": (ref, 0.0)}
+    res, periods = {}, []
+    for side, (cs, shift) in recs.items():
+        side_blk = {k: None for k in CONTROL_SIDE_KEYS}
+        blk[side] = side_blk
+        tcs, tshift = recs[src[side]]
+        tch = tcs[own[src[side]]]
+        ch = cs[name]
+        if span is None:
+            res[side] = None
+            for k in CONTROL_SIDE_KEYS:
+                why[f"{side}.{k}"] = "no common time span"
+            continue
+        t, y = crop(ch.t - shift, ch.y, span[0], span[1])
+        if t.size >= 2:
+            periods.append(float(np.median(np.diff(t))))
+        try:
+            r = K.tracking_metrics(t, y, tch.t - tshift, tch.y, quantum=q)
+        except ValueError as exc:
+            res[side] = None
+            for k in CONTROL_SIDE_KEYS:
+                why[f"{side}.{k}"] = f"{side}: {exc}"
+            continue
+        res[side] = r
+        side_blk["command"] = r["command"].as_dict()
+        for k in K.METRIC_KEYS:
+            _put(side_blk, k, r["metrics"][k], why, r["why"].get(k))
+            if side_blk[k] is None:
+                why[f"{side}.{k}"] = why.pop(k)
+    ref_cmd = res["reference"]["command"] if res.get("reference") else None
+    judged = ref_cmd is not None and ref_cmd.kind in ("step", "ramp")
+    diff = {k: None for k in K.METRIC_KEYS}
+    tol = {k: None for k in K.METRIC_KEYS}
+    blk["difference"], blk["tolerance"] = diff, tol
+    crit = {}
+    if not judged:
+        reason = (ref_cmd.why if ref_cmd is not None else
+                  why.get("reference.final_error", "no reference metrics"))
+        for k in K.METRIC_KEYS:
+            why[f"tolerance.{k}"] = (f"not judged by the control criteria: {reason}")
+    dt = max(periods) if periods else 0.0
+    step = abs(ref_cmd.step) if judged and ref_cmd.step is not None else None
+    for k in K.METRIC_KEYS:
+        a = blk["run"][k] if res.get("run") else None
+        b = blk["reference"][k] if res.get("reference") else None
+        if k == "final_error" and res.get("run") and res.get("reference"):
+            d = abs(res["run"]["end_error"] - res["reference"]["end_error"])
+        elif a is not None and b is not None:
+            d = a - b
+        else:
+            d = None
+        if d is None:
+            other = why.get(f"run.{k}") if a is None else why.get(f"reference.{k}")
+            why[f"difference.{k}"] = (
+                f"in neither record: {why.get(f'reference.{k}')}" if a is None and b is None
+                else f"{'the run' if a is None else 'the reference'} has none: "
+                     f"{other or 'not computed'}")
+        diff[k] = _num(d)
+        if not judged:
+            continue
+        if k == "final_error":
+            t_k = max(final_band * step, q)
+        elif k == "overshoot":
+            t_k = max(overshoot_points, threshold * b) if b is not None else None
+        elif k in ("rise_time_s", "settling_time_s"):
+            t_k = max(threshold * b, dt) if b is not None else None
+        else:
+            t_k = max(threshold * b, q) if b is not None else None
+        tol[k] = _num(t_k)
+        if t_k is None:
+            why[f"tolerance.{k}"] = f"the reference has none: {why.get(f'reference.{k}')}"
+        crit_name = k[:-2] if k.endswith("_s") else k
+        if a is None and b is None:
+            continue                      # in neither record: not evaluated
+        crit[crit_name] = d is not None and t_k is not None and abs(d) <= t_k
+    blk["null_reasons"] = why
+    return blk, crit, judged
 
 
 def _verdict(blk: dict, crit: dict, why: dict, none_reason: str) -> dict:
@@ -457,6 +620,10 @@ def _tip_block(run, ref, off, scene, names, blocks, window, threshold):
         blk["frequency_error"] = blocks[n]["frequency_error"]
         if blk["frequency_error"] is None:
             why["frequency_error"] = blocks[n]["null_reasons"].get("frequency_error")
+        elif blocks[n]["judged_by"] == "control":
+            why["frequency_criterion"] = (f"{n} tracks a step or ramp command: judged by the "
+                                          f"control criteria; its dominant frequency is "
+                                          f"reported, not judged")
         else:
             crit["frequency_error"] = M.passes(blk["frequency_error"], threshold)
     else:
@@ -476,9 +643,12 @@ def _source(cs: ChannelSet) -> dict:
 # ----------------------------------------------------------------------------- API
 
 def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=M.GANNON_THRESHOLD,
-            channels=None, max_shift_s=DEFAULT_MAX_SHIFT_S, window=None) -> Comparison:
+            channels=None, max_shift_s=DEFAULT_MAX_SHIFT_S, window=None,
+            final_band=FINAL_BAND, overshoot_points=OVERSHOOT_POINTS) -> Comparison:
     """Compare two loaded inputs (module docstring). ``offset``: 'auto', 'none' or
-    seconds; ``window``: (start, end) in s of the reference clock, or None."""
+    seconds; ``window``: (start, end) in s of the reference clock, or None;
+    ``final_band``, ``overshoot_points``: the control tolerances that are not
+    ``threshold`` (fractions of the step)."""
     offset = parse_offset(offset)
     try:
         threshold = float(threshold)
@@ -491,6 +661,11 @@ def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=
             and max_shift_s > 0):
         raise CompareInputError(f"--max-shift: got {max_shift_s!r}, expected a positive "
                                 f"number of seconds")
+    for key, v in (("final_band", final_band), ("overshoot_points", overshoot_points)):
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and 0.0 <= v < 1.0):
+            raise CompareInputError(f"{key}: got {v!r}, expected a fraction in [0, 1), "
+                                    f"e.g. 0.02")
     scene = run.scene if run.scene is not None else reference.scene
     run = dataclasses.replace(run, channels=dict(run.channels))     # inputs stay as given
     reference = dataclasses.replace(reference, channels=dict(reference.channels))
@@ -499,8 +674,14 @@ def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=
     names = _select(run, reference, channels)
     warn = list(run.warnings) + list(reference.warnings)
     off, off_info = _offset(run, reference, names, offset, float(max_shift_s), warn)
+    def control(n):
+        def block(span):
+            return _control_block(n, run, reference, off, span, threshold,
+                                  encoder_quantum(scene, n), final_band, overshoot_points)
+        return block
+
     blocks = {n: _channel_block(n, run[n], reference[n], off, window, threshold,
-                                run[n].vibration or reference[n].vibration)
+                                run[n].vibration or reference[n].vibration, control(n))
               for n in names}
     contact = _contact_block(run, reference, off, scene)
     tip = _tip_block(run, reference, off, scene, names, blocks, window, threshold)
@@ -525,6 +706,22 @@ def compare(run: ChannelSet, reference: ChannelSet, *, offset="auto", threshold=
             "search_from_bins": FREQ_MIN_BINS,
             "resolution": "fs / N of the analysed span (about 1 / span)",
             "bound": "0.1 fs / N (one bin within 3 bins of DC or 2 of Nyquist)"},
+        "control_method": {
+            "applies_to": "channels with a target (<name>_target, tip_target_x/_y, "
+                          "controller/joint_targets) whose reference command is a step or "
+                          "a ramp: judged_by 'control'",
+            "target_hold": "zero-order (the last target sample at or before each instant)",
+            "rise": [K.RISE_FROM, K.RISE_TO],
+            "settling_band": K.SETTLING_BAND,
+            "final_band": final_band,
+            "overshoot_points": overshoot_points,
+            "relative": threshold,
+            "tolerances": (f"|final end error run - reference| <= max({final_band:g} x "
+                           f"|reference step|, 1 encoder count); |overshoot difference| <= "
+                           f"max({overshoot_points:g}, {threshold:g} x reference overshoot); "
+                           f"|rise / settling time difference| <= max({threshold:g} x "
+                           f"reference, one sample period); |RMS tracking error difference| "
+                           f"<= max({threshold:g} x reference, 1 encoder count)")},
         "channels": blocks,
         "contact": contact,
         "tip": tip,

@@ -39,10 +39,30 @@ def summary(cmp: Comparison) -> str:
             run_ev, ref_ev = b["events"]["run"] or {}, b["events"]["reference"] or {}
             res += (f"  (flag: rises {run_ev.get('rises', '-')} / "
                     f"{ref_ev.get('rises', '-')})")
+        if b["judged_by"] == "control":
+            res += " (control criteria, below)"
         lines.append(f"  {n:22s} {hz(b['frequency_run_hz']):>9s} "
                      f"{hz(b['frequency_reference_hz']):>9s} {pct(b['frequency_error']):>8s} "
                      f"{pct(b['amplitude_error']):>8s} {pct(b['relative_rms_error']):>8s}  "
                      f"{res}")
+    tracking = [n for n in cmp.names if r["channels"][n]["control"] is not None]
+    if tracking:
+        lines.append(f"  {'tracking (run / ref)':22s} {'final err':>19s} {'overshoot':>15s} "
+                     f"{'rise [s]':>17s} {'settling [s]':>17s} {'RMS track err':>19s}")
+
+        def pair(c, k, fmt):
+            return "/".join("-" if c[s][k] is None else fmt(c[s][k])
+                            for s in ("run", "reference"))
+        for n in tracking:
+            c = r["channels"][n]["control"]
+            kind = (c["reference"]["command"] or {}).get("kind") if c["reference"] else None
+            lines.append(
+                f"  {n + ' (' + str(kind) + ')':22s} "
+                f"{pair(c, 'final_error', lambda v: f'{v:.3g}'):>19s} "
+                f"{pair(c, 'overshoot', lambda v: f'{100 * v:.2f}%'):>15s} "
+                f"{pair(c, 'rise_time_s', lambda v: f'{v:.4g}'):>17s} "
+                f"{pair(c, 'settling_time_s', lambda v: f'{v:.4g}'):>17s} "
+                f"{pair(c, 'rms_tracking_error', lambda v: f'{v:.3g}'):>19s}")
     c = r["contact"]
     if c["impact_source"] is not None:
         lines.append(f"  impact ({c['impact_source']}): run {hz(c['impact_time_run_s'])} s, "

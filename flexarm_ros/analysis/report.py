@@ -5,7 +5,8 @@ Figures (matplotlib's Agg canvas, no display, no pyplot state):
 * ``overlay_<channel>.png`` — reference and run (on the reference clock, ``t - offset``)
   against time, and below them the difference run - reference at the reference instants;
   the reference a broad light line under the run's thin red one, a 0/1 flag drawn as
-  steps, the time outside the analysed span shaded light grey;
+  steps, the time outside the analysed span shaded light grey; a channel that tracks a
+  command also shows its target(s), dashed, held between samples;
 * ``spectrum_<channel>.png`` — the amplitude spectra of both records over the analysed
   span on one axis (Hann window, linear detrend, 4x zero padding: what the peak estimator
   searches; seed 000 Fig. 5.8 compares the FFTs of measured and simulated accelerations
@@ -101,9 +102,33 @@ def _overlay(cmp: Comparison, name: str, out: Path) -> Path | None:
     ax, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax.plot(ref.t, ref.y, **ref_style, **step)
     ax.plot(run.t - off, run.y, **run_style, **step)
+    ctl = blk["control"]
+    if ctl is not None:                  # the command(s), held between their samples
+        drawn = set()
+        for side, style in (("reference", REF_STYLE), ("run", RUN_STYLE)):
+            src = ctl["target_from"][side]
+            if src in drawn:
+                continue
+            drawn.add(src)
+            cs, shift = (cmp.reference, 0.0) if src == "reference" else (cmp.run, off)
+            tch = cs[ctl["target_channel"][side]]
+            ax.plot(tch.t - shift, tch.y, drawstyle="steps-post", ls="--", lw=1.0,
+                        color=style["color"], zorder=4,
+                        label=f"target ({Path(cs.path).name})")
     ax.set_ylabel(f"{name} [{unit}]")
-    ax.set_title(f"{name}: amplitude error {_pct(blk['amplitude_error'])}, relative RMS "
-                 f"error {_pct(blk['relative_rms_error'])}", fontsize=10)
+    if blk["judged_by"] == "control":
+        c = blk["control"]
+
+        def two(k, f):
+            return " / ".join("—" if c[s][k] is None else f(c[s][k])
+                              for s in ("run", "reference"))
+        ax.set_title(f"{name} (run / reference): overshoot "
+                     f"{two('overshoot', lambda v: f'{100 * v:.3g} %')}, rise "
+                     f"{two('rise_time_s', lambda v: f'{v:.4g}')} s, settling "
+                     f"{two('settling_time_s', lambda v: f'{v:.4g}')} s", fontsize=10)
+    else:
+        ax.set_title(f"{name}: amplitude error {_pct(blk['amplitude_error'])}, relative "
+                     f"RMS error {_pct(blk['relative_rms_error'])}", fontsize=10)
     ax.legend(loc="best", fontsize=8)
     ax.grid(alpha=0.3)
     if blk["span_s"] is not None:
@@ -267,6 +292,65 @@ def _contact(cmp: Comparison, out: Path) -> Path | None:
 
 # ----------------------------------------------------------------------------- markdown
 
+def _control_section(cmp: Comparison) -> list[str]:
+    """The control table: per channel with a target, the command and each metric for the
+    run and the reference, their difference, the tolerance and the verdict."""
+    r = cmp.result
+    tracking = [n for n in cmp.names if r["channels"][n]["control"] is not None]
+    if not tracking:
+        return []
+    m = r["control_method"]
+    targets = sorted({r["channels"][n]["control"]["target_channel"]["reference"]
+                      for n in tracking})
+    lines = ["", "## Control (channels that track a command)", "",
+             f"A channel whose reference command (its target: "
+             f"{', '.join(f'`{t}`' for t in targets)}) is a step or a ramp is judged by "
+             f"these criteria instead of the frequency and amplitude ones: {m['tolerances']}. Rise time {100 * m['rise'][0]:g}–"
+             f"{100 * m['rise'][1]:g} % of the step, settling time into ±"
+             f"{100 * m['settling_band']:g} % of the step around the final target, overshoot "
+             f"beyond the final target in the direction of travel (% of the step), times from "
+             f"the command's onset; the target is held between its samples. The final-error "
+             f"difference is the distance between the two signed end errors.", "",
+             "| channel | command (reference) | metric | run | reference | difference | "
+             "tolerance | result |", "|---|---|---|---|---|---|---|---|"]
+    names = {"final_error": ("final error", "unit"), "overshoot": ("overshoot", "pct"),
+             "rise_time_s": ("rise time", "s"), "settling_time_s": ("settling time", "s"),
+             "rms_tracking_error": ("RMS tracking error", "unit")}
+    notes = []
+    for n in tracking:
+        b = r["channels"][n]
+        c = b["control"]
+        cmd = (c["reference"] or {}).get("command") or {}
+        kind = cmd.get("kind") or "—"
+        desc = kind if kind == "none" else (
+            f"{kind} {_g(cmd.get('initial'), digits=4)} → {_g(cmd.get('final_target'), digits=4)}"
+            f" {b['unit']} at {_g(cmd.get('onset_s'), 's', 4)}")
+        first = True
+        for k, (label, how) in names.items():
+            def fmt(v, how=how):
+                if v is None:
+                    return "—"
+                if how == "pct":
+                    return f"{100 * v:.3g} %"
+                return _g(v, b["unit"] if how == "unit" else "s", 4)
+            if all(v is None for v in (c["run"][k], c["reference"][k], c["difference"][k])):
+                continue                  # no step: only the final and RMS errors
+            crit = k[:-2] if k.endswith("_s") else k
+            verdict = _ok(b["criteria"].get(crit)) if b["judged_by"] == "control" else \
+                "reported"
+            lines.append(f"| {n if first else ''} | {desc if first else ''} | {label} | "
+                         f"{fmt(c['run'][k])} | {fmt(c['reference'][k])} | "
+                         f"{fmt(c['difference'][k])} | {fmt(c['tolerance'][k])} | {verdict} |")
+            first = False
+        if b["judged_by"] != "control":
+            why = (c["null_reasons"].get("reference.overshoot")
+                   or c["null_reasons"].get("tolerance.final_error") or "")
+            notes.append(f"- {n}: no step metrics, judged by the oscillation criteria: {why}")
+    if notes:
+        lines += [""] + notes
+    return lines
+
+
 def _markdown(cmp: Comparison, figs: dict) -> str:
     r = cmp.result
     thr = r["threshold"]
@@ -277,6 +361,9 @@ def _markdown(cmp: Comparison, figs: dict) -> str:
         "",
         f"**Result: {'PASS' if r['pass'] else 'FAIL'}** — criterion |relative error| ≤ "
         f"{100 * thr:g} % (Gannon 1986, Ch. IV, after Petroka)"
+        + ("; the channels that track a step or ramp command by the control criteria "
+           "(section Control)" if any(r["channels"][n]["judged_by"] == "control"
+                                      for n in cmp.names) else "")
         + (f"; failed: {', '.join(r['failed'])}" if r["failed"] else "") + ".",
         "",
         "| | run (twin) | reference |",
@@ -355,6 +442,7 @@ def _markdown(cmp: Comparison, figs: dict) -> str:
     ]
     if notes:
         lines += ["", "Figures not computed (null in the JSON):", ""] + notes
+    lines += _control_section(cmp)
     c = r["contact"]
     lines += ["", "## Contact (seed 000: impact time and bounce)", ""]
     if c["impact_source"] is None:

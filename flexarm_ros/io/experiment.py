@@ -226,7 +226,7 @@ def write_experiment_csv(path, columns: dict, comments=(), fmt: str = "%.17g",
         fh.write(",".join([TIME_HEADER] + [f"{n} [{c[0]}]" for n, c in columns.items()])
                  + "\n")
         for ti, row in zip(times, cells):
-            fh.write(",".join([time_fmt % ti] + row) + "\n")
+            fh.write(",".join([time_fmt % float(ti)] + row) + "\n")
     tmp.replace(path)
     return path
 

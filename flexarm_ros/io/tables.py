@@ -92,3 +92,11 @@ def read_table(path) -> dict:
         except ValueError:            # a text column (e.g. contact_phase)
             out[k] = np.array(col)
     return out
+
+
+def sensor_table_path(out, rate_hz) -> Path:
+    """``run.csv`` → ``run.sensors_4000hz.csv``: the table of the sensors sampled at
+    ``rate_hz`` beside a main table (``flexarm simulate --out``, ``flexarm bag export``),
+    which :func:`flexarm_ros.analysis.channels.sensor_tables_beside` reads with it."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.sensors_{rate_hz:g}hz{out.suffix}")

@@ -339,8 +339,9 @@ def test_the_plant_refuses_an_unstable_step_as_simulate_does(wall_x):
     """fidelity.dt above the RK4 stability limit is refused by the plant (the ROS
     simulator's core) with batch simulation's message; with a wall the limit is the one of
     the arm with its tool held on it, which lies below the free arm's here. Below the limit
-    the plant takes the step batch simulation takes, shortened to divide its output period
-    where batch simulation keeps a longer one (no wall: dense output between steps)."""
+    the plant takes the step batch simulation takes: without a wall the same step, its
+    control periods in equal steps no longer than it (dense output between steps, as
+    batch); with a wall shortened to divide the output period."""
     probe = _arm(rung="rigid", torques=(1.0, 0.3), wall_x=wall_x, duration=0.01)
     ch = Chain(probe)
     free_limit = RK4_STABILITY / highest_rate(ch, *initial_state(ch))
@@ -362,10 +363,16 @@ def test_the_plant_refuses_an_unstable_step_as_simulate_does(wall_x):
     stable = probe.with_fidelity(dt=0.9 * limit)
     out = stable.fidelity.output_dt
     batch_h = simulate(stable).run.dt
-    # batch runs step past the output period (dense samples), with a wall too; the plant's
-    # step divides the output period
+    # batch runs step past the output period (dense samples), with a wall too; the plant
+    # too without a wall (each control period in equal steps up to it), with one its step
+    # divides the output period
     assert batch_h == 0.9 * limit > out
-    assert Plant(stable).h == pytest.approx(out / math.ceil(out / (0.9 * limit)), rel=1e-12)
+    plant = Plant(stable)
+    if wall_x is None:
+        assert plant.dense and plant.h == batch_h
+        assert plant.steps_per_period(4) == math.ceil(4 * plant.grid_ns * 1e-9 / batch_h)
+    else:
+        assert plant.h == pytest.approx(out / math.ceil(out / (0.9 * limit)), rel=1e-12)
 
 
 def _reference_only(monkeypatch):

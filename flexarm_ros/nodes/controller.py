@@ -3,7 +3,8 @@
 Subscribes (node-relative): ``joint_states`` (quantized encoder angles), and in scenes
 with a wall ``tool/contact`` and ``tool/wrench``. Publishes: ``motor_driver/commands``
 (std_msgs/Float64MultiArray, V per joint; A for a valve; N·m for a joint without drive),
-one per joint state it answers. The control law comes from the scene's ``control:``
+one per joint state it answers, and with position or sanding control
+``controller/joint_targets`` after each command (for the log: the targets it tracks). The control law comes from the scene's ``control:``
 section (open_loop programs, position PD with inverse kinematics, sanding).
 
 Its inputs are taken from the ``simulator`` only (a second publisher of any of them is
@@ -45,8 +46,12 @@ class ControllerNode(Node):
         self.sim_time = C.SimTime(scene)
         self.pub = C.publisher(self, T.TYPES[T.COMMANDS], T.COMMANDS)
         self._cdr = CdrBuilder()                # wire bytes from a template
-        self.ready = C.Barrier(self, [(self.pub, 1 + self.p["recorders"], "the motor driver")],
-                               self.p["recorders"])
+        needs = [(self.pub, 1 + self.p["recorders"], "the motor driver")]
+        self.pub_targets = None                 # the targets: for the log (position, sanding)
+        if self.core.has_targets:
+            self.pub_targets = C.publisher(self, T.TYPES[T.JOINT_TARGETS], T.JOINT_TARGETS)
+            needs.append((self.pub_targets, self.p["recorders"], "the recorder"))
+        self.ready = C.Barrier(self, needs, self.p["recorders"])
         self.queues = {T.JOINT_STATES: deque()}
         if scene.walls:
             self.queues[T.TOOL_CONTACT] = deque()
@@ -60,6 +65,8 @@ class ControllerNode(Node):
                                  plain=True)
             self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
         self.published = {T.COMMANDS: 0}
+        if self.pub_targets is not None:
+            self.published[T.JOINT_TARGETS] = 0
         self._started = False                   # the start barrier passed
         self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
 
@@ -99,6 +106,9 @@ class ControllerNode(Node):
                                    contact, fn)
             self.pub.publish(self._cdr.float64_multiarray(cmd, ("joint",)))
             self.published[T.COMMANDS] += 1
+            if self.pub_targets is not None:
+                self.pub_targets.publish(self.core.targets(t_ns, self._cdr))
+                self.published[T.JOINT_TARGETS] += 1
 
     def finish(self, executor=None):
         """The final log line: commands published, inputs refused."""

@@ -125,7 +125,16 @@ class Plant:
         self.t = 0.0
         self.k = 0                                   # grid index of self.t
         self.sensors = build_sensors(ch, scene)
+        for k, sn in enumerate(scene.sensors):
+            if not 1e9 / sn.rate_hz >= 1000:
+                raise SceneError(f"sensors[{k}].rate_hz: got {sn.rate_hz:g} Hz, expected at "
+                                 f"most 1e+06 Hz (a sample period of at least 1 µs)")
         self.grid_ns = plant_grid_ns(scene)
+        if self.grid_ns < 1000:     # as flexarm simulate refuses it
+            raise SceneError(
+                f"sensors: the sample periods and fidelity.output_dt share no common grid "
+                f"coarser than 1 µs (got {self.grid_ns} ns), expected rates whose periods "
+                f"are multiples of a common step (e.g. 4000, 1000 and 250 Hz)")
         self._every = [int(round(1e9 / s.spec.rate_hz)) for s in self.sensors]
         # which sensors are due at a grid instant depends only on t mod the periods' lcm
         self._cycle = math.lcm(*self._every) if self._every else 1

@@ -485,6 +485,19 @@ class ControllerCore:
                                     reverse_time=sd.reverse_time,
                                     lift_distance=sd.lift_distance, lift_time=sd.lift_time)
         self.phase = "position"
+        self.torque_demand = np.zeros(self.n)
+
+    @property
+    def has_targets(self) -> bool:
+        """The controller tracks joint targets (position, sanding), published as
+        ``controller/joint_targets``."""
+        return self.mode != "open_loop"
+
+    def targets(self, t_ns: int, build=msg):
+        """``controller/joint_targets``: the commanded joint angles (rad), the commanded
+        rate (0) and the PD torque demanded at the last update (N·m, Eq. 5.16)."""
+        return build.joint_state(t_ns, [f"{lk.name}_joint" for lk in self.scene.links],
+                                 self.q_cmd, np.zeros(self.n), self.torque_demand)
 
     def _ik(self, target, q_guess):
         res = self.arm.inverse(target, q_guess)
@@ -506,4 +519,5 @@ class ControllerCore:
             target, self.phase = self.task.update(t, dt, self.arm.forward(q), in_contact,
                                                   normal_force)
             self.q_cmd = self._ik(target, self.q_cmd)
-        return self.pd.voltage(q, qd, self.q_cmd)
+        self.torque_demand = self.pd.torque(q, qd, self.q_cmd)
+        return self.pd.motor.voltage(self.torque_demand, qd)

@@ -60,6 +60,8 @@ class Lockstep:
         out = [Message(T.COMMANDS, T.TYPES[T.COMMANDS], t_ns,
                        msg.float64_multiarray(cmd, ("joint",)))]
         self.drv.accept(t, out[0].data["data"])
+        targets = ([Message(T.JOINT_TARGETS, T.TYPES[T.JOINT_TARGETS], t_ns,
+                            self.ctl.targets(t_ns))] if self.ctl.has_targets else [])
         gt = by[T.GT_JOINT_STATES]
         n = len(self.scene.links)
         drive_angles = np.array(gt["position"][n:2 * n])
@@ -69,7 +71,7 @@ class Lockstep:
                            msg.float64_multiarray(tau, ("joint",))))
         out.append(Message(T.MOTOR_STATES, T.TYPES[T.MOTOR_STATES], t_ns,
                            self.drv.motor_states(t_ns, drive_angles, drive_rates)))
-        return out
+        return out + targets
 
     def tick(self) -> list:
         state = self.state_messages()

@@ -15,6 +15,7 @@ against the twin unchanged). Standard message types only.
 | ``ground_truth/tip`` | geometry_msgs/PointStamped | sim → analysis | tip position (m, ``world``) |
 | ``ground_truth/coordinates`` | sensor_msgs/JointState | sim → analysis, views | every generalized coordinate of the model by name (``Chain.names``: joint/motor angles, beam coordinates ``<link>_w1``, …; SI) and its rate, effort = the input torque acting on it (N·m, 0 where none acts) — with the scene embedded in the bag, enough to redraw the deformed arm (``Chain.centerlines``) |
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
+| ``controller/joint_targets`` | sensor_msgs/JointState | ctrl → log | position and sanding control: the commanded joint angles ``<link>_joint`` (rad), the commanded rate (0 rad/s) and the PD torque demanded (N·m, Eq. 5.16), one per command (none in open loop) |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
 | ``diagnostics/rejected`` | std_msgs/String | recorder → bag only | one JSON object per message a node refused or rejected (``topic``, ``reason``, ``publisher``, ``data`` as text); written into the bag by the recorder, never published |
@@ -40,6 +41,7 @@ GT_COORDINATES = "ground_truth/coordinates"
 COMMANDS = "motor_driver/commands"
 EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
+JOINT_TARGETS = "controller/joint_targets"
 REJECTED = "diagnostics/rejected"
 
 #: Sensor batch topic -> the scene sensor kind whose channels it carries (scene order).
@@ -61,11 +63,12 @@ TYPES = {
     COMMANDS: "std_msgs/msg/Float64MultiArray",
     EFFORTS: "std_msgs/msg/Float64MultiArray",
     MOTOR_STATES: "sensor_msgs/msg/JointState",
+    JOINT_TARGETS: "sensor_msgs/msg/JointState",
 }
 
 #: Topic -> the twin's node that publishes it (the "from" column above).
 SOURCE = {topic: "simulator" for topic in TYPES}
-SOURCE.update({COMMANDS: "controller", EFFORTS: "motor_driver",
+SOURCE.update({COMMANDS: "controller", JOINT_TARGETS: "controller", EFFORTS: "motor_driver",
                MOTOR_STATES: "motor_driver"})
 
 

@@ -28,9 +28,9 @@ def add_parsers(sub) -> None:
     c.add_argument("--param", action="append", metavar="KEY=LO:HI[@START]",
                    help="a scene key path to fit, its bounds and optionally its start "
                         "(default: the scene's value); repeatable")
-    set_option(c, SET_HELP.replace("; repeatable", "; not a --param key (that one is "
-                                                    "fitted); spec form: a case's set: "
-                                                    "instead; repeatable"))
+    set_option(c, SET_HELP.split("; checked")[0] + "; checked by the scene's schema, "
+                  "applied before the fit; not a --param key (that one is fitted); the spec "
+                  "form: a case's set: instead; repeatable")
     c.add_argument("--spec", type=Path, metavar="SPEC.yaml",
                    help="the spec form: several (scene, record) cases sharing parameters, "
                         "feature targets with uncertainties (docs/calibration.md)")

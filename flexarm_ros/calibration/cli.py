@@ -240,6 +240,9 @@ def cmd_calibrate(args) -> int:
     finally:
         ex.close()
         line.clear()
+    if not spec:                                # the spec's cases carry their own set:
+        from flexarm_ros.scene.overrides import parse_sets
+        out["set"] = parse_sets(args.set)
     written = []
     if args.out is not None:
         from flexarm_ros.calibration.output import write_scenes
@@ -248,9 +251,6 @@ def cmd_calibrate(args) -> int:
         from flexarm_ros.calibration.report import write_report
         written.append(write_report(problem, out, args.report))
     out["written"] = [str(p) for p in written]
-    if not spec:
-        from flexarm_ros.scene.overrides import parse_sets
-        out["set"] = parse_sets(args.set)
     if args.json:
         print(json.dumps(_clean(public(out)), indent=1, default=_json_default))
     else:

@@ -8,8 +8,10 @@ sweep, uncertainty, sensitivity (the ensembles: :mod:`flexarm_ros.ensemble.cli`)
 Every command that builds a model (simulate, modes, linearize, explain, run) takes the
 fidelity overrides ``--rung``, ``--refine``, ``--integrator``, ``--rtol``, ``--atol``,
 ``--dt``, ``--no-foreshortening`` and ``--max-steps`` (the work budget,
-:mod:`flexarm_ros.sim.budget`); ``study`` varies rung, refinement and integrator itself and
-takes only ``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped scene
+:mod:`flexarm_ros.sim.budget`), and ``--set KEY=VALUE`` (any scene key path,
+:mod:`flexarm_ros.scene.overrides`; applied before the fidelity flags, which win);
+``study`` varies rung, refinement and integrator itself and takes only
+``--no-foreshortening``. ``SCENE`` is a YAML path or the name of a shipped scene
 (``flexarm simulate link_tipmass``); without it every command uses
 :data:`flexarm_ros.scene.DEFAULT_SCENE` (``two_link_case1``). ``--quiet`` hides progress
 (``t = simulated / total s`` on stderr, at most once a second), never the final summary
@@ -32,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flexarm_ros.io.arguments import integer, number
+from flexarm_ros.io.arguments import integer, number, set_option
 from flexarm_ros.nodes import environment
 from flexarm_ros.scene import DEFAULT_SCENE
 
@@ -77,7 +79,10 @@ def _open_loop_arg(p):
 
 
 def _fidelity_args(p):
+    """The fidelity overrides, and ``--set KEY=VALUE`` (every command that takes them
+    builds a model from the scene)."""
     from flexarm_ros.scene import INTEGRATORS, RUNG_CHOICES
+    set_option(p.add_argument_group("scene overrides"))
     g = p.add_argument_group("fidelity overrides (default: the scene's)")
     g.add_argument("--rung", choices=RUNG_CHOICES,
                    help="beam discretization rung; auto: the cheapest rung, refinement and "
@@ -113,9 +118,25 @@ def _overrides(args) -> dict:
     return over
 
 
+def _sets(args) -> dict:
+    """The ``--set KEY=VALUE`` options → ``{key: value}`` (SceneError: one line)."""
+    from flexarm_ros.scene.overrides import parse_sets
+    return parse_sets(getattr(args, "set", None))
+
+
 def _load(args):
+    """The scene with the ``--set`` values, then the fidelity flags (an explicit flag
+    wins over a ``--set fidelity.…``)."""
     from flexarm_ros.scene import load_scene
-    return load_scene(args.scene or DEFAULT_SCENE).with_fidelity(**_overrides(args))
+    from flexarm_ros.scene.overrides import apply_sets
+    return apply_sets(load_scene(args.scene or DEFAULT_SCENE), _sets(args)).with_fidelity(
+        **_overrides(args))
+
+
+def _set_line(sets: dict) -> str | None:
+    """The text summaries' ``  set: KEY=VALUE, ...`` line (None: nothing set)."""
+    from flexarm_ros.scene.overrides import format_sets
+    return f"  set: {format_sets(sets)}" if sets else None
 
 
 class _Progress:
@@ -164,6 +185,7 @@ def cmd_simulate(args):
     finally:
         progress.clear()
     summ = res.summary()
+    summ["set"] = _sets(args)
     if args.out:
         write_table(args.out, res.columns, table_units(res.columns, scene))
         summ["out"] = str(args.out)
@@ -180,6 +202,8 @@ def cmd_simulate(args):
               f"rung {summ['rung']}, {summ['integrator']}, {summ['steps']} steps, "
               f"{summ['rhs_evaluations']} RHS evaluations)"
               + (f" → {args.out}" if args.out else ""))
+        if summ["set"]:
+            print(_set_line(summ["set"]))
         if summ.get("loop") == "closed":
             print(f"  closed loop: control.mode {summ['control_mode']} at "
                   f"{summ['control_rate_hz']:.6g} Hz, efforts held over each period, "
@@ -232,11 +256,14 @@ def cmd_modes(args):
     out = {"scene": scene.name, "rung": chain.fidelity.rung, "joints": joints,
            "coordinates": list(m.coordinates),
            "frequencies_hz": [float(f) for f in m.frequencies_hz[:n]],
-           "mode_shapes": [[float(v) for v in m.shapes[:, k]] for k in range(n)]}
+           "mode_shapes": [[float(v) for v in m.shapes[:, k]] for k in range(n)],
+           "set": _sets(args)}
     if args.json:
         print(json.dumps(out, indent=2))
     else:
         print(f"{scene.name}: rung {out['rung']}, joints {joints}")
+        if out["set"]:
+            print(_set_line(out["set"]))
         for k, f in enumerate(out["frequencies_hz"], 1):
             print(f"  mode {k:2d}: {f:12.5f} Hz")
     return 0
@@ -275,7 +302,7 @@ def cmd_linearize(args):
                  output_units=np.array(ss.output_units))
     if args.json:
         print(json.dumps({**ss.as_dict(), "controllable": pbh.controllable,
-                          "controllability": pbh.as_dict()}, indent=1))
+                          "controllability": pbh.as_dict(), "set": _sets(args)}, indent=1))
     else:
         eig = np.linalg.eigvals(ss.A)
         osc = np.sort(np.abs(eig[eig.imag > 0].imag)) / (2 * np.pi)
@@ -284,6 +311,8 @@ def cmd_linearize(args):
             return ", ".join(f"{n} [{u}]" for n, u in zip(names, units)) or "none"
         print(f"{scene.name}: {len(ss.states)} states, {len(ss.inputs)} inputs, "
               f"{len(ss.outputs)} outputs" + (f" → {args.out}" if args.out else ""))
+        if _sets(args):
+            print(_set_line(_sets(args)))
         print("  states: " + named(ss.states, ss.state_units))
         print("  inputs: " + named(ss.inputs, ss.input_units))
         print("  outputs: " + named(ss.outputs, ss.output_units))
@@ -307,6 +336,8 @@ def cmd_explain(args):
         chain = Chain(scene)
         check_tolerance_applies(chain, build_contact(chain) if scene.walls else None)
     print(explain(scene, chain))
+    if _sets(args):
+        print(_set_line(_sets(args)).strip())
     return 0
 
 
@@ -366,7 +397,9 @@ def _check_pacing_flags(args) -> None:
     from flexarm_ros.errors import SceneError
     from flexarm_ros.scene import load_scene
     from flexarm_ros.twin.pacing import THREAD_PRIORITY, check_settings
-    period = 1.0 / load_scene(args.scene or DEFAULT_SCENE).twin_control.rate_hz
+    from flexarm_ros.scene.overrides import apply_sets
+    period = 1.0 / apply_sets(load_scene(args.scene or DEFAULT_SCENE),
+                              _sets(args)).twin_control.rate_hz
     try:
         check_settings(period, args.late_policy or "slow",
                        0.1 if args.late_bound is None else args.late_bound,
@@ -386,6 +419,7 @@ def cmd_run(args):
     from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.run import run
     check_duration(args.duration, allow_inf=True)
+    sets = _sets(args)
     if args.tolerance is not None:
         from flexarm_ros.errors import SceneError
         raise SceneError(f"--tolerance: got {args.tolerance:g} m, expected it with flexarm "
@@ -420,6 +454,7 @@ def cmd_run(args):
               nodes=tuple(n for n in nodes if n != "recorder"),
               namespace=namespace, progress=not args.quiet,
               fidelity={k: v for k, v in _overrides(args).items() if k != "tolerance"},
+              sets=sets,
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
                          "ground_truth_rate_hz": args.ground_truth_rate,
                          "thread_priority": args.thread_priority,

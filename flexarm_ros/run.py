@@ -9,7 +9,12 @@ command, read counters).
 The scene is a YAML path or shipped name (default :data:`flexarm_ros.scene.DEFAULT_SCENE`);
 ``fidelity`` overrides (``Scene.with_fidelity`` keywords: rung, refine, integrator, rtol,
 atol, dt, foreshortening) reach every node as the parameters of
-:mod:`flexarm_ros.nodes.parameters`.
+:mod:`flexarm_ros.nodes.parameters`; ``sets`` (``flexarm run --set KEY=VALUE``: scene key
+paths and values, :mod:`flexarm_ros.scene.overrides`) reach every node as its string
+parameter ``set`` (JSON), which the node applies to the scene it loads before the fidelity
+parameters — in every layout, whether the node runs in this process or in a child, it
+builds the same modified scene, and nothing is left on disk (the recorder embeds the
+modified scene in the bag and the sets in its ``flexarm_ros`` metadata).
 
 Environment: :func:`flexarm_ros.nodes.environment.private_graph` (loopback-only discovery
 and a private ``ROS_DOMAIN_ID``, each unless set) before rclpy initializes, inherited by
@@ -84,6 +89,7 @@ class RunResult:
     step_s: float | None = None               # ... and its step
     cpu: dict | None = None                   # twin/cpu_load.cpu_budget over the ticking
     kept_previous: bool = False               # no tick: the bag already at `record` kept
+    sets: dict = field(default_factory=dict)  # --set: {key path: value} every node applied
 
     @property
     def ticking_s(self) -> float | None:
@@ -95,7 +101,8 @@ class RunResult:
     def to_json(self) -> dict:
         """The summary as JSON-ready numbers (``flexarm run --json``)."""
         p = self.pacing or {}
-        return {"scene": self.scene, "mode": self.mode, "processes": self.processes,
+        return {"scene": self.scene, "set": dict(self.sets), "mode": self.mode,
+                "processes": self.processes,
                 "layout": self.layout or ("processes" if self.processes else "one"),
                 "nodes": list(self.nodes), "record": str(self.record) if self.record else None,
                 "wall_time_s": self.wall_s, "ticking_wall_time_s": self.ticking_s,
@@ -183,7 +190,11 @@ class RunResult:
                   f"empty one discarded)")
         elif self.record:
             s += f" → {self.record}"
-        return s + (f" ({self.recovered})" if self.recovered else "")
+        s += f" ({self.recovered})" if self.recovered else ""
+        if self.sets:
+            from flexarm_ros.scene.overrides import format_sets
+            s += f"\n  set: {format_sets(self.sets)}"
+        return s
 
 
 def _bag_rejections(path) -> dict | None:
@@ -256,13 +267,16 @@ def _node_rejections(nodes) -> dict:
 
 
 def _params(scene, mode, duration, record, node, progress, fidelity=None,
-            simulator=None) -> dict:
-    """ROS parameters of ``node``: the common ones, the fidelity overrides, the recorder's
-    output, the simulator's progress and ``simulator`` parameters (``late_policy``,
-    ``late_bound``, ``ground_truth_rate_hz``; None values: the node's defaults), sim time
-    for the others in fast mode."""
+            simulator=None, sets=None) -> dict:
+    """ROS parameters of ``node``: the common ones, the ``--set`` values (``set``, JSON),
+    the fidelity overrides, the recorder's output, the simulator's progress and
+    ``simulator`` parameters (``late_policy``, ``late_bound``, ``ground_truth_rate_hz``;
+    None values: the node's defaults), sim time for the others in fast mode."""
+    from flexarm_ros.scene.overrides import encode_sets
     p = {"scene": _scene_arg(scene), "mode": mode, "duration": float(duration or 0.0),
          "recorders": 1 if record else 0, **fidelity_parameters(fidelity)}
+    if sets:
+        p["set"] = encode_sets(sets)
     if node == "recorder":
         p["output"] = str(record)
     if node == "simulator":
@@ -295,7 +309,7 @@ class InProcessGraph:
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
                  executor="drain", fidelity=None, simulator=None, intraprocess=True,
-                 writer_process=True, remote=()):
+                 writer_process=True, remote=(), sets=None):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -321,7 +335,7 @@ class InProcessGraph:
                 if name not in names:
                     continue
                 p = _params(scene, mode, duration, record, name, progress, fidelity,
-                            simulator)
+                            simulator, sets)
                 if name == "recorder":
                     # the bag's stamping and writing on the other core (bag/writer_process.py)
                     p["writer_process"] = bool(writer_process)
@@ -443,6 +457,18 @@ def _preexec(die, cpus):
     return setup
 
 
+def _ros_arg(name: str, value) -> str:
+    """A parameter's value on a node's command line (``-p name:=value``, which rcl reads
+    as YAML): booleans in YAML's spelling; the JSON text of ``set`` as a double-quoted
+    YAML string (JSON's string escapes are YAML's), else rcl would read it as a mapping."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if name == "set":
+        import json
+        return json.dumps(value)
+    return str(value)
+
+
 class ProcessGraph:
     """One child process per node: ``python -m flexarm_ros.nodes.<node> --ros-args ...``
     (``progress``: as :class:`InProcessGraph`).
@@ -457,7 +483,7 @@ class ProcessGraph:
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
                  stderr=None, fidelity=None, simulator=None, pin=False, extra_env=None,
-                 pass_fds=(), start_recorder=True, controllers=None):
+                 pass_fds=(), start_recorder=True, controllers=None, sets=None):
         env = {**environment.child_environment(), **(extra_env or {})}
         names = list(nodes) + (["recorder"] if record and start_recorder else [])
         self.placement = cpu_placement(names) if pin else {}
@@ -471,13 +497,13 @@ class ProcessGraph:
                 sim = {**(simulator or {}), "controllers": (
                     1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
-                            progress, fidelity, sim)
+                            progress, fidelity, sim, sets)
                 cmd = environment.python_module(f"flexarm_ros.nodes.{name}") + [
                     "--ros-args", "-r", f"__ns:={namespace}"]
                 if not progress:
                     cmd += ["--log-level", "warn"]
                 for k, v in p.items():
-                    cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]
+                    cmd += ["-p", f"{k}:={_ros_arg(k, v)}"]
                 self.procs[name] = subprocess.Popen(
                     cmd, env=env, stderr=stderr, pass_fds=tuple(pass_fds),
                     preexec_fn=_preexec(die_with_parent(), self.placement.get(name)))
@@ -522,11 +548,12 @@ class SplitGraph:
 
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=GRAPH_NODES,
-                 fidelity=None, simulator=None, pin=False):
+                 fidelity=None, simulator=None, pin=False, sets=None):
         from flexarm_ros.nodes import bridge
         local = tuple(n for n in nodes if n != "simulator")
         self.graph = InProcessGraph(scene, mode, duration, record, namespace, progress,
-                                    nodes=local, fidelity=fidelity, remote=("simulator",))
+                                    nodes=local, fidelity=fidelity, remote=("simulator",),
+                                    sets=sets)
         self.procs = None
         self._affinity = None
         try:
@@ -536,7 +563,7 @@ class SplitGraph:
             self.procs = ProcessGraph(
                 scene, mode, duration, record, namespace, progress, nodes=("simulator",),
                 fidelity=fidelity, simulator=simulator, start_recorder=False,
-                controllers=1 if "controller" in nodes else -1,
+                controllers=1 if "controller" in nodes else -1, sets=sets,
                 extra_env=bridge.child_environment(theirs, members),
                 pass_fds=(theirs.fileno(),))
             self._affinity = None
@@ -628,7 +655,7 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
         fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
-        layout=None) -> RunResult:
+        layout=None, sets=None) -> RunResult:
     """:func:`_run`, and a bag already at ``record`` is not lost to a run that never
     ticked (a twin whose controller never came, a bad argument, Ctrl-C before the start):
     it is set aside as ``<name>.previous.mcap`` while the graph runs and put back when the
@@ -643,7 +670,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     res = None
     try:
         res = _run(scene, duration, mode, record, processes, namespace, progress, fidelity,
-                   simulator, nodes, pin, layout)
+                   simulator, nodes, pin, layout, sets)
         return res
     finally:
         if previous is not None and previous.exists():
@@ -659,11 +686,13 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
 def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
          processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
          fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
-         layout=None) -> RunResult:
+         layout=None, sets=None) -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
-    scene's); ``progress``: progress line and the nodes' info log on stderr; ``nodes``:
+    scene's); ``sets``: ``{key path: value}`` written into the scene before the fidelity
+    overrides, by every node (``flexarm run --set``); ``progress``: progress line and
+    the nodes' info log on stderr; ``nodes``:
     which of simulator, motor_driver, controller to start (a user's own node replaces
     the others: see docs/topic_contract.md); ``pin``: with ``processes``, the simulator
     alone on one CPU and the other nodes on the rest (:func:`cpu_placement`; None: in
@@ -680,8 +709,10 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     if layout not in LAYOUTS:
         raise ValueError(f"layout: got {layout!r}, expected one of {LAYOUTS}")
     processes = layout == "processes"
-    # fails early on a bad scene or override (SceneError, exit 2)
-    loaded = load_scene(scene).with_fidelity(**(fidelity or {}))
+    # fails early on a bad scene, set or override (SceneError, exit 2)
+    from flexarm_ros.scene.overrides import apply_sets
+    sets = dict(sets or {})
+    loaded = apply_sets(load_scene(scene), sets).with_fidelity(**(fidelity or {}))
     name = loaded.name
     _compile_once(loaded, progress)
     from flexarm_ros.sim.budget import check_plant_work
@@ -700,7 +731,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         if processes:
             summary_file = _summary_path()
             g = ProcessGraph(scene, mode, duration, record, namespace, progress,
-                             nodes=nodes, fidelity=fidelity,
+                             nodes=nodes, fidelity=fidelity, sets=sets,
                              simulator={**(simulator or {}),
                                         "summary_file": str(summary_file)},
                              pin=(mode == "realtime") if pin is None else pin)
@@ -718,7 +749,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             res = RunResult(name, mode, True, record, time.monotonic() - t0,
                             interrupted=stop.set, returncodes=codes, recovered=recovered,
-                            nodes=tuple(g.procs), cpus=g.placement or None)
+                            nodes=tuple(g.procs), cpus=g.placement or None, sets=sets)
             sim_summary = _read_summary(summary_file)
             summary_file.unlink(missing_ok=True)
             if sim_summary:
@@ -735,11 +766,12 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         if layout == "split":
             return _run_split(scene, mode, duration, record, namespace, progress, fidelity,
                               simulator, nodes, (mode == "realtime") if pin is None else pin,
-                              stop, name, t0, cpus)
+                              stop, name, t0, cpus, sets)
         from flexarm_ros.io.progress import CompileNotice
         with CompileNotice(enabled=progress):   # a scene's first use of other kernels
             g = InProcessGraph(scene, mode, duration, record, namespace, progress,
-                               nodes=nodes, fidelity=fidelity, simulator=simulator)
+                               nodes=nodes, fidelity=fidelity, simulator=simulator,
+                               sets=sets)
         roles = _roles(g.nodes)
         sampler = _cpu_sampler(roles)
         try:
@@ -760,7 +792,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                             sim.rejected,
                             rejected=_node_rejections(g.nodes),
                             extra_commands=driver.extra_commands if driver else None,
-                            interrupted=stop.set, nodes=tuple(g.nodes))
+                            interrupted=stop.set, nodes=tuple(g.nodes), sets=sets)
             sim_summary = sim.summary()
             _take_summary(res, sim_summary, namespace)
             _take_cpu(res, sampler, sim_summary, roles, cpus)
@@ -886,13 +918,13 @@ def _summary_path() -> Path:
 
 
 def _run_split(scene, mode, duration, record, namespace, progress, fidelity, simulator,
-               nodes, pin, stop, name, t0, cpus) -> RunResult:
+               nodes, pin, stop, name, t0, cpus, sets=None) -> RunResult:
     """:func:`run` with a :class:`SplitGraph`."""
     summary_file = _summary_path()
     g = SplitGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                    fidelity=fidelity, simulator={**(simulator or {}),
                                                  "summary_file": str(summary_file)},
-                   pin=pin)
+                   pin=pin, sets=sets)
     sampler = _cpu_sampler(_roles(g.graph.nodes))
     try:
         sim = g.simulator
@@ -919,7 +951,8 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
                         interrupted=stop.set, returncodes=codes,
                         nodes=tuple(n for n in NODES if n in nodes or
                                     (n == "recorder" and record)),
-                        cpus=g.procs.placement or None, layout="split")
+                        cpus=g.procs.placement or None, layout="split",
+                        sets=dict(sets or {}))
         if sim_summary:
             _take_summary(res, sim_summary, namespace)
             _take_cpu(res, sampler, sim_summary, "simulator", cpus)

@@ -293,6 +293,40 @@ def test_spec_form_shares_parameters_between_cases(capsys, record, truth_run):
     assert code == 2 and "expected the spec alone" in err
 
 
+def test_cli_set_changes_the_scene_before_the_fit(capsys, record, truth_run):
+    """--set: the heavier drive's joint angle at 0.4 s fits R back only on the scene with
+    that drive inertia set; the calibrated scene holds the set; a fitted key cannot also
+    be set; the spec form takes its sets from its cases."""
+    d, scene, _ = record
+    inertia = "links[0].joint.drive_inertia"
+    heavy = simulate(set_keys(truth_run_scene(scene), {inertia: 0.2}), DURATION)
+    q = float(np.interp(0.4, heavy.columns["t"], heavy.columns["link1_joint"]))
+    out_scene = d / "set_calibrated.yaml"
+    code, out, err = _cli(capsys, str(scene), "--param", f"{R}=0.6:2.4@1.6", "--target",
+                          f"value:link1_joint@0.4={q!r}+-1e-4", "--set", f"{inertia}=0.2",
+                          "--workers", "0", "--json", "--quiet", "--out", str(out_scene))
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["set"] == {inertia: 0.2}
+    assert res["parameters"][0]["value"] == pytest.approx(1.2, rel=1e-3)
+    cal = load_scene(out_scene)
+    assert cal.links[0].joint.drive_inertia == 0.2
+    assert cal.links[0].joint.drive.resistance == pytest.approx(
+        res["parameters"][0]["value"])
+    code, _, err = _cli(capsys, str(scene), "--param", f"{R}=0.6:2.4", "--target",
+                        f"value:link1_joint@0.4={q!r}+-1e-4", "--set", f"{R}=1.0",
+                        "--workers", "0")
+    assert code == 2 and err.count("\n") == 1
+    assert f"--set {R}: got a key that --param fits too" in err
+    code, _, err = _cli(capsys, str(scene), "--param", f"{R}=0.6:2.4", "--target",
+                        f"value:link1_joint@0.4={q!r}+-1e-4", "--set", "links[0].beam.EI=-1",
+                        "--workers", "0")
+    assert code == 2 and "links[0].beam.EI: got -1.0, expected a finite number > 0" in err
+    code, _, err = _cli(capsys, "--spec", str(d / "any_spec.yaml"), "--set",
+                        f"{inertia}=0.2", "--workers", "0")
+    assert code == 2 and "got --set too, expected the spec alone" in err
+
+
 def truth_run_scene(path):
     return set_keys(load_scene(path), TRUTH)
 

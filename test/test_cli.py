@@ -201,3 +201,102 @@ def test_bad_run_flags_are_named_as_flags_before_anything_starts(capsys, argv, e
     assert code == 2
     err = capsys.readouterr().err
     assert expect in err and "Traceback" not in err and err.count("\n") == 1, err
+
+
+# ------------------------------------------------------------------- --set KEY=VALUE
+def _json(capsys, argv):
+    assert main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_set_reaches_modes_and_linearize_closed_form(capsys):
+    """Every frequency of a beam on a locked (modes) or free ideal-torque (linearize, no
+    damping) joint scales as √EI: the mass matrix does not see EI, the stiffness matrix
+    is linear in it. link's EI is 2000 N·m²; --set doubles it."""
+    ei = "links[0].beam.EI=4000"
+    base = _json(capsys, ["modes", "link", "--joints", "locked", "--json"])
+    set_ = _json(capsys, ["modes", "link", "--joints", "locked", "--json", "--set", ei])
+    assert base["set"] == {} and set_["set"] == {"links[0].beam.EI": 4000}
+    np.testing.assert_allclose(set_["frequencies_hz"], np.sqrt(2) * np.array(
+        base["frequencies_hz"]), rtol=1e-9)
+
+    def oscillations(out):
+        e = np.linalg.eigvals(np.array(out["A"]))
+        return np.sort(e.imag[e.imag > 0])
+    lin = _json(capsys, ["linearize", "link", "--json"])
+    lin2 = _json(capsys, ["linearize", "link", "--json", "--set", ei])
+    assert lin2["set"] == {"links[0].beam.EI": 4000}
+    np.testing.assert_allclose(oscillations(lin2), np.sqrt(2) * oscillations(lin), rtol=1e-9)
+    assert main(["modes", "link", "--set", ei]) == 0
+    assert "\n  set: links[0].beam.EI=4000\n" in capsys.readouterr().out
+
+
+def test_set_reaches_simulate_and_an_explicit_flag_wins(tmp_path, capsys):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    argv = ["simulate", "link", "--duration", "0.02", "--quiet"]
+    assert main(argv + ["--out", str(a)]) == 0
+    assert "set:" not in capsys.readouterr().out
+    assert main(argv + ["--out", str(b), "--set", "fidelity.output_dt=2e-3"]) == 0
+    assert capsys.readouterr().out.splitlines()[1] == "  set: fidelity.output_dt=0.002"
+    ta, tb = read_table(a)["t"], read_table(b)["t"]       # 1 ms output → 2 ms
+    assert len(ta) == 21 and len(tb) == 11 and np.allclose(tb, ta[::2])
+    summ = _json(capsys, argv + ["--json", "--set", "fidelity.rung=fem", "--rung", "cubic"])
+    assert summ["rung"] == "cubic" and summ["set"] == {"fidelity.rung": "fem"}
+    assert _json(capsys, argv + ["--json"])["set"] == {}
+
+
+def test_set_reaches_explain_and_creates_a_section_the_scene_leaves_out(capsys):
+    assert main(["explain", "link", "--set", "fidelity.rung=fem"]) == 0
+    text = capsys.readouterr().out
+    assert "rung fem (refine" in text and text.endswith("set: fidelity.rung=fem\n")
+    # two_link_free declares no control: section; the set creates one (twin_control)
+    assert main(["explain", "two_link_free", "--set", "control.rate_hz=500"]) == 0
+    assert "control every 2 ms (500 Hz)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("sets,expect", [
+    (["links[0].beam.EII=3"], "flexarm: error: links[0].beam.EII: unknown key; expected "
+                              "one of EI, damping, hub_radius, length, mass_per_length, "
+                              "thickness"),
+    (["links[0].beam.EI=-1"], "flexarm: error: links[0].beam.EI: got -1.0, expected a "
+                              "finite number > 0"),
+    (["links[0].beam.EI=stiff"], "links[0].beam.EI: got 'stiff' (str), expected a finite "
+                                 "number > 0"),
+    (["links[0].beam.EI"], "flexarm: error: --set: got 'links[0].beam.EI', expected "
+                           "KEY=VALUE with a scene key path such as links[0].beam.EI"),
+    (["links[0].beam.EI="], "--set: got 'links[0].beam.EI=', expected a VALUE after '='"),
+    (["links[0]..EI=3"], "--set: got 'links[0]..EI=3', expected KEY=VALUE with KEY a "
+                         "scene key path"),
+    (["links[0].beam.EI=[1, 2"], "--set links[0].beam.EI: got '[1, 2', expected VALUE as "
+                                 "one YAML scalar or flow value"),
+    (["links[3].beam.EI=3"], "links[3].beam.EI: got index 3 of links, expected 0..0"),
+    # values the schema admits one by one, which the scene refuses together
+    (["fidelity.rung=fd", "fidelity.refine=2"], "fidelity.refine: got 2, expected >= 4 "
+                                                "segments for the fd rung"),
+    (["links[0].joint.backlash.width=0.01"], "links[0].joint.backlash.stiffness: missing "
+                                             "required field"),
+    (["fidelity.rung=fem", "fidelity.rung=fd"], "--set fidelity.rung: got it twice (fem and "
+                                                "fd), expected each key once"),
+])
+@pytest.mark.parametrize("command", ["modes", "simulate"])
+def test_bad_set_exits_2_with_one_line(capsys, command, sets, expect):
+    argv = [command, "link", *[a for s in sets for a in ("--set", s)]]
+    assert main(argv + (["--duration", "0.01", "--quiet"] if command == "simulate"
+                        else [])) == 2
+    cap = capsys.readouterr()
+    assert expect in cap.err and cap.err.count("\n") == 1 and cap.out == "", cap.err
+
+
+def test_set_values_are_yaml_with_numbers_in_exponent_form():
+    from flexarm_ros.scene.overrides import format_sets, format_value, parse_set, parse_sets
+    assert parse_set("links[0].beam.EI=6.0") == ("links[0].beam.EI", 6.0)
+    assert parse_set("tool.position=[6.0, 8.0]") == ("tool.position", [6.0, 8.0])
+    assert parse_set("fidelity.foreshortening=false") == ("fidelity.foreshortening", False)
+    assert parse_set(" fidelity.rung = modal") == ("fidelity.rung", "modal")
+    # YAML 1.1 reads 1e-3 as text; a user means the number (quoted it stays text)
+    assert parse_set("fidelity.dt=1e-3") == ("fidelity.dt", 1e-3)
+    assert parse_set("control.kp=[2e2, 1E+2]")[1] == [200.0, 100.0]
+    assert parse_set("name='1e3'")[1] == "1e3"
+    sets = parse_sets(["a=6.0", "b=[6.0, 8.0]", "c=true", "d=modal", "e='1e3'"])
+    assert format_sets(sets) == "a=6.0, b=[6.0, 8.0], c=true, d=modal, e='1e3'"
+    assert parse_sets([f"{k}={format_value(v)}" for k, v in sets.items()]) == sets

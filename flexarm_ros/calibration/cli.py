@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.io.arguments import OPEN_LOOP_HELP, integer, number
+from flexarm_ros.io.arguments import OPEN_LOOP_HELP, SET_HELP, integer, number, set_option
 
 _TARGET = re.compile(r"^(.+?)=([-+0-9.eE]+)(?:\+-|±)([-+0-9.eE]+)$")
 
@@ -28,6 +28,9 @@ def add_parsers(sub) -> None:
     c.add_argument("--param", action="append", metavar="KEY=LO:HI[@START]",
                    help="a scene key path to fit, its bounds and optionally its start "
                         "(default: the scene's value); repeatable")
+    set_option(c, SET_HELP.split("; checked")[0] + "; checked by the scene's schema, "
+                  "applied before the fit; not a --param key (that one is fitted); the spec "
+                  "form: a case's set: instead; repeatable")
     c.add_argument("--spec", type=Path, metavar="SPEC.yaml",
                    help="the spec form: several (scene, record) cases sharing parameters, "
                         "feature targets with uncertainties (docs/calibration.md)")
@@ -99,11 +102,14 @@ def _problem(args):
     from flexarm_ros.scene import load_scene
     if args.spec is not None:
         extra = [f for f, v in (("SCENE", args.scene), ("--param", args.param),
-                                ("--target", args.target), ("--channels", args.channels))
+                                ("--target", args.target), ("--channels", args.channels),
+                                ("--set", args.set))
                  if v]
         if extra:
             raise SceneError(f"--spec: got {extra[0]} too, expected the spec alone (it "
-                             f"names the scenes, records, parameters and targets)")
+                             f"names the scenes, records, parameters and targets"
+                             + ("; a case's set: changes its scene" if extra[0] == "--set"
+                                else "") + ")")
         params, cases, opts = load_spec(args.spec)
         return Problem(params, cases), opts
     if not args.scene:
@@ -111,7 +117,10 @@ def _problem(args):
                          "--spec SPEC.yaml")
     if not args.param:
         raise SceneError("--param: none given, expected at least one KEY=LO:HI")
-    scene = load_scene(args.scene)
+    from flexarm_ros.scene.overrides import apply_sets, parse_sets
+    sets = parse_sets(args.set)
+    check_not_set([str(t).partition("=")[0].strip() for t in args.param], sets)
+    scene = apply_sets(load_scene(args.scene), sets)
     params = [parse_param(t, scene) for t in args.param]
     check_distinct(params)
     targets = [parse_target(t) for t in args.target or ()]
@@ -134,8 +143,27 @@ def _problem(args):
                      _pairs(args.sigma, "--sigma"), None, args.window, args.offset,
                      args.duration, targets, probe, args.open_loop)
     from flexarm_ros.scene.loading import resolve_scene_path
-    case.scene_file = str(resolve_scene_path(args.scene))
+    # a scene changed by --set is written out whole by --out (as a spec case's set:)
+    case.scene_file = None if sets else str(resolve_scene_path(args.scene))
     return Problem(params, [case]), {}
+
+
+def check_not_set(keys, sets: dict) -> None:
+    """No fitted key (``--param``; ``keys``) is also fixed by ``--set`` (the fit would
+    overwrite the set at every evaluation); SceneError naming the key."""
+    from flexarm_ros.scene.keys import parse_path
+
+    def path(k):
+        try:
+            return tuple(parse_path(k))
+        except SceneError:           # a malformed --param: its own message, later
+            return None
+    fixed = {path(k): k for k in sets}
+    for k in keys:
+        if path(k) is not None and path(k) in fixed:
+            raise SceneError(f"--set {fixed[path(k)]}: got a key that --param fits too, "
+                             f"expected it in one of them (--set fixes a value, --param "
+                             f"fits it)")
 
 
 def _check_outputs(args, spec: bool):
@@ -220,6 +248,9 @@ def cmd_calibrate(args) -> int:
     finally:
         ex.close()
         line.clear()
+    if not spec:                                # the spec's cases carry their own set:
+        from flexarm_ros.scene.overrides import parse_sets
+        out["set"] = parse_sets(args.set)
     written = []
     if args.out is not None:
         from flexarm_ros.calibration.output import write_scenes
@@ -234,6 +265,9 @@ def cmd_calibrate(args) -> int:
         print(json.dumps(_clean(public(out)), indent=1, default=_json_default))
     else:
         print(_text(out))
+        if out.get("set"):
+            from flexarm_ros.scene.overrides import format_sets
+            print(f"  set: {format_sets(out['set'])}")
         for p in written:
             print(f"wrote {p}")
     return 0

@@ -127,13 +127,15 @@ def declare(node, params: dict) -> dict:
 
 def load(node, params: dict) -> tuple:
     """Common and fidelity parameters (:mod:`~flexarm_ros.nodes.parameters`) and
-    ``params`` → (values, scene with the fidelity overrides applied, end tick count or
-    None)."""
+    ``params`` → (values, scene with the ``set`` values and then the fidelity overrides
+    applied, end tick count or None)."""
     from flexarm_ros.scene import load_scene
+    from flexarm_ros.scene.overrides import apply_sets, decode_sets
     p = declare(node, {**COMMON, **FIDELITY, **params})
     if p["mode"] not in MODES:
         raise ValueError(f"parameter mode: got {p['mode']!r}, expected one of {MODES}")
-    scene = load_scene(p["scene"]).with_fidelity(**fidelity_overrides(p))
+    scene = apply_sets(load_scene(p["scene"]), decode_sets(p["set"])).with_fidelity(
+        **fidelity_overrides(p))
     dur = p["duration"] or scene.duration
     n = None if dur == float("inf") else int(round(dur / control_period(scene)))
     return p, scene, n

@@ -5,7 +5,9 @@ them through :mod:`flexarm_ros.nodes._common`).
 Each entry is ``name: (default, description)``; the default's type is the parameter's type.
 The fidelity parameters mirror ``flexarm simulate``'s options ``--rung``, ``--refine``,
 ``--integrator``, ``--rtol``, ``--atol``, ``--dt``, ``--no-foreshortening`` and
-``--max-steps``; at its default a parameter keeps the scene's value.
+``--max-steps``; at its default a parameter keeps the scene's value. ``set`` carries
+``--set KEY=VALUE`` (:func:`flexarm_ros.scene.overrides.encode_sets`), applied to the
+loaded scene before them.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ COMMON = {
                       "no end); the controller and driver do not answer states at or past it"),
     "recorders": (0, "recorders expected on every topic before publishing starts (lockstep "
                      "loses nothing only if every subscriber is matched first)"),
+    "set": ("", "scene values to set before the fidelity parameters, a JSON object "
+                "{\"key path\": value} (flexarm run --set KEY=VALUE; empty: none)"),
 }
 
 FIDELITY = {

@@ -9,10 +9,13 @@ process, or with ``writer_process`` (set by ``flexarm run`` in one process) in a
 process on the other core (:mod:`flexarm_ros.bag.writer_process`; the stamping below runs
 there, :mod:`flexarm_ros.bag.stamping`): topics
 under their absolute names, metadata ``flexarm_ros`` (scene YAML text, scene name,
-software version, time mode, namespace, the fidelity overrides as JSON) and ``model`` (the
+software version, time mode, namespace, the fidelity overrides as JSON, ``set``: the scene
+values set by ``flexarm run --set`` as a JSON object, ``{}`` for none) and ``model`` (the
 built model, ``flexarm explain``). With fidelity overrides (``-p rung:=rigid``, ``flexarm
 run --rung rigid``) the embedded scene YAML is the scene file with its ``fidelity`` section
-updated, so whoever rebuilds the model from the bag builds the one that ran.
+updated; with ``set`` values it is the whole scene that ran, written out (every key, the
+sets and the overrides in it); either way whoever rebuilds the model from the bag builds
+the one that ran.
 
 Log time = the simulation time at which the message was sent, never a count of messages:
 the value of the latest ``/clock`` the simulator had published when the message was
@@ -64,6 +67,7 @@ from flexarm_ros.bag.writer_process import WriterProcess
 from flexarm_ros.bag.cdr_read import CdrError, decode as decode_values
 from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.scene import resolve_scene_path
+from flexarm_ros.scene.overrides import decode_sets
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, NOT_CDR, Validator
 from flexarm_ros.nodes import _common as C
@@ -149,15 +153,22 @@ class RecorderNode(Node):
         from flexarm_ros.model.explain import explain
         ns = self.get_namespace()
         over = fidelity_overrides(self.p)
+        sets = decode_sets(self.p["set"])
         embed = dict(over)
+        ran = scene
         if scene.fidelity.rung == "auto":       # the model that runs, for whoever rebuilds it
             from flexarm_ros.model.autofidelity import choose
             c = choose(scene)
-            embed.update(rung=c.rung, refine=c.refine, dt=c.dt_request, tolerance=0.0)
-        info = {"scene": scene.name, "scene_yaml": scene_yaml(self.p["scene"], embed),
+            chosen = dict(rung=c.rung, refine=c.refine, dt=c.dt_request, tolerance=0.0)
+            embed.update(chosen)
+            ran = scene.with_fidelity(**chosen)
+        info = {"scene": scene.name,
+                "scene_yaml": (ran_scene_yaml(self.p["scene"], ran, sets, over) if sets else
+                               scene_yaml(self.p["scene"], embed)),
                 "flexarm_ros_version": __version__, "time_mode": self.p["mode"],
                 "namespace": ns, "control_mode": scene.twin_control.mode,
-                "fidelity_overrides": json.dumps(over, sort_keys=True)}
+                "fidelity_overrides": json.dumps(over, sort_keys=True),
+                "set": json.dumps(sets)}
         self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
         extra = {"model": {"explain": explain(scene)}}
         if self.p["writer_process"]:
@@ -276,6 +287,18 @@ def scene_yaml(scene, overrides: dict) -> str:
     return (f"# {Path(str(scene)).name} with the fidelity overrides "
             f"{json.dumps(overrides, sort_keys=True)}\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+
+
+def ran_scene_yaml(scene, ran, sets: dict, overrides: dict) -> str:
+    """The scene that ran (``ran``: the file ``scene`` with the ``--set`` values ``sets``,
+    the fidelity ``overrides`` and rung auto's choice applied), written out whole: the
+    sets may change any section, and the loader gives exactly ``ran`` back."""
+    from flexarm_ros.scene.keys import scene_mapping
+    from flexarm_ros.scene.overrides import format_sets
+    return (f"# {Path(str(scene)).name} with --set {format_sets(sets)}"
+            + (f" and the fidelity overrides {json.dumps(overrides, sort_keys=True)}"
+               if overrides else "") + "\n"
+            + yaml.safe_dump(scene_mapping(ran), sort_keys=False, allow_unicode=True))
 
 
 def main(args=None):

@@ -127,7 +127,9 @@ def test_simulate_moves_the_tool_to_its_target():
     assert np.all(np.diff(err) <= 1e-6)
     assert err[-1] < 0.0035
     assert max(np.abs(c["link1_voltage"]).max(), np.abs(c["link2_voltage"]).max()) < 4.5
-    assert np.all(c["tip_target_x"] == 1.0) and np.all(c["tip_target_y"] == 1.0)
+    assert np.all(c["tool_x_target"] == 1.0) and np.all(c["tool_y_target"] == 1.0)
+    k = len(c["t"]) - 1                     # the tool columns: the same point as above
+    assert math.dist((c["tool_x"][k], c["tool_y"][k]), tool(k)) < 1e-12
     assert res.summary()["control_ticks"] == 7000
 
 
@@ -143,7 +145,7 @@ def test_sanding_regulates_the_force_in_batch():
     fn = c["contact_normal_force"][touching]
     sd = scene.control.sanding
     assert abs(np.median(fn[-200:]) - sd.normal_force) < 0.5 * sd.normal_force
-    assert "tip_target_x" in c and "link1_joint_target" in c
+    assert "tool_x_target" in c and "link1_joint_target" in c
 
 
 def test_a_sweep_of_a_gain_gives_different_rows(capsys):

@@ -304,6 +304,13 @@ def bag_channels(bag, scene=None, notes: list | None = None) -> dict[str, Channe
                            rename=lambda n: f"{n}_target", unit=lambda n: "rad",
                            vibration=lambda n: False).values():
         put(ch)
+    if scene is not None and any(scene.tool.position) and "tool_x" not in out:
+        path = _tool_path(out, scene)      # the point a tool target and a wall refer to
+        if not isinstance(path, str):
+            t, x, y = path
+            src = f"{T.resolve(ns, T.GT_COORDINATES)} through the scene's kinematics"
+            put(_channel("tool_x", "m", t, x, src, True))
+            put(_channel("tool_y", "m", t, y, src, True))
     return out
 
 
@@ -368,13 +375,11 @@ def _tool_path(channels: dict[str, Channel], scene):
            for n in names):
         return f"{where}, not at the recorded tip, and the coordinates are not on one time base"
     Q = np.column_stack([channels[n].y for n in names])
-    p = np.asarray(scene.tool.position, float)
-    qd = np.zeros(chain.n)
-    xy = np.empty((len(t), 2))
-    for i, q in enumerate(Q):
-        fr = chain.kinematics(q, qd, frames_only=True).tip_frames[-1]
-        c, s = np.cos(fr.psi), np.sin(fr.psi)
-        xy[i] = (fr.o[0] + c * p[0] - s * p[1], fr.o[1] + s * p[0] + c * p[1])
+    try:                      # the compiled kernel's frames when it builds (one pass)
+        chain = Chain(scene)
+    except Exception:         # noqa: BLE001 - the numpy model above does
+        pass
+    xy = chain.tool_points(t, Q, np.zeros_like(Q), np.zeros((len(t), chain.nz)))
     return t, xy[:, 0], xy[:, 1]
 
 

@@ -14,6 +14,8 @@ column of labels (``contact_phase``). Names follow the model's conventions:
 * ``tip_x``, ``tip_y``, ``<link>_tip_deflection``: m; ``energy``: J;
 * ``<link>_torque_cmd``, ``_drive_torque``: N*m; ``<link>_voltage``: V;
   ``<link>_current``, ``_valve_current``: A; ``<link>_pressure``: Pa;
+* a closed-loop run's targets: ``<link>_joint_target``: rad; ``tool_x_target``,
+  ``tool_y_target``: m;
 * contact: ``gap``, ``tool_x``, ``tool_y``: m; ``tool_vx``, ``tool_vy``: m/s;
   ``contact_normal_force``, ``contact_friction_force``: N; ``contact_normal_impulse``:
   N*s; ``contact_phase``: :data:`TEXT`.
@@ -45,8 +47,9 @@ _COORDINATE = ((re.compile(r"_(joint|motor|drive|tip_rot|th\d+|spring)$"), "rad"
 _FIXED = {"t": "s", "tip_x": "m", "tip_y": "m", "energy": "J", "gap": "m", "tool_x": "m",
           "tool_y": "m", "tool_vx": "m/s", "tool_vy": "m/s", "contact_normal_force": "N",
           "contact_friction_force": "N", "contact_normal_impulse": "N*s",
-          "contact_phase": TEXT}
+          "contact_phase": TEXT, "tool_x_target": "m", "tool_y_target": "m"}
 _SUFFIX = ((re.compile(r"_tip_deflection$"), "m"),
+           (re.compile(r"_joint_target$"), "rad"),
            (re.compile(r"_(torque_cmd|drive_torque)$"), "N*m"),
            (re.compile(r"_voltage$"), "V"),
            (re.compile(r"_(valve_current|current)$"), "A"),

@@ -625,16 +625,31 @@ class Chain:
         (:func:`kchain.energies`: the kernel's mass matrix and tip frame, equal to the
         numpy reference to round-off, ~200× faster: the output columns of a 1 s run took
         ~0.4 s of its process); else :meth:`energy` per sample."""
+        total, tip, _ = self.energies_and_frames(t, q, qd, z)
+        return total, tip
+
+    def energies_and_frames(self, t, q, qd, z):
+        """:meth:`energies` and the last tip frame's angle ψ (rad, (N,)) at the samples."""
         n_s = len(q)
-        total, tip = np.empty(n_s), np.empty((n_s, 2))
+        total, tip, psi = np.empty(n_s), np.empty((n_s, 2)), np.empty(n_s)
         if self.backend != "numba" or self.has_gravity:
             for k in range(n_s):
                 e = self.energy(q[k], qd[k])
                 total[k], tip[k] = e["total"], e["tip"]
-            return total, tip
+                psi[k] = self.kinematics(q[k], qd[k], frames_only=True).tip_frames[-1].psi
+            return total, tip, psi
         kchain.energies(np.ascontiguousarray(q, float), np.ascontiguousarray(qd, float),
-                        self.kernel_args, kchain.workspace(self.kernel_args), total, tip)
-        return total, tip
+                        self.kernel_args, kchain.workspace(self.kernel_args), total, tip,
+                        psi)
+        return total, tip, psi
+
+    def tool_points(self, t, q, qd, z) -> np.ndarray:
+        """The tool point o + A(ψ)·tool.position of the last tip frame at the samples (m,
+        (N, 2)): the point a tool-point target (control.tip_target) and a wall refer to."""
+        _, tip, psi = self.energies_and_frames(t, q, qd, z)
+        px, py = self.scene.tool.position
+        c, s = np.cos(psi), np.sin(psi)
+        return np.column_stack([tip[:, 0] + c * px - s * py, tip[:, 1] + s * px + c * py])
 
     def _gravity_work(self, q, kin):
         g = self.gravity

@@ -347,7 +347,8 @@ def _drive_columns(ch, drv, run, rec, period) -> dict:
     null bias included), ``_pressure`` (Pa) and ``_drive_torque`` (N·m, from the load
     pressure); a joint without a drive its ``_torque_cmd`` (N·m held). With a position or
     sanding controller its targets: ``<link>_joint_target`` (rad) and, for a tool-point
-    target, ``tip_target_x``/``tip_target_y`` (m)."""
+    target, ``tool_x_target``/``tool_y_target`` (m) beside the tool point ``tool_x``,
+    ``tool_y`` (m)."""
     K = len(rec.t)
     cols = {}
     plant_act = {a.link: a for a in ch.actuators}
@@ -378,8 +379,12 @@ def _drive_columns(ch, drv, run, rec, period) -> dict:
             cols[f"{lm.name}_joint_target"] = _held(rec.joint_target[:, k], run.t, period,
                                                      K)
     if rec.tip_target is not None:
-        cols["tip_target_x"] = _held(rec.tip_target[:, 0], run.t, period, K)
-        cols["tip_target_y"] = _held(rec.tip_target[:, 1], run.t, period, K)
+        # the tool point the target refers to (a wall's contact columns hold it already)
+        if not ch.scene.walls:
+            tool = ch.tool_points(run.t, run.q, run.qd, run.z)
+            cols["tool_x"], cols["tool_y"] = tool[:, 0], tool[:, 1]
+        cols["tool_x_target"] = _held(rec.tip_target[:, 0], run.t, period, K)
+        cols["tool_y_target"] = _held(rec.tip_target[:, 1], run.t, period, K)
     return cols
 
 

@@ -584,10 +584,11 @@ def _deflection_ratio(x, model):
 
 
 @_jit_raw
-def energies(Q, QD, model_args, ws_args, energy, tip):
+def energies(Q, QD, model_args, ws_args, energy, tip, psi):
     """Per sample k: energy[k] = ½q̇ᵀM(q)q̇ + ½qᵀKq + Σ ½k_b·max(|Δ| − b, 0)² (kinetic,
-    beam/joint elastic, engaged backlash; chain.Chain.energy without gravity) and
-    tip[k] = the last tip frame's origin, from one :func:`chain_terms` pass per sample."""
+    beam/joint elastic, engaged backlash; chain.Chain.energy without gravity),
+    tip[k] = the last tip frame's origin and psi[k] its angle (rad), from one
+    :func:`chain_terms` pass per sample."""
     model, ws = named(model_args, ws_args)
     n = model.n
     K = model.K
@@ -613,3 +614,4 @@ def energies(Q, QD, model_args, ws_args, energy, tip):
         energy[k] = e
         tip[k, 0] = ws.tip[0]
         tip[k, 1] = ws.tip[1]
+        psi[k] = ws.frames[model.nl - 1, 1, 4]

@@ -27,7 +27,7 @@ import numpy as np
 from flexarm_ros.errors import SceneError
 
 #: default refinement per rung (modes / elements / FD segments)
-DEFAULT_REFINE = {"rigid": 1, "cubic": 1, "modal": 4, "fem": 8, "fd": 20}
+DEFAULT_REFINE = {"rigid": 1, "cubic": 1, "modal": 4, "fem": 8, "fd": 20, "rod": 5}
 
 _GAUSS_POINTS = 4  # per element: integrates degree-7 polynomials exactly
 
@@ -58,6 +58,10 @@ class BeamDiscretization:
     curvature_fn: Callable[[np.ndarray], np.ndarray]
     shape_fn: Callable[[np.ndarray], np.ndarray]
     point_fn: Callable[[float], tuple] = None
+    #: the rod rung's exact kinematics (:class:`flexarm_ros.model.rod.RodBasis`); None on
+    #: every other rung. φ, φ(L) and S of a rod are its small-deflection shapes (S zero):
+    #: what linear analyses read; the chain's kinematics use the rod's own
+    rod: object = None
 
     @property
     def n(self) -> int:
@@ -70,6 +74,8 @@ class BeamDiscretization:
         m."""
         if self.rung == "rigid":
             return ("rad",) * self.n
+        if self.rung == "rod":      # modes scaled to unit peak deflection (or stretch)
+            return ("m",) * self.n
         if self.rung in ("cubic", "fem"):
             return ("m", "rad") * (self.n // 2)
         return ("m",) * self.n
@@ -77,6 +83,14 @@ class BeamDiscretization:
     def curvature(self, x) -> np.ndarray:
         """φ″(x), shape (len(x), ne): strain at depth t/2 is (t/2)·φ″(x)ᵀη."""
         return self.curvature_fn(np.atleast_1d(np.asarray(x, float)))
+
+    def tip_deflections(self, etas) -> np.ndarray:
+        """w(L), the tip's transverse position in the hub frame, for rows of elastic
+        coordinates (N, ne): φ(L)ᵀη, or the rod's exact kinematics."""
+        etas = np.atleast_2d(np.asarray(etas, float))
+        if self.rod is not None:
+            return self.rod.tip_deflection(etas)
+        return etas @ self.phi_tip
 
     def deflection(self, x, eta) -> np.ndarray:
         """w(x) for elastic coordinates ``eta`` (rigid rung: x·β, small angle)."""
@@ -376,7 +390,7 @@ MAX_ELASTIC_COORDINATES = 200
 def elastic_coordinates(rung: str, refine: int) -> int:
     """Elastic coordinates one beam gets on ``rung`` refined ``refine`` (0: the default)."""
     n = refine or DEFAULT_REFINE[rung]
-    return {"rigid": 1, "cubic": 2, "modal": n, "fem": 2 * n, "fd": n}[rung]
+    return {"rigid": 1, "cubic": 2, "modal": n, "fem": 2 * n, "fd": n, "rod": n + 1}[rung]
 
 
 def check_model_size(n_beams: int, fidelity) -> None:
@@ -461,5 +475,31 @@ def discretize(beam, tip, fidelity) -> BeamDiscretization:
         if n > 400:
             raise SceneError(f"fidelity.refine: got {n}, expected <= 400 segments")
         return finite_differences(beam, n)
+    if rung == "rod":
+        return rod_rung(beam, tip, n)
     raise SceneError(f"fidelity.rung: got {rung!r}, expected one of rigid, cubic, modal, "
-                     f"fem, fd")
+                     f"fem, fd, rod")
+
+
+def rod_rung(beam, tip, terms) -> BeamDiscretization:
+    """The geometrically exact rod (:mod:`flexarm_ros.model.rod`) as a discretization:
+    its exact kinematics in ``rod``; φ, φ(L), φ′(L) its small-deflection shapes, S zero
+    (the chain reads the rod's own kinematics)."""
+    from flexarm_ros.model import rod
+    basis, x, mass, K, D, M0, shape, curvature = rod.build(beam, tip, terms)
+    P = len(x)
+    phi = basis.W[:P] @ basis.T[:P]          # transverse at η = 0: ∫ θ
+    phi_tip = basis.W[P] @ basis.T[:P]
+    ne = basis.T.shape[1]
+    S = np.zeros((P, ne, ne))
+    for a in (phi, phi_tip, S):
+        a.setflags(write=False)
+
+    def point(xq):
+        w, t_row, _ = basis.point_rows(xq)
+        return w @ basis.T[:P], t_row, np.zeros((ne, ne))
+
+    return BeamDiscretization("rod", terms, tuple(rod.suffixes(ne)), beam.length,
+                              beam.hub_radius, x, mass, phi, S, phi_tip, basis.T[P].copy(),
+                              np.zeros((ne, ne)), K, D, M0, curvature, shape, point,
+                              rod=basis)

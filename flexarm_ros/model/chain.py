@@ -239,6 +239,10 @@ class Chain:
         PHI = np.zeros((nl, pmax + 1, nemax))
         SS = np.zeros((nl, pmax + 1, nemax, nemax))
         SLOPE = np.zeros((nl, nemax))
+        ROD = np.zeros(nl, dtype=np.bool_)
+        RT = np.zeros((nl, pmax + 1, nemax))
+        RC = np.zeros((nl, pmax + 1, nemax))
+        RW = np.zeros((nl, pmax + 1, pmax))
         for k, lm in enumerate(self.links):
             b, lk = lm.beam, lm.link
             for j, body in enumerate((lk.hub, lk.tip)):
@@ -248,9 +252,14 @@ class Chain:
             P = len(b.x)
             X[k, :P], X[k, P] = b.x, b.length
             MP[k, :P] = b.mass
+            SLOPE[k, :b.n] = b.slope_tip
+            if b.rod is not None:       # its own kinematics; φ, S zero (the guard skips it)
+                ROD[k] = True
+                RT[k, :P + 1, :b.n], RC[k, :P + 1, :b.n] = b.rod.T, b.rod.C
+                RW[k, :P, :P], RW[k, P, :P] = b.rod.W[:P], b.rod.W[P]
+                continue
             PHI[k, :P, :b.n], PHI[k, P, :b.n] = b.phi, b.phi_tip
             SS[k, :P, :b.n, :b.n], SS[k, P, :b.n, :b.n] = b.S, b.S_tip
-            SLOPE[k, :b.n] = b.slope_tip
         acts = self.actuators
         nt = len(acts)
         tl = max([len(a.enc[3]) for a in acts] + [1])
@@ -287,7 +296,8 @@ class Chain:
                 idx = np.nonzero(nz[p])[0]
                 EXT[k, p] = idx[-1] + 1 if len(idx) else 0
             EXT[k, len(lm.beam.x)] = lm.beam.n
-        inv = np.array([by_invariants(lm.beam.n, len(lm.beam.x), self.foreshortening)
+        inv = np.array([lm.beam.rod is None and by_invariants(lm.beam.n, len(lm.beam.x),
+                                                              self.foreshortening)
                         for lm in self.links], dtype=np.bool_)
         sums = _invariants([lm.beam for lm in self.links], inv, nemax, self.foreshortening)
         mcode = np.array([e[0] for e in self._motion_enc], dtype=np.int64)
@@ -302,7 +312,8 @@ class Chain:
             presc=self.presc_idx.astype(np.int64), motion_code=mcode, motion_par=mpar,
             act_coord=tidx, prog_code=tcode, prog_par=tpar, prog_times=ttimes,
             prog_values=tvalues, prog_len=tlen, act_kind=akind, act_par=apar, act_state=azi,
-            z_lo=zlo, z_hi=zhi, backlash_idx=bidx, backlash_par=bpar)
+            z_lo=zlo, z_hi=zhi, backlash_idx=bidx, backlash_par=bpar, rod=ROD, rod_T=RT,
+            rod_C=RC, rod_W=RW)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
@@ -411,31 +422,42 @@ class Chain:
             frame = tip
         return Kinematics(M, h, Qg, hubs, tips, pts)
 
-    def _beam(self, lm, hub, q, qd):
-        """Beam mass points (r, J, c) and the tip frame, from the hub frame."""
+    def _local(self, lm, eta, etad):
+        """A beam's local kinematics in its hub frame at its mass points and tip (last row):
+        s (P1, 2), ∂s/∂η (P1, 2, ne) and the velocity-product acceleration a (P1, 2),
+        s̈ = (∂s/∂η)η̈ + a. The floating-frame rungs: s = (r + x − ½ηᵀSη, φᵀη),
+        a = −(η̇ᵀSη̇) ê₁; the rod its exact kinematics (:mod:`flexarm_ros.model.rod`)."""
         b = lm.beam
-        eta = q[lm.eta]
-        etad = qd[lm.eta]
-        A = _rot(hub.psi)
-        # local positions and their derivatives: points (P) and the tip (last row)
+        if b.rod is not None:
+            return b.rod.local(eta, etad)
         phi = np.vstack([b.phi, b.phi_tip])
         x = np.append(b.x, b.length)
         P1 = len(x)
+        a = np.zeros((P1, 2))
         if self.foreshortening:
             S = np.concatenate([b.S, b.S_tip[None]])
             Seta = S @ eta                          # (P1, ne)
             uf = -0.5 * Seta @ eta                  # (P1,)
-            acc_ax = -np.einsum("pij,i,j->p", S, etad, etad)
+            a[:, 0] = -np.einsum("pij,i,j->p", S, etad, etad)
         else:
             Seta = np.zeros((P1, b.n))
             uf = np.zeros(P1)
-            acc_ax = np.zeros(P1)
         s = np.empty((P1, 2))
         s[:, 0] = b.hub_radius + x + uf
         s[:, 1] = phi @ eta
         ds = np.empty((P1, 2, b.n))                 # ∂s/∂η
         ds[:, 0, :] = -Seta
         ds[:, 1, :] = phi
+        return s, ds, a
+
+    def _beam(self, lm, hub, q, qd):
+        """Beam mass points (r, J, c) and the tip frame, from the hub frame."""
+        b = lm.beam
+        eta = q[lm.eta]
+        etad = qd[lm.eta]
+        A = _rot(hub.psi)
+        s, ds, a = self._local(lm, eta, etad)
+        P1 = len(s)
         sd = ds @ etad                              # (P1, 2)
         As = s @ A.T
         EAs = As @ E2.T
@@ -444,7 +466,7 @@ class Chain:
         J[:, :, lm.eta] += np.einsum("ij,pjk->pik", A, ds)
         Asd = sd @ A.T
         c = (hub.co[None, :] - hub.psid**2 * As + 2.0 * hub.psid * (Asd @ E2.T)
-             + acc_ax[:, None] * A[:, 0][None, :])
+             + a @ A.T)
         r = hub.o[None, :] + As
         Jpsi_t = hub.Jpsi.copy()
         Jpsi_t[lm.eta] += b.slope_tip
@@ -469,19 +491,24 @@ class Chain:
             return fr.o, fr.Jo, fr.co, fr.psi
         hub = kin.hub_frames[link]
         b = lm.beam
-        phi, slope, S = basis if basis is not None else b.point(p[0])
         eta, etad = q[lm.eta], qd[lm.eta]
         A = _rot(hub.psi)
-        Seta = S @ eta if self.foreshortening else np.zeros(b.n)
-        acc_ax = -etad @ S @ etad if self.foreshortening else 0.0
-        s_loc = np.array([b.hub_radius + p[0] - 0.5 * Seta @ eta, phi @ eta])
-        ds = np.vstack([-Seta, phi])                # ∂s/∂η (2, ne)
+        if b.rod is not None:                       # the rod's exact kinematics at x
+            s_loc, ds, a_loc, theta = b.rod.local_at(p[0], eta, etad)
+        else:
+            phi, slope, S = basis if basis is not None else b.point(p[0])
+            Seta = S @ eta if self.foreshortening else np.zeros(b.n)
+            acc_ax = -etad @ S @ etad if self.foreshortening else 0.0
+            s_loc = np.array([b.hub_radius + p[0] - 0.5 * Seta @ eta, phi @ eta])
+            ds = np.vstack([-Seta, phi])            # ∂s/∂η (2, ne)
+            a_loc = np.array([acc_ax, 0.0])
+            theta = slope @ eta
         sd = ds @ etad
         As = A @ s_loc
         J = hub.Jo + np.outer(E2 @ As, hub.Jpsi)
         J[:, lm.eta] += A @ ds
-        c = hub.co - hub.psid**2 * As + 2.0 * hub.psid * (E2 @ (A @ sd)) + acc_ax * A[:, 0]
-        return hub.o + As, J, c, hub.psi + slope @ eta
+        c = hub.co - hub.psid**2 * As + 2.0 * hub.psid * (E2 @ (A @ sd)) + A @ a_loc
+        return hub.o + As, J, c, hub.psi + theta
 
     # -------------------------------------------------------------------------- dynamics
     def dynamics(self, t, q, qd, z=None) -> tuple[np.ndarray, np.ndarray]:
@@ -682,8 +709,16 @@ class Chain:
         return out
 
     def tip_deflections(self, q) -> np.ndarray:
-        """Transverse tip deflection w(L) of every beam (m; rigid rung: L·β)."""
-        return np.array([lm.beam.phi_tip @ q[lm.eta] for lm in self.links])
+        """Transverse tip deflection w(L) of every beam in its hub frame (m; rigid rung:
+        L·β; the rod rung: its exact tip, :meth:`BeamDiscretization.tip_deflections`)."""
+        return np.array([float(lm.beam.tip_deflections(q[lm.eta])[0]) for lm in self.links])
+
+    def small_deflection_ratios(self, q) -> np.ndarray:
+        """|w(L)|/L of every beam whose model holds for small deflections only (0 for the
+        rod rung, exact at any deflection): what fidelity.max_deflection_ratio bounds."""
+        return np.array([0.0 if lm.beam.rod is not None else
+                         abs(float(lm.beam.phi_tip @ q[lm.eta])) / lm.beam.length
+                         for lm in self.links])
 
     def drive_index(self) -> list[int]:
         return [lm.i_motor if lm.i_motor >= 0 else lm.i_joint for lm in self.links]

@@ -35,7 +35,7 @@ def static_equilibrium(chain: Chain, q0: np.ndarray, tol=1e-10, max_iter=50) -> 
                              f"(Newton iteration {it + 1}), expected a load the beams carry: "
                              f"check {_loads(chain, 0)}") from None
         q[keep] += dq
-        ratios = np.abs(chain.tip_deflections(q)) / lengths if np.all(
+        ratios = chain.small_deflection_ratios(q) if np.all(
             np.isfinite(q)) else np.full(len(lengths), np.inf)
         worst = int(np.argmax(ratios))
         if not ratios[worst] <= limit:

@@ -18,7 +18,7 @@ from typing import Optional
 from flexarm_ros.errors import SceneError
 from flexarm_ros.scene.schema import from_mapping, param
 
-RUNGS = ("rigid", "cubic", "modal", "fem", "fd")
+RUNGS = ("rigid", "cubic", "modal", "fem", "fd", "rod")
 #: what ``fidelity.rung`` / ``--rung`` accept: a rung of the ladder, or ``auto`` (the
 #: cheapest rung, refinement and RK4 step estimated to meet the tip tolerance,
 #: :mod:`flexarm_ros.model.autofidelity`)
@@ -83,6 +83,9 @@ class Beam:
     """A uniform Euler–Bernoulli beam clamped to its hub at ``hub_radius`` from the joint."""
     length: float = param(unit="m", gt=0.0, doc="beam length L")
     EI: float = param(unit="N·m²", gt=0.0, doc="bending stiffness E·I (in the plane)")
+    EA: Optional[float] = param(None, unit="N", gt=0.0,
+                                doc="axial stiffness E·A: the rod rung's stretch (none: "
+                                    "an inextensible rod; the other rungs are inextensible)")
     mass_per_length: float = param(unit="kg/m", gt=0.0, doc="ρ·A")
     hub_radius: float = param(0.0, unit="m", ge=0.0, doc="distance joint axis → beam root")
     thickness: Optional[float] = param(None, unit="m", gt=0.0,

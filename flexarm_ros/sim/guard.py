@@ -21,7 +21,10 @@ class DivergenceGuard:
         self.h = h
         self.last = None
         self.lengths = np.array([lm.beam.length for lm in chain.links])
-        self.tip_rows = [(lm.beam.phi_tip, lm.eta) for lm in chain.links]
+        # the rod rung has no small-deflection bound (its kinematics are exact): its row
+        # is zero, as in the compiled loops' check
+        self.tip_rows = [(lm.beam.phi_tip * (lm.beam.rod is None), lm.eta)
+                         for lm in chain.links]
 
     def _ratios(self, q):
         return np.array([phi @ q[sl] for phi, sl in self.tip_rows]) / self.lengths

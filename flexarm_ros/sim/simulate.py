@@ -282,8 +282,8 @@ def output_columns(chain: Chain, run: Integration, actuators: bool = True) -> di
         cols[f"{name}_rate"] = run.qd[:, j]
     energy, tip = chain.energies(run.t, run.q, run.qd, run.z)
     cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
-    for lm in chain.links:           # w(L) = φ(L)ᵀη (Chain.tip_deflections, all samples)
-        cols[f"{lm.name}_tip_deflection"] = run.q[:, lm.eta] @ lm.beam.phi_tip
+    for lm in chain.links:   # w(L): φ(L)ᵀη, or the rod's exact tip in its hub frame
+        cols[f"{lm.name}_tip_deflection"] = lm.beam.tip_deflections(run.q[:, lm.eta])
     cols["energy"] = energy
     if actuators:
         cols.update(actuator_columns(chain, run))

@@ -427,3 +427,39 @@ def cantilever_curvature(EI, mass_per_length, length, gravity, tip_mass, x):
     r = L - xa
     k = (q * r * r / 2.0 + P * r) / EI
     return float(k) if k.ndim == 0 else k
+
+
+# ------------------------------------------------------------------ the large deflection
+def elastica_tip(alpha):
+    """The tip of a cantilever under a tip load P that keeps its direction (perpendicular
+    to the unloaded beam), inextensible, at any deflection (the elastica; Bisshopp &
+    Drucker, Q. Appl. Math. 3, 1945, 272-275), ``alpha = P L² / EI``: returns
+    ``(u/L, v/L, theta0)`` — the tip's shortening along the unloaded axis, its deflection
+    along the load and its slope (rad).
+
+    With the tip slope θ₀, ``k = sqrt((1 + sin θ₀)/2)`` and ``sin φ₁ = 1 / (k √2)``:
+
+        √α = K(k) − F(φ₁, k),
+        v/L = 1 − 2 [E(k) − E(φ₁, k)] / √α,
+        x_tip/L = sqrt(2 sin θ₀ / α),   u/L = 1 − x_tip/L,
+
+    K, F, E, E(φ, k) the complete and incomplete elliptic integrals (modulus k; scipy's
+    parameter m = k²). θ₀ is found by Brent's method on the first equation, which rises
+    monotonically from 0 (θ₀ = 0) to ∞ (θ₀ → π/2)."""
+    from scipy.special import ellipe, ellipeinc, ellipk, ellipkinc
+    _check_positive("alpha", alpha)
+
+    def parts(theta0):
+        k2 = 0.5 * (1.0 + math.sin(theta0))
+        phi1 = math.asin(min(1.0, 1.0 / math.sqrt(2.0 * k2)))
+        return k2, phi1
+
+    def residual(theta0):
+        k2, phi1 = parts(theta0)
+        return ellipk(k2) - ellipkinc(phi1, k2) - math.sqrt(alpha)
+
+    theta0 = brentq(residual, 1e-15, 0.5 * math.pi - 1e-12, xtol=1e-15, rtol=_RTOL)
+    k2, phi1 = parts(theta0)
+    v = 1.0 - 2.0 * (ellipe(k2) - ellipeinc(phi1, k2)) / math.sqrt(alpha)
+    u = 1.0 - math.sqrt(2.0 * math.sin(theta0) / alpha)
+    return u, v, theta0

@@ -262,6 +262,91 @@ def beam_invariants(q, qd, s0, nk, k, fs, m0, m1, m2, G, H, Jo, Jpsi, M, h, Qg, 
             Qg[ia] += aex * g[0] + aey * g[1]
 
 
+@_jit_raw
+def rod_local(q, qd, s0, nk, k, P, model, ws):
+    """The rod rung's local kinematics of link k (model/rod.py) into ws.rod_s (positions in
+    the hub frame), ws.rod_sd (their rates ṡ), ws.rod_ds (∂s/∂η) and ws.rod_a
+    (velocity-product accelerations) at its P points and tip (row P): with θ_i = T_iη,
+    ε_i = C_iη at the points and
+    f_i = (1 + ε_i)(cos θ_i, sin θ_i),
+
+        s_j = (r_h, 0) + Σ_i W_ji f_i,   ∂s_j/∂η_a = Σ_i W_ji ∂f_i/∂η_a,
+        a_j = Σ_i W_ji [2ε̇_iθ̇_i (−sin θ_i, cos θ_i) − (1 + ε_i)θ̇_i² (cos θ_i, sin θ_i)].
+    """
+    T = model.rod_T
+    C = model.rod_C
+    W = model.rod_W
+    G = ws.rod_g
+    RS = ws.rod_s
+    RD = ws.rod_ds
+    RA = ws.rod_a
+    for i in range(P):
+        th = 0.0
+        thd = 0.0
+        ep = 0.0
+        epd = 0.0
+        for a in range(nk):
+            th += T[k, i, a] * q[s0 + a]
+            thd += T[k, i, a] * qd[s0 + a]
+            ep += C[k, i, a] * q[s0 + a]
+            epd += C[k, i, a] * qd[s0 + a]
+        ct = math.cos(th)
+        st = math.sin(th)
+        fac = 1.0 + ep
+        for a in range(nk):
+            G[i, 0, a] = C[k, i, a] * ct - fac * st * T[k, i, a]
+            G[i, 1, a] = C[k, i, a] * st + fac * ct * T[k, i, a]
+        G[i, 0, nk] = -2.0 * epd * thd * st - fac * thd * thd * ct
+        G[i, 1, nk] = 2.0 * epd * thd * ct - fac * thd * thd * st
+        G[i, 0, nk + 1] = fac * ct
+        G[i, 1, nk + 1] = fac * st
+        G[i, 0, nk + 2] = epd * ct - fac * thd * st       # ḟ: the rate of f
+        G[i, 1, nk + 2] = epd * st + fac * thd * ct
+    RV = ws.rod_sd
+    for j in range(P + 1):
+        sx = model.hub_radius[k]
+        sy = 0.0
+        ax = 0.0
+        ay = 0.0
+        vx = 0.0
+        vy = 0.0
+        for a in range(nk):
+            RD[j, 0, a] = 0.0
+            RD[j, 1, a] = 0.0
+        for i in range(P):
+            w = W[k, j, i]
+            for a in range(nk):
+                RD[j, 0, a] += w * G[i, 0, a]
+                RD[j, 1, a] += w * G[i, 1, a]
+            ax += w * G[i, 0, nk]
+            ay += w * G[i, 1, nk]
+            sx += w * G[i, 0, nk + 1]
+            sy += w * G[i, 1, nk + 1]
+            vx += w * G[i, 0, nk + 2]
+            vy += w * G[i, 1, nk + 2]
+        RV[j, 0] = vx
+        RV[j, 1] = vy
+        RA[j, 0] = ax
+        RA[j, 1] = ay
+        RS[j, 0] = sx
+        RS[j, 1] = sy
+
+
+@_jit_inline
+def _mass_point(m, na, Jx, Jy, cx, cy, g, has_g, M, h, Qg):
+    """A mass point's share of M, h and Q_grav (its Jacobian rows Jx, Jy over the first
+    ``na`` coordinates, its velocity-product acceleration (cx, cy))."""
+    if has_g:
+        for i in range(na):
+            Qg[i] += m * (Jx[i] * g[0] + Jy[i] * g[1])
+    for i in range(na):
+        h[i] += m * (Jx[i] * cx + Jy[i] * cy)
+        mjx = m * Jx[i]
+        mjy = m * Jy[i]
+        for j in range(i, na):
+            M[i, j] += mjx * Jx[j] + mjy * Jy[j]
+
+
 @_jit_inline
 def chain_terms(q, qd, model, ws):
     """Fill ws' M (n, n), h (n,), Qg (n,) at (q, q̇): chain.Chain.kinematics in loops; the
@@ -351,11 +436,41 @@ def chain_terms(q, qd, model, ws):
         tcx = 0.0
         tcy = 0.0
         psid2 = psid * psid
-        if model.invariant[k]:
+        if model.rod[k]:            # the rod rung: its exact local kinematics
+            rod_local(q, qd, s0, nk, k, P, model, ws)
+            RS = ws.rod_s
+            RD = ws.rod_ds
+            RA = ws.rod_a
+            RV = ws.rod_sd
+            for p in range(P + 1):
+                Asx = c * RS[p, 0] - s * RS[p, 1]
+                Asy = s * RS[p, 0] + c * RS[p, 1]
+                Adx = c * RV[p, 0] - s * RV[p, 1]
+                Ady = s * RV[p, 0] + c * RV[p, 1]
+                cx = cox - psid2 * Asx - 2.0 * psid * Ady + c * RA[p, 0] - s * RA[p, 1]
+                cy = coy - psid2 * Asy + 2.0 * psid * Adx + s * RA[p, 0] + c * RA[p, 1]
+                for i in range(s0):
+                    Jx[i] = Jo[0, i] - Asy * Jpsi[i]
+                    Jy[i] = Jo[1, i] + Asx * Jpsi[i]
+                for a in range(nk):
+                    Jx[s0 + a] = c * RD[p, 0, a] - s * RD[p, 1, a]
+                    Jy[s0 + a] = s * RD[p, 0, a] + c * RD[p, 1, a]
+                if p < P:
+                    _mass_point(MP[k, p], nact, Jx, Jy, cx, cy, g, has_g, M, h, Qg)
+                else:
+                    tox = ox + Asx
+                    toy = oy + Asy
+                    tcx = cx
+                    tcy = cy
+                    for i in range(nact):
+                        Jtx[i] = Jx[i]
+                        Jty[i] = Jy[i]
+        elif model.invariant[k]:
             beam_invariants(q, qd, s0, nk, k, fs, model.inv_mass, model.inv_phi,
                             model.inv_mat, model.inv_G, model.inv_H, Jo, Jpsi, M, h, Qg,
                             ws.inv_vec, ws.inv_E, c, s, cox, coy, psid, g, has_g)
-        for p in range(P if model.invariant[k] else 0, P + 1):
+        for p in range(0 if not (model.invariant[k] or model.rod[k]) else
+                       (P + 1 if model.rod[k] else P), P + 1):
             ext = EXT[k, p]
             Asx, Asy, Adx, Ady, ax_acc = beam_point(q, qd, s0, ext, PHI, SS, k, p, fs,
                                                     rh[k] + X[k, p], c, s, Seta)
@@ -372,16 +487,7 @@ def chain_terms(q, qd, model, ws):
                 Jx[s0 + a] = -c * Seta[a] - s * PHI[k, p, a]
                 Jy[s0 + a] = -s * Seta[a] + c * PHI[k, p, a]
             if p < P:
-                m = MP[k, p]
-                if has_g:
-                    for i in range(na):
-                        Qg[i] += m * (Jx[i] * g[0] + Jy[i] * g[1])
-                for i in range(na):
-                    h[i] += m * (Jx[i] * cx + Jy[i] * cy)
-                    mjx = m * Jx[i]
-                    mjy = m * Jy[i]
-                    for j in range(i, na):
-                        M[i, j] += mjx * Jx[j] + mjy * Jy[j]
+                _mass_point(MP[k, p], na, Jx, Jy, cx, cy, g, has_g, M, h, Qg)
             else:
                 tox = ox + Asx
                 toy = oy + Asy

@@ -84,6 +84,11 @@ class Model(NamedTuple):
     # backlash couplings
     backlash_idx: np.ndarray    # (nb, 2) int: motor, joint coordinate
     backlash_par: np.ndarray    # (nb, 3): half width (rad), stiffness, damping
+    # the rod rung's links (model/rod.py): their points from the exact kinematics
+    rod: np.ndarray             # (nl,) bool
+    rod_T: np.ndarray           # (nl, P+1, ne): ∂θ/∂η at the points and the tip
+    rod_C: np.ndarray           # (nl, P+1, ne): ∂ε/∂η
+    rod_W: np.ndarray           # (nl, P+1, P): the integration matrix
 
 
 class Workspace(NamedTuple):
@@ -115,6 +120,11 @@ class Workspace(NamedTuple):
     tip: np.ndarray             # (6,) last tip frame: o, c_o, ψ, ψ̇
     frames: np.ndarray          # (nl, 2, 6) hub (0) / tip (1) frame of each link: o, c_o, ψ, ψ̇
     frame_jac: np.ndarray       # (nl, 2, 3, n) their ∂o_x/∂q, ∂o_y/∂q, ∂ψ/∂q
+    rod_s: np.ndarray           # (P+1, 2) a rod's local positions (points, tip)
+    rod_sd: np.ndarray          # (P+1, 2) their rates
+    rod_ds: np.ndarray          # (P+1, 2, ne) their ∂s/∂η
+    rod_a: np.ndarray           # (P+1, 2) their velocity-product accelerations
+    rod_g: np.ndarray           # (P, 2, ne + 3): the integrands of ∂s/∂η (ne), a, f, ḟ
 
 
 def workspace(model) -> tuple:
@@ -123,6 +133,7 @@ def workspace(model) -> tuple:
     model = Model._make(model)
     n, nl, nz = model.n, model.nl, model.nz
     ne = model.phi.shape[2]
+    P = model.phi.shape[1] - 1
     nf = model.free.shape[0]
     npr = model.presc.shape[0]
     e = np.empty
@@ -131,7 +142,9 @@ def workspace(model) -> tuple:
         inv_vec=e((6, ne)), inv_E=e((ne, ne)),
         Jx=e(n), Jy=e(n), Jtx=e(n), Jty=e(n), Mff=e((nf, nf)), ff=e(nf), L=e((nf, nf)),
         y=e(nf), acc=e(nf), pdd=e(max(npr, 1)), f=e(n), xdot=e(2 * nf + nz),
-        zd=e(max(nz, 1)), tip=e(6), frames=e((nl, 2, 6)), frame_jac=e((nl, 2, 3, n))))
+        zd=e(max(nz, 1)), tip=e(6), frames=e((nl, 2, 6)), frame_jac=e((nl, 2, 3, n)),
+        rod_s=e((P + 1, 2)), rod_sd=e((P + 1, 2)), rod_ds=e((P + 1, 2, ne)),
+        rod_a=e((P + 1, 2)), rod_g=e((P, 2, ne + 3))))
 
 
 @jit_inline

@@ -27,7 +27,7 @@ from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
 from flexarm_ros.model.compiled.layout import named
 
-HUB, TIP, BEAM = 0, 1, 2
+HUB, TIP, BEAM, ROD = 0, 1, 2, 3
 
 
 def no_accelerometers() -> tuple:
@@ -39,25 +39,34 @@ def no_accelerometers() -> tuple:
 def pack(chain, sensors) -> tuple:
     """The accelerometers of ``sensors`` (SensorModels) as arrays for :func:`readings`:
     (index into ``sensors``, ints (m, 3) = link, body, e0; floats (m, 5) = p_x, p_y, axis
-    x, axis y, r_h; basis φ (m, 1, ne_max), φ′ (m, ne_max) and S (m, 1, ne_max, ne_max):
-    φ and S in the model's per-point layout, one point per accelerometer)."""
+    x, axis y, r_h; basis φ (m, 1, max(ne_max, P_max)), φ′ (m, ne_max) and S (m, 1,
+    ne_max, ne_max): φ and S in the model's per-point layout, one point per
+    accelerometer). On a rod (body ROD): φ[r, 0, :P] the integration row W(x), φ′ the
+    row ∂θ/∂η and S[r, 0, 0] the row ∂ε/∂η at its abscissa (model/rod.py)."""
     acc = [j for j, sm in enumerate(sensors) if sm.spec.kind == "accelerometer"]
     nemax = max(lm.beam.n for lm in chain.links)
+    pmax = max(len(lm.beam.x) for lm in chain.links)
     m = len(acc)
     ints = np.zeros((m, 3), dtype=np.int64)
     flt = np.zeros((m, 5))
-    phi = np.zeros((m, 1, nemax))
+    phi = np.zeros((m, 1, max(nemax, pmax)))
     slope = np.zeros((m, nemax))
     S = np.zeros((m, 1, nemax, nemax))
     for r, j in enumerate(acc):
         sm = sensors[j]
         lm = chain.links[sm.link]
         body = {"hub": HUB, "tip": TIP, "beam": BEAM}[sm.spec.body]
+        if body == BEAM and lm.beam.rod is not None:
+            body = ROD
         ints[r] = (sm.link, body, lm.eta.start)
         pos = np.asarray(sm.spec.position, float)
         flt[r] = (pos[0], pos[1] if len(pos) > 1 else 0.0, sm.axis[0], sm.axis[1],
                   lm.beam.hub_radius)
-        if body == BEAM:
+        if body == ROD:         # the integration row, ∂θ/∂η and ∂ε/∂η at its abscissa
+            w, t_row, c_row = lm.beam.rod.point_rows(pos[0])
+            ne = lm.beam.n
+            phi[r, 0, :len(w)], slope[r, :ne], S[r, 0, 0, :ne] = w, t_row, c_row
+        elif body == BEAM:
             ne = lm.beam.n
             ph, sl, SS = sm.basis
             phi[r, 0, :ne], slope[r, :ne], S[r, 0, :ne, :ne] = ph, sl, SS
@@ -101,6 +110,53 @@ def _table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out
 
 
 @_jit_inline
+def _rod_point(q, qd, qdd, e0, ne, k, model, phi, slope, S, r, rh, c, s):
+    """A point on rod link k at the abscissa of accelerometer r (the rows :func:`pack`
+    stored): A s, A ṡ, A s̈ (with the coordinates' q̈) and θ(x) − ψ, from the rod's
+    integrands at its Gauss points (:func:`flexarm_ros.model.compiled.chain.rod_local`'s
+    equations at one row of W)."""
+    T = model.rod_T
+    C = model.rod_C
+    P = model.npt[k]
+    sx = rh
+    sy = 0.0
+    vx = 0.0
+    vy = 0.0
+    ax = 0.0
+    ay = 0.0
+    for i in range(P):
+        th = 0.0
+        thd = 0.0
+        thdd = 0.0
+        ep = 0.0
+        epd = 0.0
+        epdd = 0.0
+        for a in range(ne):
+            th += T[k, i, a] * q[e0 + a]
+            thd += T[k, i, a] * qd[e0 + a]
+            thdd += T[k, i, a] * qdd[e0 + a]
+            ep += C[k, i, a] * q[e0 + a]
+            epd += C[k, i, a] * qd[e0 + a]
+            epdd += C[k, i, a] * qdd[e0 + a]
+        ct = math.cos(th)
+        st = math.sin(th)
+        fac = 1.0 + ep
+        w = phi[r, 0, i]
+        sx += w * fac * ct
+        sy += w * fac * st
+        vx += w * (epd * ct - fac * thd * st)
+        vy += w * (epd * st + fac * thd * ct)
+        # f̈ = ε̈ t + (1 + ε) θ̈ n + 2 ε̇ θ̇ n − (1 + ε) θ̇² t
+        ax += w * (epdd * ct - fac * thdd * st - 2.0 * epd * thd * st - fac * thd * thd * ct)
+        ay += w * (epdd * st + fac * thdd * ct + 2.0 * epd * thd * ct - fac * thd * thd * st)
+    th_x = 0.0
+    for a in range(ne):
+        th_x += slope[r, a] * q[e0 + a]
+    return (c * sx - s * sy, s * sx + c * sy, c * vx - s * vy, s * vx + c * vy,
+            c * ax - s * ay, s * ax + c * ay, th_x)
+
+
+@_jit_inline
 def _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
     """:func:`readings` on the named model and workspace."""
     n = model.n
@@ -117,7 +173,7 @@ def _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
         k = ints[r, 0]
         body = ints[r, 1]
         e0 = ints[r, 2]
-        fj = 0 if body == BEAM else body
+        fj = 0 if body == BEAM or body == ROD else body     # a beam point: its hub frame
         cox = FR[k, fj, 2]
         coy = FR[k, fj, 3]
         psi = FR[k, fj, 4]
@@ -133,7 +189,14 @@ def _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
             aoy += FJ[k, fj, 1, i] * qdd[i]
             apsi += FJ[k, fj, 2, i] * qdd[i]
         angle = psi
-        if body == BEAM:
+        if body == ROD:
+            Asx, Asy, Adx, Ady, Addx, Addy, th_x = _rod_point(q, qd, qdd, e0, ne_all[k],
+                                                             k, model, phi, slope, S, r,
+                                                             flt[r, 4], c, s)
+            angle += th_x
+            ax = aox - Asy * apsi + Addx - psid * psid * Asx - 2.0 * psid * Ady
+            ay = aoy + Asx * apsi + Addy - psid * psid * Asy + 2.0 * psid * Adx
+        elif body == BEAM:
             ne = ne_all[k]
             Asx, Asy, Adx, Ady, acc_ax = kchain.beam_point(q, qd, e0, ne, phi, S, r, 0, fs,
                                                            flt[r, 4] + flt[r, 0], c, s, Seta)

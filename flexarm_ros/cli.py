@@ -99,6 +99,11 @@ def _fidelity_args(p):
                         "(the contact stepper's with a wall) or the trapezoid's; 0: none "
                         "(the automatic step; rung auto's default 1e-5 m), e.g. to clear a "
                         "scene's fidelity.tolerance")
+    g.add_argument("--tolerance-metric", choices=("position", "deflection", "both"),
+                   help="what --tolerance bounds: the tip position in the world frame, "
+                        "the elastic tip deflection of every link in its hub frame, or both "
+                        "(default); checked against the geometrically exact rung over the "
+                        "whole run (docs/accuracy.md)")
     g.add_argument("--no-foreshortening", action="store_true",
                    help="drop the geometric-stiffening (foreshortening) terms")
     g.add_argument("--max-steps", type=number, metavar="N",
@@ -110,7 +115,7 @@ def _overrides(args) -> dict:
     """The fidelity options given → ``Scene.with_fidelity`` keywords (None: not given)."""
     over = {k: getattr(args, k, None) for k in
             ("rung", "refine", "integrator", "rtol", "atol", "dt", "max_steps",
-             "tolerance")}
+             "tolerance", "tolerance_metric")}
     if getattr(args, "no_foreshortening", False):
         over["foreshortening"] = False
     if getattr(args, "estimate", False):
@@ -211,28 +216,49 @@ def cmd_simulate(args):
                   f"input programs alone)")
         for rate, path in summ.get("sensor_tables", {}).items():
             print(f"  sensors at {rate} Hz → {path}")
+        if summ.get("check"):
+            _print_check(summ)
         if summ.get("auto"):
             print(f"  rung auto: {summ['rung']} {summ['refine']}, {summ['integrator']} step "
                   f"{summ['step_s']:.3g} s, estimated tip error "
                   f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
         else:
-            if summ.get("tolerance_m"):        # the tolerance chose the step
-                step_est = summ.get("step_estimate_m",
-                                    summ["estimated_tip_error_m"])
+            if summ.get("tolerance_m") and res.accuracy:   # the tolerance chose the step
+                step_est = summ.get("step_estimate_m", res.accuracy.estimated_tip_error_m)
                 above = (f" ({res.accuracy.above()})"
                          if res.accuracy.method == "pilot above the stable step" else "")
                 default = (" (the default: the trapezoid's automatic step)"
                            if summ.get("tolerance_source") == "default" else "")
                 print(f"  step {summ['step_s']:.4g} s{above} chosen for a tip tolerance of "
                       f"{summ['tolerance_m']:.2g} m{default}, its estimated temporal error "
-                      f"{step_est:.2g} m (--estimate adds the rung's own spatial error)")
+                      f"{step_est:.2g} m")
             if summ.get("assessment"):
                 print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "
                       f"({summ['estimate'].split(':')[0]}; --json: how)")
     if summ.get("warning"):
         print(f"flexarm: warning: {summ['warning']}", file=sys.stderr)
     return 0
+
+
+def _print_check(summ) -> None:
+    """The check against the top rung, in two lines."""
+    chk = summ["check"]
+    if chk["status"] != "ok":
+        print(f"  not checked against the top rung: {chk['status']}")
+        return
+    est = chk["estimate"]
+    share = max(est["deflection_share"], default=0.0)
+    print(f"  checked against {chk['reference']} over the whole run ({chk['wall_s']:.2g} s): "
+          f"tip position within {est['position_m']:.2g} m, tip deflection within "
+          f"{max(est['deflection_m'], default=0.0):.2g} m ({100 * share:.3g} % of its peak)")
+    for tried in summ.get("escalated") or ():
+        print(f"    rung auto tried {tried['model']}: {tried['estimated_tip_error_m']:.2g} m "
+              f"tip position, {tried['estimated_deflection_error_m']:.2g} m deflection")
+    if summ.get("tolerance_met") is not None:
+        print(f"  tolerance {summ['tolerance_m']:.2g} m ({summ['tolerance_metric']}): "
+              + ("met" if summ["tolerance_met"] else "NOT met")
+              + f", bound by the {summ['bound_by']}")
 
 
 def sensor_table_path(out, rate_hz) -> Path:

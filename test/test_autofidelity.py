@@ -1,11 +1,13 @@
-"""Rung auto (issue 14 item 3): the cheapest rung, refinement and RK4 step estimated to meet a
-tip tolerance, checked against an independent truth — a finer FEM mesh, integrated by
-DOP853 at rtol 1e-10 or by RK4 at its stable step (FEM's stiff element modes hold the
-explicit step far below the periods that move the tip, so the time error is negligible
-next to the tolerance; docs/ladder.md) — and the refusals of what auto cannot do."""
+"""Rung auto (issue 14 item 3; issue 36): the cheapest rung, refinement and RK4 step
+estimated to meet a tolerance — a priori on the linearized model, then checked after the
+run against the geometrically exact rod over the whole run in both measures (tip position,
+tip deflection), going on to the rod where the floating-frame rungs cannot meet it — held
+against the physics (the rod with 12 terms at half its step), FEM and DOP853 references
+of the model's own class for the a-priori parts, and the refusals of what auto cannot do."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -26,59 +28,74 @@ def _err(res, ref) -> float:
     return float(np.max(np.linalg.norm(_tip(res) - _tip(ref), axis=1)))
 
 
-@pytest.mark.parametrize("name,duration,tol,truth", [
-    # seed 001 link with tip mass: auto takes 2 modes for 1 s at the default 1e-5 m
-    ("link_tipmass", 1.0, 0.0, {"rung": "fem", "refine": 8}),
-    # seed 000 two-link arm: modal 2 (chain-loaded modes; cubic misses TOL/2 by a little)
-    ("two_link_free", 1.0, 0.0, {"rung": "fem", "refine": 6}),
+@functools.lru_cache(maxsize=8)
+def _physics(scene, T):
+    """The physics to measure against: the geometrically exact rod with 12 curvature terms
+    by RK4 at half its automatic step (its own error below 1e-8 m on these scenes:
+    test_rod.py, sim/truth.py's reference pairs), more terms than the check after a run
+    takes for these tolerances (8 or 10)."""
+    sc = scene.with_fidelity(rung="rod", refine=12, integrator="rk4", dt=0.0, tolerance=0.0)
+    from flexarm_ros.model.statics import initial_x
+    from flexarm_ros.sim.step import choose_step
+    ch = Chain(sc)
+    h = choose_step(ch, initial_x(ch), "rk4", 0.0, sc.fidelity.output_dt, dense=True)
+    return simulate(sc.with_fidelity(dt=0.5 * h), T)
+
+
+def _deflection_err(res, ref) -> float:
+    keys = [k for k in ref.columns if k.endswith("_tip_deflection")]
+    return max(float(np.max(np.abs(res.columns[k] - ref.columns[k]))) for k in keys)
+
+
+@pytest.mark.parametrize("name,duration,tol", [
+    # seed 001 link with tip mass at the default 1e-5 m: modal 3 meets the position but
+    # not the deflection (its few clamped modes split hub angle and bending wrongly), so
+    # auto goes on to the rod
+    ("link_tipmass", 1.0, 0.0),
+    # seed 000 two-link arm: the second-order rungs sit 4e-4 m off the exact beam
+    ("two_link_free", 1.0, 0.0),
     # a tighter tolerance on the flexible-joint link
-    ("link_flexjoint", 1.0, 1e-7, {"rung": "fem", "refine": 6, "integrator": "dop853",
-                                   "rtol": 1e-10, "atol": 1e-12}),
+    ("link_flexjoint", 1.0, 1e-7),
 ])
-def test_auto_meets_its_tolerance_against_a_converged_reference(name, duration, tol, truth):
+def test_auto_meets_its_tolerance_against_the_physics(name, duration, tol):
+    """Rung auto's run meets its tolerance in both measures (tip position, tip deflection)
+    against the geometrically exact rod over the whole run, and its reported estimates
+    cover the measured errors within 3× (issue 36)."""
     sc = load_scene(name)
     res = simulate(sc.with_fidelity(rung="auto", tolerance=tol), duration)
-    ref = simulate(sc.with_fidelity(**truth), duration)
+    ref = _physics(sc, duration)
     s = res.summary()
-    err = _err(res, ref)
-    assert err <= s["tolerance_m"], (s["rung"], s["refine"], err)
-    assert s["tolerance_met"] and err <= s["estimated_tip_error_m"] * 2, s
+    err, derr = _err(res, ref), _deflection_err(res, ref)
+    assert s["tolerance_met"] is True, s.get("warning")
+    assert err <= s["tolerance_m"] and derr <= s["tolerance_m"], (s["rung"], err, derr)
+    assert err <= s["estimated_tip_error_m"] <= 3 * err + 1e-9, (err, s)
+    assert derr <= s["estimated_deflection_error_m"] <= 3 * derr + 1e-9, (derr, s)
     assert s["rung"] != "auto" and s["integrator"] in ("rk4", "rkn4")
     assert s["step_s"] == res.run.dt
-    # auto is no worse than the scene's own rung where that rung also meets auto's own
-    # admission margin, TOL/2 (docs/accuracy.md). Between TOL/2 and TOL auto takes a finer
-    # model by design: two_link_free with the derived seed 000 geometry, cubic 5.8e-6 m
-    # measured against FEM 6 (auto's estimate 6.6e-6 m) at TOL = 1e-5 m, takes modal 2
-    # (chain-loaded modes, 3.1e-6 m; fem 2 before session 12).
-    own = simulate(sc, duration)
-    if _err(own, ref) <= 0.5 * s["tolerance_m"]:
-        assert res.run.rhs_evaluations <= own.run.rhs_evaluations * 1.01
 
 
-@pytest.mark.parametrize("name,tol,truth", [
-    ("link_tipmass", 1e-5, {"rung": "fem", "refine": 8}),
-    ("two_link_free", 1e-6, {"rung": "fem", "refine": 6}),
-])
-def test_auto_takes_rkn4_where_it_steps_further_and_still_meets_the_tolerance(
-        monkeypatch, name, tol, truth):
-    """Rung auto's chosen model stepped by rkn4 (same cost per step as RK4) at the step its
-    linear estimate allows: fewer steps than the RK4 choice, and both meet TOL against
-    FEM (measured 1 s: link_tipmass modal 3, 0.937 against 0.789 ms; two_link_free modal
-    3, 5.8 against 4.6 ms at 1e-6 m)."""
+@pytest.mark.parametrize("name,tol", [("link_tipmass", 1e-5), ("two_link_free", 1e-6)])
+def test_auto_takes_rkn4_where_it_steps_further(monkeypatch, name, tol):
+    """Rung auto's a-priori choice steps its model by rkn4 (same cost per step as RK4)
+    where the linear estimate allows a longer step: fewer steps than the RK4 choice of the
+    same model, and both within TOL of that model by DOP853 (measured 1 s: link_tipmass
+    modal 3, 0.937 against 0.789 ms; two_link_free modal 3, 5.8 against 4.6 ms at 1e-6 m).
+    The check against the physics comes after it (test above)."""
     sc = load_scene(name).with_fidelity(rung="auto", tolerance=tol)
-    ref = simulate(load_scene(name).with_fidelity(**truth), 1.0)
-    with_rkn4 = simulate(sc, 1.0)
+    with_rkn4 = autofidelity.resolve(sc, 1.0)[0]
     monkeypatch.setattr(autofidelity._Analysis, "_with_rkn4", lambda self, *a: None)
     autofidelity._choose.cache_clear()           # the choice is kept per process
-    rk4_only = simulate(sc, 1.0)
+    rk4_only = autofidelity.resolve(sc, 1.0)[0]
     autofidelity._choose.cache_clear()
-    a, b = with_rkn4.summary(), rk4_only.summary()
-    assert (a["integrator"], b["integrator"]) == ("rkn4", "rk4")
-    assert (a["rung"], a["refine"]) == (b["rung"], b["refine"])
-    assert a["steps"] < 0.9 * b["steps"], (a["steps"], b["steps"])
-    for res in (with_rkn4, rk4_only):
+    a, b = simulate(with_rkn4, 1.0), simulate(rk4_only, 1.0)
+    assert (a.chain.fidelity.integrator, b.chain.fidelity.integrator) == ("rkn4", "rk4")
+    assert (a.chain.fidelity.rung, a.chain.fidelity.refine) == (
+        b.chain.fidelity.rung, b.chain.fidelity.refine)
+    assert a.run.steps < 0.9 * b.run.steps, (a.run.steps, b.run.steps)
+    ref = simulate(with_rkn4.with_fidelity(integrator="dop853", rtol=1e-11, atol=1e-13,
+                                           dt=0.0), 1.0)
+    for res in (a, b):
         assert _err(res, ref) <= tol
-        assert res.summary()["tolerance_met"]
 
 
 def test_the_linear_estimates_track_the_nonlinear_errors():
@@ -113,13 +130,15 @@ def test_simulate_json_reports_the_choice_and_the_estimate(tmp_path, capsys):
                  "--json", "--quiet", "--out", str(tmp_path / "x.npz")])
     out = json.loads(capsys.readouterr().out)
     assert code == 0
-    assert out["rung"] in ("rigid", "cubic", "modal", "fem", "fd") and out["refine"] >= 0
+    assert out["rung"] in ("rigid", "cubic", "modal", "fem", "fd", "rod") and out["refine"] >= 0
     assert out["integrator"] == "rk4" and out["step_s"] > 0
     assert 0 < out["estimated_tip_error_m"] <= out["tolerance_m"] == 1e-5
-    assert out["estimate"].startswith("a posteriori, spatial + temporal")
-    assert out["tolerance_met"] is True
+    assert 0 < out["estimated_deflection_error_m"] <= 1e-5
+    assert out["estimate"].startswith("against the top rung over the whole run")
+    assert out["tolerance_met"] is True and out["tolerance_metric"] == "both"
+    assert out["check"]["status"] == "ok" and out["check"]["reference"].startswith("rod")
     auto = out["auto"]
-    assert auto["tolerance_source"] == "default" and auto["check"]["status"] == "ok"
+    assert auto["tolerance_source"] == "default"
     assert any(c["verdict"].startswith("chosen") for c in auto["candidates"])
 
 
@@ -239,26 +258,30 @@ def test_the_block_recurrence_equals_the_step_by_step_one():
 
 
 # ------------------------------------------ fidelity.estimate: a named rung's error
-@pytest.mark.parametrize("name,over,truth", [
-    # the seed's cubic on the two-link arm (measured 5.8e-6 m, estimated 1.1e-5 m)
-    ("two_link_free", {}, {"rung": "fem", "refine": 6}),
-    # chain-loaded modes (3.1e-6 / 6.2e-6 m)
-    ("two_link_free", {"rung": "modal", "refine": 2}, {"rung": "fem", "refine": 6}),
-    # seed 002's two modes against the converged modal family (5.8e-5 / 1.3e-4 m)
-    ("hydraulic_2kg", {}, {"rung": "modal", "refine": 12}),
+@pytest.mark.parametrize("name,over,T", [
+    # the scene's modal 3 on the two-link arm: 4e-4 m from the exact beam (the second-
+    # order shortening), which its own class's finer models cannot show
+    ("two_link_free", {}, 1.0),
+    # the seed's cubic
+    ("two_link_free", {"rung": "cubic"}, 1.0),
+    # seed 002's two modes: under gravity and its tip load the arm droops 0.22 m, where the
+    # second-order rungs part from the exact beam by centimetres
+    ("hydraulic_2kg", {}, 0.5),
 ])
-def test_the_estimate_of_a_named_rung_covers_its_error(name, over, truth):
+def test_the_estimate_of_a_named_rung_covers_its_error(name, over, T):
+    """--estimate: the run against the top rung over the whole run; the estimate bounds the
+    error measured against the physics (rod 12 by DOP853) in both measures and is
+    informative (within 3×)."""
     sc = load_scene(name)
-    T = 1.0
     res = simulate(sc.with_fidelity(estimate=True, **over), T)
-    ref = simulate(sc.with_fidelity(**truth), T)
+    ref = _physics(sc, T)
     s = res.summary()
-    err = _err(res, ref)
-    # an upper bound, and an informative one (measured 1.9–2.2× the error)
-    assert err <= s["estimated_tip_error_m"] <= 8 * err, (err, s["estimated_tip_error_m"])
-    assert s["estimate"].startswith("a posteriori, spatial + temporal")
-    assert s["assessment"]["check"]["status"] == "ok"
-    assert s["tolerance_m"] is None and s["tolerance_met"] is None and "warning" not in s
+    err, derr = _err(res, ref), _deflection_err(res, ref)
+    assert err <= s["estimated_tip_error_m"] <= 3 * err, (err, s["estimated_tip_error_m"])
+    assert derr <= s["estimated_deflection_error_m"] <= 3 * derr
+    assert s["estimate"].startswith("against the top rung over the whole run")
+    assert s["check"]["status"] == "ok"
+    assert s["tolerance_m"] is None and "warning" not in s
     assert s["rung"] == (over.get("rung") or sc.fidelity.rung)
     # the estimate only watches: the run is the one without it
     plain = simulate(sc.with_fidelity(**over), T)
@@ -277,8 +300,8 @@ def test_estimate_from_the_cli_and_its_refusals(tmp_path, capsys):
     code = main(["simulate", "two_link_free", "--rung", "cubic", "--estimate", "--tolerance",
                  "1e-6", "--duration", "0.5", "--quiet", "--out", str(tmp_path / "y.npz")])
     cap = capsys.readouterr()
-    assert code == 0 and "step 0.00" in cap.out and "estimated tip error" in cap.out
-    assert "name a finer rung" in cap.err and "tighten --tolerance" not in cap.err
+    assert code == 0 and "step 0.00" in cap.out and "checked against rod" in cap.out
+    assert "not met" in cap.err and "--rung rod" in cap.err
     code = main(["simulate", "link_flexjoint", "--estimate", "--integrator", "dop853",
                  "--duration", "0.1", "--quiet"])
     err = capsys.readouterr().err

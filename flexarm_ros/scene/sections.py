@@ -537,6 +537,10 @@ class Fidelity:
                                  "model (trapezoid) (0: off; the step from dt). With "
                                  "rung auto: the bound the rung, refinement and step are "
                                  "chosen for (0: the default 1e-5 m)")
+    tolerance_metric: str = param("both", choices=("position", "deflection", "both"),
+                                  doc="what fidelity.tolerance bounds: the tip position in "
+                                      "the world frame, the elastic tip deflection of every "
+                                      "link in its hub frame, or both (docs/accuracy.md)")
     estimate: bool = param(False, doc="batch run with a named rung (rk4): estimate its tip "
                                       "error as rung auto does (the a-priori analysis "
                                       "before, the check on a finer model after; 0.1-1 s "

@@ -479,7 +479,8 @@ def cmd_run(args):
               layout="processes" if args.processes else args.layout,
               nodes=tuple(n for n in nodes if n != "recorder"),
               namespace=namespace, progress=not args.quiet,
-              fidelity={k: v for k, v in _overrides(args).items() if k != "tolerance"},
+              fidelity={k: v for k, v in _overrides(args).items()
+                        if k not in ("tolerance", "tolerance_metric")},
               sets=sets,
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
                          "ground_truth_rate_hz": args.ground_truth_rate,

@@ -292,7 +292,7 @@ def test_estimate_from_the_cli_and_its_refusals(tmp_path, capsys):
     code = main(["simulate", "two_link_free", "--estimate", "--duration", "0.5", "--json",
                  "--quiet", "--out", str(tmp_path / "x.npz")])
     out = json.loads(capsys.readouterr().out)
-    assert code == 0 and out["rung"] == "modal" and out["estimated_tip_error_m"] > 0
+    assert code == 0 and out["rung"] == "rod" and out["estimated_tip_error_m"] > 0
     a = out["assessment"]
     assert a["finer"] is not None and a["refine"] == out["refine"]
     assert a["tolerance_m"] is None and a["tolerance_source"] == "none"

@@ -68,8 +68,8 @@ CASES = [
     # unknown keys
     ("unknown-top", _set(("colour",), "red"),
      ["colour", "unknown key", "expected one of assumptions, base_angle"]),
-    ("unknown-nested", _set(BEAM + ("EA",), 1.0e6),
-     ["links[0].beam.EA", "unknown key", "expected one of EI, damping"]),
+    ("unknown-nested", _set(BEAM + ("GA",), 1.0e6),
+     ["links[0].beam.GA", "unknown key", "expected one of EA, EI, damping"]),
     ("unknown-deep", _set(TORQUE + ("val",), 1.0),
      ["inputs[0].torque.val", "unknown key", "amplitude"]),
     ("unknown-fidelity", _set(("fidelity", "step"), 1e-4),

@@ -256,7 +256,7 @@ def test_set_reaches_explain_and_creates_a_section_the_scene_leaves_out(capsys):
 
 @pytest.mark.parametrize("sets,expect", [
     (["links[0].beam.EII=3"], "flexarm: error: links[0].beam.EII: unknown key; expected "
-                              "one of EI, damping, hub_radius, length, mass_per_length, "
+                              "one of EA, EI, damping, hub_radius, length, mass_per_length, "
                               "thickness"),
     (["links[0].beam.EI=-1"], "flexarm: error: links[0].beam.EI: got -1.0, expected a "
                               "finite number > 0"),

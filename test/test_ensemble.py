@@ -73,12 +73,12 @@ def test_set_keys_grows_a_left_out_section():
 
 
 def test_set_keys_applies_fidelity_as_the_command_line_does():
-    """A sweep over fidelity.rung on two_link_free (its fixed 7.5 ms was measured for its
-    modal 3) steps each rung at its own step, as `--rung` does; a dt given with it, or an
+    """A sweep over fidelity.rung on spin_up (its fixed 3.3 ms was measured for its rod 5)
+    steps each rung at its own step, as `--rung` does; a dt given with it, or an
     integrator alone, keep theirs."""
-    sc = load_scene("two_link_free")
+    sc = load_scene("spin_up")
     assert K.set_keys(sc, {"fidelity.rung": "fem"}).fidelity.dt == 0.0
-    assert K.set_keys(sc, {"fidelity.integrator": "rk4"}).fidelity.dt == 0.0075
+    assert K.set_keys(sc, {"fidelity.integrator": "rkn4"}).fidelity.dt == 0.0033
     got = K.set_keys(sc, {"fidelity.rung": "cubic", "fidelity.dt": 0.005}).fidelity
     assert (got.rung, got.dt) == ("cubic", 0.005)
     assert K.set_keys(sc, {"fidelity.rung": "fem"}) == sc.with_fidelity(rung="fem")

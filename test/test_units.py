@@ -42,7 +42,7 @@ def test_every_simulate_column_of_every_shipped_scene_has_a_unit():
         cols = _columns(sc)
         units = table_units(cols, sc)
         assert [c for c in cols if c not in units] == [], sc.name
-    assert rungs == {"rigid", "cubic", "modal", "fem", "fd"}
+    assert rungs == {"rigid", "cubic", "modal", "fem", "fd", "rod"}
 
 
 @pytest.mark.parametrize("name, unit", [

@@ -7,8 +7,8 @@ column of labels (``contact_phase``). Names follow the model's conventions:
 
 * ``t``: s;
 * ``<link>_joint``, ``_motor``, ``_drive``: rad (joint, motor-side and drive angles);
-* beam coordinates ``<link>_tip_disp``, ``_w<k>``, ``_y<k>``, ``_mode<k>``: m (modes are
-  scaled to unit peak deflection); ``<link>_tip_rot``, ``_th<k>``, ``_spring`` (the rigid
+* beam coordinates ``<link>_tip_disp``, ``_w<k>``, ``_y<k>``, ``_mode<k>``, ``_rod<k>``: m
+  (modes, the rod's too, are scaled to unit peak deflection); ``<link>_tip_rot``, ``_th<k>``, ``_spring`` (the rigid
   rung's hub spring): rad;
 * ``<coordinate>_rate``: the coordinate's unit per second;
 * ``tip_x``, ``tip_y``, ``<link>_tip_deflection``: m; ``energy``: J;
@@ -41,9 +41,9 @@ TEXT = "text"
 SENSOR_SI_UNIT = {"encoder": "count", "accelerometer": "m/s^2", "strain": "1",
                   "potentiometer": "rad", "tip_position": "m"}
 
-_BEAM = re.compile(r"_(tip_disp|tip_rot|w\d+|th\d+|y\d+|mode\d+|spring)$")
+_BEAM = re.compile(r"_(tip_disp|tip_rot|w\d+|th\d+|y\d+|mode\d+|rod\d+|spring)$")
 _COORDINATE = ((re.compile(r"_(joint|motor|drive|tip_rot|th\d+|spring)$"), "rad"),
-               (re.compile(r"_(tip_disp|w\d+|y\d+|mode\d+)$"), "m"))
+               (re.compile(r"_(tip_disp|w\d+|y\d+|mode\d+|rod\d+)$"), "m"))
 _FIXED = {"t": "s", "tip_x": "m", "tip_y": "m", "energy": "J", "gap": "m", "tool_x": "m",
           "tool_y": "m", "tool_vx": "m/s", "tool_vy": "m/s", "contact_normal_force": "N",
           "contact_friction_force": "N", "contact_normal_impulse": "N*s",

@@ -29,8 +29,8 @@ COMMON = {
 }
 
 FIDELITY = {
-    "rung": ("", "beam discretization rung: rigid, cubic, modal, fem, fd or auto (empty: "
-                 "the scene's)"),
+    "rung": ("", "beam discretization rung: rigid, cubic, modal, fem, fd, rod or auto "
+                 "(empty: the scene's)"),
     "refine": (-1, "modes / elements / FD segments (0: the rung's default; negative: the "
                     "scene's)"),
     "integrator": ("", "time integrator (empty: the scene's)"),

@@ -214,6 +214,12 @@ def cmd_simulate(args):
                   f"{summ['control_rate_hz']:.6g} Hz, efforts held over each period, "
                   f"{summ['control_ticks']} ticks ({summ['lane']} lane; --open-loop: the "
                   f"input programs alone)")
+            if summ.get("tool_error_m") is not None:
+                e, g = summ["tool_end_m"], summ["tool_target_m"]
+                print(f"  the tool ends at ({e[0]:.4g}, {e[1]:.4g}) m, "
+                      f"{1e3 * summ['tool_error_m']:.3g} mm from its target "
+                      f"({g[0]:.4g}, {g[1]:.4g}) m (columns tool_x, tool_y, tool_x_target, "
+                      f"tool_y_target)")
         for rate, path in summ.get("sensor_tables", {}).items():
             print(f"  sensors at {rate} Hz → {path}")
         if summ.get("check"):

@@ -469,7 +469,8 @@ def test_a_twin_bag_is_fitted_with_the_twins_loop(base, twin_bag):
         case = _twin_case(start, bag, 0, s_q=1e-7, s_w=1e-9)
         out = calibrate(Problem([make_param([EI], 500.0, 8000.0, None, start)], [case]))
         values[label] = out["parameters"][0]["value"]
-        assert describe_system(case).startswith(label)
+        assert describe_system(case).startswith(
+            {"closed": "the twin's loop", "open": "open loop"}[label])
     assert abs(values["closed"] - 2000.0) < 1e-3
     assert abs(values["open"] - 2000.0) > 0.3
 
@@ -504,7 +505,8 @@ def test_the_cli_fits_a_twin_bag_with_the_twins_loop(capsys, twin_bag):
     assert main(["calibrate", str(scene), str(bag), "--param", f"{EI}=500:8000@1980",
                  "--channels", "link1_joint,link1_mode1", "--json", "--quiet"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["systems"]["base"].startswith("closed loop: control.mode open_loop at 1000 Hz")
+    assert out["systems"]["base"].startswith("the twin's loop: the input programs sampled "
+                                             "at 1000 Hz")
     p = out["parameters"][0]       # a noise-free record the twin's loop reproduces exactly
     assert abs(p["value"] - 2000.0) < 1e-3
 

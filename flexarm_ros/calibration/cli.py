@@ -119,6 +119,7 @@ def _problem(args):
         raise SceneError("--param: none given, expected at least one KEY=LO:HI")
     from flexarm_ros.scene.overrides import apply_sets, parse_sets
     sets = parse_sets(args.set)
+    from flexarm_ros.scene.overrides import check_not_set
     check_not_set([str(t).partition("=")[0].strip() for t in args.param], sets)
     scene = apply_sets(load_scene(args.scene), sets)
     params = [parse_param(t, scene) for t in args.param]
@@ -146,24 +147,6 @@ def _problem(args):
     # a scene changed by --set is written out whole by --out (as a spec case's set:)
     case.scene_file = None if sets else str(resolve_scene_path(args.scene))
     return Problem(params, [case]), {}
-
-
-def check_not_set(keys, sets: dict) -> None:
-    """No fitted key (``--param``; ``keys``) is also fixed by ``--set`` (the fit would
-    overwrite the set at every evaluation); SceneError naming the key."""
-    from flexarm_ros.scene.keys import parse_path
-
-    def path(k):
-        try:
-            return tuple(parse_path(k))
-        except SceneError:           # a malformed --param: its own message, later
-            return None
-    fixed = {path(k): k for k in sets}
-    for k in keys:
-        if path(k) is not None and path(k) in fixed:
-            raise SceneError(f"--set {fixed[path(k)]}: got a key that --param fits too, "
-                             f"expected it in one of them (--set fixes a value, --param "
-                             f"fits it)")
 
 
 def _check_outputs(args, spec: bool):

@@ -170,6 +170,9 @@ def describe_system(case) -> str:
     sc = case.scene
     if closed_loop(sc, case.open_loop):
         ctl = sc.control
+        if ctl.mode == "open_loop":
+            return (f"the twin's loop: the input programs sampled at {ctl.rate_hz:.6g} Hz "
+                    f"by the controller, the efforts held over each period by the driver")
         return (f"closed loop: control.mode {ctl.mode} at {ctl.rate_hz:.6g} Hz, the efforts "
                 f"held over each period (the twin's loop)")
     return "open loop: the input programs applied continuously"

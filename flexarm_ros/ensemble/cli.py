@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.io.arguments import OPEN_LOOP_HELP, integer, number
+from flexarm_ros.io.arguments import OPEN_LOOP_HELP, integer, number, set_option
 
 SCENE_HELP = "scene YAML path or shipped scene name (default two_link_case1)"
 
@@ -75,10 +75,13 @@ def add_parsers(sub) -> None:
     s.add_argument("--metric", action="append", metavar="NAME",
                    help="impact_time, bounce_height, max_tip_deflection, "
                         "frequency:CHANNEL[@A:B], settling_time:CHANNEL, "
-                        "final_error:CHANNEL=TARGET, energy_drift, wall_s_per_sim_s; "
+                        "final_error:CHANNEL[=TARGET] (no TARGET: the controller's), "
+                        "energy_drift, wall_s_per_sim_s; "
                         "repeatable (impact_time is always in a wall scene's table)")
     s.add_argument("--duration", type=number, help="simulated seconds per sample")
     s.add_argument("--open-loop", action="store_true", help=OPEN_LOOP_HELP)
+    set_option(s, "set a scene value of every sample (KEY=VALUE as --param's keys; "
+                  "repeatable); the swept keys may not be set")
     executor_args(s)
     _output_args(s)
     s.set_defaults(func=cmd_sweep)
@@ -142,7 +145,8 @@ def check_channels(scene, metrics, series=(), duration=None, open_loop=False) ->
     a few output samples, run as the samples run), else SceneError listing the channels."""
     from flexarm_ros.ensemble.metrics import channel
     from flexarm_ros.twin.batch import probe_duration, run_scene
-    wanted = [m.channel for m in metrics if m.channel] + list(series)
+    wanted = [m.channel for m in metrics if m.channel] + list(series) + [
+        f"{m.channel}_target" for m in metrics if m.kind == "final_error" and m.target is None]
     if not wanted:
         return
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -235,11 +239,15 @@ def cmd_sweep(args):
     from flexarm_ros.ensemble.runner import SceneModel, run_ensemble
     _check_duration(args.duration)
     _check_out(args)
-    scene = _load_scene(args.scene)
+    from flexarm_ros.scene.overrides import apply_sets, parse_sets
+    sets = parse_sets(args.set)
+    scene = apply_sets(_load_scene(args.scene), sets)
     if not args.param:
         raise SceneError("--param: missing, expected at least one KEY=LO:HI or KEY=v1,v2,...")
     params = [parse_param(p, scene) for p in args.param]
     keys = [p.key for p in params]
+    from flexarm_ros.scene.overrides import check_not_set
+    check_not_set(keys, sets, "sweeps")
     if len(set(keys)) != len(keys):
         raise SceneError(f"--param: got {keys}, expected each key once")
     assignments = make_design(params, args.design, args.samples, args.seed)
@@ -248,7 +256,7 @@ def cmd_sweep(args):
     check_channels(scene, metrics, series, args.duration, args.open_loop)
     model = SceneModel(scene, metrics, args.duration, series, args.open_loop)
     meta = {"kind": "sweep", "design": args.design, "seed": args.seed,
-            "params": [p.__dict__ for p in params]}
+            "params": [p.__dict__ for p in params], "set": sets}
     with _executor(args, model) as ex:
         table = run_ensemble(scene, assignments, model=model, params=keys, executor=ex,
                              quiet=args.quiet or args.json, series=series, meta=meta,

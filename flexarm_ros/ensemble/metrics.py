@@ -23,7 +23,9 @@ Names (``flexarm sweep --metric NAME``; the table column in brackets):
     the last time ``|y(t) − y(T)| > 0.02 |y(T) − y(0)|`` (2 % band around the final
     value, relative to the total change), 0 when the channel never leaves the band.
 ``final_error:CHANNEL=TARGET`` [``final_error_<CHANNEL>``]
-    ``|y(T) − TARGET|`` in the channel's unit.
+    ``|y(T) − TARGET|`` in the channel's unit; ``final_error:CHANNEL`` (no target) takes
+    the controller's own target at the end, the run's ``<CHANNEL>_target`` column
+    (``link1_joint``, ``tool_x``: a position or sanding controller's targets).
 ``energy_drift`` [``energy_drift``]
     ``max_t |E − E(0)| / max_t T`` of :func:`flexarm_ros.studies.ladder.energy_drift`,
     defined for a conservative scene (no inputs, no damping); NaN otherwise.
@@ -117,13 +119,16 @@ def parse_metric(text: str) -> Metric:
             raise SceneError(f"--metric: got {t!r}, expected settling_time:CHANNEL")
         return Metric(t, kind, rest)
     ch, sep, target = rest.partition("=")
+    if ch and not sep:                 # the controller's own target: <channel>_target
+        return Metric(t, kind, ch, target=None)
     try:
         value = float(target)
     except ValueError:
         value = math.nan
-    if not ch or not sep or not math.isfinite(value):
+    if not ch or not math.isfinite(value):
         raise SceneError(f"--metric: got {t!r}, expected final_error:CHANNEL=TARGET with a "
-                         f"finite TARGET in the channel's unit")
+                         f"finite TARGET in the channel's unit, or final_error:CHANNEL "
+                         f"for the controller's own target")
     return Metric(t, kind, ch, target=value)
 
 
@@ -264,6 +269,9 @@ def _settling(res, m: Metric) -> float:
 
 def _final_error(res, m: Metric) -> float:
     t, y = channel(res, m.channel)
+    if m.target is None:
+        _, target = channel(res, f"{m.channel}_target")
+        return float(abs(y[-1] - target[-1]))
     return float(abs(y[-1] - m.target))
 
 

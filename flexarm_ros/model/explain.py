@@ -142,10 +142,12 @@ def explain(scene, chain=None) -> str:
     lines.append(f"first frequencies{where}, drives locked: {f} Hz (highest "
                  f"{m.frequencies_hz[-1]:.4g} Hz {sets})")
     from flexarm_ros.model.limits import joint_limits
-    lines.append(f"ROS twin: control every {1e3 / scene.twin_control.rate_hz:.4g} ms "
-                 f"({scene.twin_control.rate_hz:.6g} Hz), efforts held over it; commands older "
-                 f"than {scene.twin_control.watchdog_s:g} s trip the driver to 0 "
+    ctl = scene.twin_control
+    lines.append(f"ROS twin: control every {1e3 / ctl.rate_hz:.4g} ms "
+                 f"({ctl.rate_hz:.6g} Hz), efforts held over it; commands older "
+                 f"than {ctl.watchdog_s:g} s trip the driver to 0 "
                  f"(V, N·m; a servovalve to closed)")
+    lines.append(_loop_line(scene))
     lines.append("wire limits (ROS twin: commands and efforts beyond them are rejected):")
     lines.extend(f"  {lim.text()}" for lim in joint_limits(scene))
     from flexarm_ros.model import drives
@@ -160,3 +162,27 @@ def explain(scene, chain=None) -> str:
     for a in scene.assumptions:
         lines.append(f"assumption {a.key}: {a.note}")
     return "\n".join(lines)
+
+
+def _loop_line(scene) -> str:
+    """How the batch commands run the scene: its controller in the loop (with its gains and
+    targets) or its input programs alone."""
+    ctl = scene.control
+    if ctl is None:
+        return ("batch runs (simulate, sweep, calibrate, ...): the input programs, applied "
+                "continuously (no control section)")
+    head = (f"batch runs (simulate, sweep, calibrate, ...): the controller in the loop, "
+            f"control.mode {ctl.mode} at {ctl.rate_hz:.6g} Hz (--open-loop: the programs "
+            f"alone)")
+    if ctl.mode == "open_loop":
+        return head + "; it sends the input programs sampled at its rate"
+    parts = [f"kp {list(ctl.kp)} N·m/rad", f"kd {list(ctl.kd)} N·m·s/rad",
+             f"rate filter {ctl.velocity_filter_hz:g} Hz"]
+    if ctl.tip_target is not None:
+        parts.append(f"tool target {list(ctl.tip_target)} m")
+    if ctl.joint_target:
+        parts.append(f"joint targets {list(ctl.joint_target)} rad")
+    if ctl.mode == "sanding" and ctl.sanding is not None:
+        parts.append(f"sanding force {ctl.sanding.normal_force:g} N along x = "
+                     f"{ctl.sanding.wall_x:g} m")
+    return head + ": " + ", ".join(parts)

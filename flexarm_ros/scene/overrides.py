@@ -137,3 +137,21 @@ def decode_sets(text: str) -> dict:
         raise SceneError(f"parameter set: got {text!r}, expected a JSON object {{\"key "
                          f"path\": value}} (e.g. {{\"links[0].beam.EI\": 12.0}})")
     return sets
+
+
+def check_not_set(keys, sets: dict, verb: str = "fits") -> None:
+    """No key that ``--param`` varies (``keys``: it ``verb``, fits or sweeps) is also fixed
+    by ``--set`` (the task would overwrite the set every time); SceneError naming it."""
+    from flexarm_ros.scene.keys import parse_path
+
+    def path(k):
+        try:
+            return tuple(parse_path(k))
+        except SceneError:           # a malformed --param: its own message, later
+            return None
+    fixed = {path(k): k for k in sets}
+    for k in keys:
+        if path(k) is not None and path(k) in fixed:
+            raise SceneError(f"--set {fixed[path(k)]}: got a key that --param {verb} too, "
+                             f"expected it in one of them (--set fixes a value, --param "
+                             f"{verb} it)")

@@ -496,8 +496,8 @@ class Control:
     mode: str = param("open_loop", choices=("open_loop", "position", "sanding"),
                       doc="control mode")
     rate_hz: float = param(1000.0, unit="Hz", gt=0.0, doc="control rate")
-    kp: tuple[float, ...] = param((), unit="N·m/rad", doc="PD stiffness per joint")
-    kd: tuple[float, ...] = param((), unit="N·m·s/rad", doc="PD damping per joint")
+    kp: tuple[float, ...] = param((), unit="N·m/rad", ge=0.0, doc="PD stiffness per joint")
+    kd: tuple[float, ...] = param((), unit="N·m·s/rad", ge=0.0, doc="PD damping per joint")
     tip_target: Optional[tuple[float, float]] = param(None, unit="m",
                                                       doc="position mode: tip target")
     joint_target: tuple[float, ...] = param((), unit="rad",

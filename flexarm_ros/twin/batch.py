@@ -158,17 +158,19 @@ def _check_closed_loop(scene, T: float) -> int:
         raise SceneError(f"duration: got {T:g} s, expected at least one control period "
                          f"({period:g} s, control.rate_hz {scene.twin_control.rate_hz:g})")
     fid = scene.fidelity
+    # where the controller is what moves the arm, --open-loop would hold it still
+    alone = (" or run --open-loop (the input programs alone)"
+             if scene.twin_control.mode == "open_loop" else
+             "; the controller's commands are known only during the run")
     if fid.tolerance:
         raise SceneError(f"fidelity.tolerance: got {fid.tolerance:g} m for scene "
                          f"{scene.name!r}, which runs its controller in the loop (control:), "
                          f"expected 0: the step-halving pilots replay the input programs, "
-                         f"not the commands the controller will send; set --dt, or run "
-                         f"--open-loop")
+                         f"not the commands the controller will send; set --dt{alone}")
     if fid.estimate:
         raise SceneError(f"fidelity.estimate: got true for scene {scene.name!r}, which runs "
                          f"its controller in the loop (control:), expected false: the "
-                         f"estimate weighs the response to the input programs; run "
-                         f"--open-loop to estimate the open-loop model")
+                         f"estimate weighs the response to the input programs{alone}")
     return K
 
 
@@ -181,6 +183,9 @@ def simulate_closed_loop(scene, duration=None, progress=None, lane: str = "auto"
     K = _check_closed_loop(scene, T)
     sim = SimulatorCore(scene, duration=K * control_period(scene), warm_up=False)
     ctl = ControllerCore(scene)
+    if ctl.status != "ok":          # an unreachable target: the arm would only hold still
+        raise SceneError(f"control.tip_target: got {list(scene.control.tip_target)} m, "
+                         f"expected a point the arm reaches ({ctl.status})")
     drv = DriverCore(scene, sim.plant)
     from flexarm_ros.twin.compiled_loop import eligible
     why_not = eligible(sim, ctl)
@@ -306,7 +311,10 @@ def _assemble(scene, sim, drv, states, contact, rows_or_acc, rec, work, wall, la
                if plant.dense else round(sim.period / plant.h))
         steps = per * len(rec.t)
         calls = 4 * steps
-    run = Integration.completed(ch, t, states, calls, steps, wall, plant.h)
+    # the step the plant took: a smooth plant's control period in equal steps, else h
+    h = (sim.period / plant.steps_per_period(round(sim.period * 1e9 / plant.grid_ns))
+         if plant.dense else plant.h)
+    run = Integration.completed(ch, t, states, calls, steps, wall, h)
     cols = output_columns(ch, run, actuators=False)
     cols.update(_drive_columns(ch, drv, run, rec, sim.period))
     if contact is not None:
@@ -318,9 +326,15 @@ def _assemble(scene, sim, drv, states, contact, rows_or_acc, rec, work, wall, la
             "control_rate_hz": scene.twin_control.rate_hz, "control_ticks": len(rec.t),
             "lane": lane, "commands_rejected": rec.rejected,
             "torque_limit_held_ticks": rec.held, "controller_status": rec.status,
-            "plant_integrator": plant.integrator, "plant_step_s": plant.h}
+            "plant_integrator": plant.integrator, "plant_step_s": h}
     if lane == "reference" and why_not:
         loop["lane_reason"] = why_not
+    if "tool_x_target" in cols and "tool_x" in cols:        # where the tool ended
+        end = (float(cols["tool_x"][-1]), float(cols["tool_y"][-1]))
+        goal = (float(cols["tool_x_target"][-1]), float(cols["tool_y_target"][-1]))
+        loop["tool_end_m"] = list(end)
+        loop["tool_target_m"] = list(goal)
+        loop["tool_error_m"] = float(np.hypot(end[0] - goal[0], end[1] - goal[1]))
     crun = None
     if contact is not None:
         crun = _contact_run(plant, contact)

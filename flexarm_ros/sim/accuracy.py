@@ -137,7 +137,7 @@ def tip_history(chain, x0, t_end, h, output_dt, max_ratio,
     stepper's with a wall ``contact``), and the step it took (shortened to divide the
     output period where the run cannot step past it)."""
     if contact is not None:
-        from flexarm_ros.sim.simulate import integrate_with_contact
+        from flexarm_ros.sim.contact_run import integrate_with_contact
         run, _ = integrate_with_contact(chain, contact, x0, t_end, output_dt, dt=h)
     else:
         from flexarm_ros.sim.integrate import integrate
@@ -403,7 +403,7 @@ def posterior_check(scene, auto, columns, run_step, T) -> PosteriorCheck:
             run = integrate(chain, x0, window, "rk4", h, output_dt=fid.output_dt,
                             max_deflection_ratio=fid.max_deflection_ratio)
         else:
-            from flexarm_ros.sim.simulate import integrate_with_contact
+            from flexarm_ros.sim.contact_run import integrate_with_contact
             run, _ = integrate_with_contact(chain, contact, x0, window, fid.output_dt)
         tip = chain.energies(run.t, run.q, run.qd, run.z)[1]
     except (SceneError, SimulationDiverged) as exc:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,15 +13,16 @@ from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import trapezoid_step_by_error
-from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact, check_integrator
+from flexarm_ros.model.contact import PHASE_CODE, PHASES, build_contact
 from flexarm_ros.model.sensors import (build_sensors, output_period, sample_grid_ns,
                                        sensor_tables)
 from flexarm_ros.model.statics import initial_state, initial_x
-from flexarm_ros.sim.budget import check_output, check_work
-from flexarm_ros.sim.contact_stepper import integrate_contact, warm_up
-from flexarm_ros.sim.guard import DivergenceGuard
-from flexarm_ros.sim.integrate import Integration, input_breakpoints, integrate, smooth
-from flexarm_ros.sim.step import choose_step
+from flexarm_ros.sim.budget import check_output
+from flexarm_ros.sim.contact_run import integrate_with_contact
+from flexarm_ros.sim.integrate import Integration, integrate
+
+__all__ = ["SimResult", "actuator_columns", "contact_columns", "integrate_with_contact",
+           "output_columns", "simulate"]
 
 
 @dataclass
@@ -104,7 +104,7 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
     if not checked:
         return res
     tol = _tolerance_of(res)
-    res.truth = _truth().top_check(scene, res.columns, T, tol)
+    res.truth = _truth().top_check(scene, res.columns, T, tol, _simulate)
     if res.auto is not None and res.truth.ok and not all(
             res.truth.met(res.auto.tolerance_m, fid.tolerance_metric).values()):
         res = _escalate(scene, T, progress, res)
@@ -112,7 +112,7 @@ def simulate(scene, duration=None, progress=None, chain=None) -> SimResult:
 
 
 def _truth():
-    from flexarm_ros.sim import truth
+    from flexarm_ros.sim import truth      # lazily: a run without a check never needs it
     return truth
 
 
@@ -140,7 +140,7 @@ def _escalate(scene, T, progress, first: SimResult) -> SimResult:
             res = _simulate(sc, T, progress, None)
         except SceneError:
             continue
-        res.truth = truth.top_check(scene, res.columns, T, tol)
+        res.truth = truth.top_check(scene, res.columns, T, tol, _simulate)
         if not res.truth.ok:
             break
         if all(res.truth.met(tol, metric).values()):
@@ -274,42 +274,6 @@ def check_tolerance_applies(chain, contact) -> None:
     if fid.dt > 0:
         raise SceneError(f"fidelity.tolerance: got {tol:g} m together with fidelity.dt = "
                          f"{fid.dt:g} s, expected one of them (the tolerance chooses the step)")
-
-
-def integrate_with_contact(chain, contact, x0, T, out_dt, progress=None, accelerometers=None,
-                           dt=None):
-    """Run a scene with a wall (fixed-step RK4 through the contact modes); the readings of
-    ``accelerometers`` (:func:`ksensors.pack`'s arrays) at every sample in ContactRun.acc.
-    The step: ``dt`` when given (the tolerance's), else fidelity.dt (0: automatic)."""
-    fid = chain.fidelity
-    check_integrator(chain)
-    tm = contact.terms(0.0, x0)
-    g0 = contact.gap(tm)
-    if g0 < 0:
-        sc = chain.scene
-        w = sc.walls[0]
-        lengths = ", ".join(f"links[{k}].beam.length = {lk.beam.length:g} m"
-                            for k, lk in enumerate(sc.links))
-        raise SceneError(f"walls[0]: the tool starts {-g0:.6g} m inside the wall (tool at "
-                         f"{[round(float(v), 6) for v in tm.r]} m; walls[0].point = "
-                         f"{list(w.point)} m, walls[0].normal = {list(w.normal)}; "
-                         f"{lengths}), expected "
-                         f"a start on the free side (gap >= 0)")
-    chain.check_mass_matrix(chain.full_state(0.0, x0)[0])
-    dense = smooth(chain)
-    h = choose_step(chain, x0, "rk4", fid.dt if dt is None else dt, out_dt, contact=contact,
-                    dense=dense)
-    check_work(chain, x0, h, T, "rk4", contact)
-    guard = DivergenceGuard(chain, fid.max_deflection_ratio, "rk4", h)
-    import scipy.optimize  # noqa: F401  the stepper's root finder: its import outside the timing
-    warm_up(chain, contact, x0, accelerometers)        # compiled code: outside the timing too
-    wall0 = time.perf_counter()
-    xs, crun, steps, calls = integrate_contact(
-        chain, contact, x0, T, h, out_dt, guard, progress,
-        input_breakpoints(chain, T) if dense else (), accelerometers)
-    wall = time.perf_counter() - wall0
-    t = np.arange(len(xs)) * out_dt
-    return Integration.completed(chain, t, xs, calls, steps, wall, h), crun
 
 
 def contact_columns(crun, every: int = 1) -> dict:

@@ -148,33 +148,35 @@ def _reference_scene(scene, terms):
 
 
 @functools.lru_cache(maxsize=16)
-def _rod_columns(scene, T, terms):
+def _rod_columns(scene, T, terms, simulate):
     """The output columns the check compares (t, tip, tip deflections) of the scene on the
     rod with ``terms`` terms over T s, and the link names (kept per process: the
-    tolerances of one scene, and the pairs of references, share the runs)."""
-    from flexarm_ros.sim.simulate import simulate
+    tolerances of one scene, and the pairs of references, share the runs). ``simulate``:
+    the batch run without a check (:func:`flexarm_ros.sim.simulate._simulate`, passed in:
+    this module sits below it)."""
     run = simulate(_reference_scene(scene, terms), T)
     cols = {k: np.asarray(v) for k, v in run.columns.items()
             if k in ("t", "tip_x", "tip_y") or k.endswith("_tip_deflection")}
     return cols, [lm.name for lm in run.chain.links]
 
 
-def reference(scene, T: float, tolerance_m: float = 0.0):
+def reference(scene, T: float, tolerance_m: float, simulate):
     """(label, columns, links, own error Measures) of the top rung for ``scene`` over
     ``T`` s: the first pair of :data:`REFERENCES` whose own bound is at most
     :data:`BOUND_SHARE` of ``tolerance_m`` (0: the first pair)."""
     for i, (ref_terms, bound_terms) in enumerate(REFERENCES):
-        cols, links = _rod_columns(scene, T, ref_terms)
-        bound, _ = _rod_columns(scene, T, bound_terms)
+        cols, links = _rod_columns(scene, T, ref_terms, simulate)
+        bound, _ = _rod_columns(scene, T, bound_terms, simulate)
         own = measures(bound, cols, links)
         good = max(own.position_m, own.deflection_max_m) <= BOUND_SHARE * tolerance_m
         if tolerance_m <= 0 or good or i == len(REFERENCES) - 1:
             return f"rod {ref_terms}", cols, links, own
 
 
-def top_check(scene, columns, T: float, tolerance_m: float = 0.0) -> TopCheck:
+def top_check(scene, columns, T: float, tolerance_m: float, simulate) -> TopCheck:
     """The run of ``scene`` (its output ``columns`` over ``T`` s) against the top rung
-    (the reference good enough for ``tolerance_m``, :func:`reference`)."""
+    (the reference good enough for ``tolerance_m``, :func:`reference`; ``simulate`` runs
+    it)."""
     t0 = time.perf_counter()
     if scene.walls:
         return TopCheck("rod", None, None, 0.0, WALL_NOTE)
@@ -183,7 +185,7 @@ def top_check(scene, columns, T: float, tolerance_m: float = 0.0) -> TopCheck:
     except TypeError:                        # an unhashable scene: no memo
         return TopCheck("rod", None, None, 0.0, "not run: the scene is not hashable")
     try:
-        label, cols, links, own = reference(scene, float(T), tolerance_m)
+        label, cols, links, own = reference(scene, float(T), tolerance_m, simulate)
     except (SceneError, SimulationDiverged) as exc:
         return TopCheck(f"rod {REFERENCES[0][0]}", None, None, time.perf_counter() - t0,
                         "not run: " + " ".join(str(exc).split()))

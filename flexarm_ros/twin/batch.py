@@ -33,10 +33,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.sim.integrate import Integration
 from flexarm_ros.sim.simulate import SimResult, contact_columns, output_columns, simulate
+from flexarm_ros.twin.loop_record import LoopRecord, output_every
 
 LANES = ("auto", "compiled", "reference")
 
@@ -113,24 +114,6 @@ def probe_duration(scene, open_loop: bool = False) -> float:
 
 
 # ================================================================== closed-loop result
-@dataclass
-class LoopRecord:
-    """What the bench computer and the driver did, one row per control tick k (t_k =
-    k·T): the command taken (V, A above a valve's null bias, or N·m for a joint without a
-    drive), the effort held over (t_k, t_k+1] (N·m, or the valve current), the armature
-    current at t_k (A; 0 for a joint without a DC motor) and the controller's targets
-    (joint angles, rad; the tool point, m) where it has them."""
-    t: np.ndarray
-    command: np.ndarray
-    effort: np.ndarray
-    current: np.ndarray
-    joint_target: np.ndarray | None = None
-    tip_target: np.ndarray | None = None
-    rejected: int = 0
-    held: int = 0
-    status: str = "ok"
-
-
 @dataclass
 class ClosedLoopResult(SimResult):
     """A closed-loop batch run: a :class:`SimResult` with the loop's record."""
@@ -212,7 +195,7 @@ def _run_reference(sim, ctl, drv, K: int, progress):
     sensor rows, the loop record, (steps, rhs evaluations))."""
     plant = sim.plant
     period = sim.period
-    every = _output_every(plant)
+    every = output_every(plant)
     plant.trace, plant.trace_every = [plant.x.copy()], every
     if plant.contact is not None:
         plant.trace_contact = [_contact_row(plant)]
@@ -242,16 +225,6 @@ def _run_reference(sim, ctl, drv, K: int, progress):
     st = plant.stepper
     work = (st.steps, st.calls) if st is not None else (None, None)
     return np.array(plant.trace), plant.trace_contact, rows, rec, work
-
-
-def _output_every(plant) -> int:
-    """Grid intervals per output period (the plant's grid holds the output period)."""
-    dt = plant.chain.fidelity.output_dt
-    every = dt * 1e9 / plant.grid_ns
-    if abs(every - round(every)) > 1e-6:
-        raise SceneError(f"fidelity.output_dt: got {dt:g} s, expected a multiple of the "
-                         f"plant's grid {plant.grid_ns * 1e-9:g} s")
-    return int(round(every))
 
 
 def _contact_row(plant):
@@ -302,9 +275,8 @@ def _assemble(scene, sim, drv, states, contact, rows_or_acc, rec, work, wall, la
     plant = sim.plant
     ch = plant.chain
     fid = ch.fidelity
-    dt = fid.output_dt
     N = len(states)
-    t = np.arange(N) * (_output_every(plant) * plant.grid_ns * 1e-9)
+    t = np.arange(N) * (output_every(plant) * plant.grid_ns * 1e-9)
     steps, calls = work
     if steps is None:          # smooth plant: equal steps per period; else h-steps
         per = (plant.steps_per_period(round(sim.period * 1e9 / plant.grid_ns))

@@ -16,11 +16,9 @@ import math
 import numpy as np
 
 from flexarm_ros.errors import SimulationDiverged
-from flexarm_ros.model import drives
 from flexarm_ros.model.compiled import closed_loop as kloop
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import sensors as ksensors
-from flexarm_ros.model.programs import encode
 
 #: ticks per compiled call (progress is told between calls)
 CHUNK_TICKS = 2000
@@ -73,12 +71,11 @@ def run_compiled(sim, ctl, drv, K: int, progress=None):
     """The loop of ``K`` ticks in compiled calls; returns what
     :func:`~flexarm_ros.twin.batch._run_reference` returns (the sensor part as (states at
     every grid instant, accelerometers there))."""
-    from flexarm_ros.twin.batch import LoopRecord, _output_every
+    from flexarm_ros.twin.loop_record import LoopRecord, output_every
     plant = sim.plant
     ch = plant.chain
     n = len(ch.links)
     free = list(ch.free)
-    nf = len(free)
     g = plant.grid_ns
     J = int(round(sim.period * 1e9 / g))
     nsteps = plant.steps_per_period(J)
@@ -156,7 +153,7 @@ def run_compiled(sim, ctl, drv, K: int, progress=None):
     if mode == kloop.POSITION and ctl.scene.control.tip_target is not None:
         rec.tip_target = np.tile(np.asarray(ctl.scene.control.tip_target, float), (K, 1))
     plant.x = x
-    every = _output_every(plant)
+    every = output_every(plant)
     steps = nsteps * K
     calls = (4 * nsteps + (1 if J > 1 else 0)) * K
     return (X[::every], None, (X, ACC if len(acc_idx) else None), rec, (steps, calls))

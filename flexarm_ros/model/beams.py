@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 
 from flexarm_ros.errors import SceneError
+from flexarm_ros.scene.sections import Beam
 
 #: default refinement per rung (modes / elements / FD segments)
 DEFAULT_REFINE = {"rigid": 1, "cubic": 1, "modal": 4, "fem": 8, "fd": 20, "rod": 5}
@@ -255,7 +256,9 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     """
     L = beam.length
     n_fe = mesh or max(48, 12 * n_modes)   # eigen-solve error < 1e-6 up to 12 modes
-    K, V = _mode_shapes(beam, tip if with_tip else None, n_fe, max(n_modes, n_fe // 12))
+    K, V = _mode_shapes(beam.length, beam.mass_per_length, tip if with_tip else None, n_fe,
+                        max(n_modes, n_fe // 12))
+    K = beam.EI * K
     V = V[:, :n_modes]
 
     def evaluate(x):
@@ -272,12 +275,16 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
 
 
 @functools.lru_cache(maxsize=32)
-def _mode_shapes(beam, tip, n_fe, n_modes):
-    """(K, V) of :func:`natural_modes`: the FEM stiffness of ``n_fe`` Hermite elements and
-    its first ``n_modes`` clamped modes (with the tip body's mass when ``tip`` is given),
-    scaled to unit peak deflection, positive at the tip. Kept per process (read-only): the
-    ladder's modal rungs on one mesh share one eigen-solve (rung auto builds several)."""
-    L = beam.length
+def _mode_shapes(length, mass_per_length, tip, n_fe, n_modes):
+    """(K, V) of :func:`natural_modes`: the FEM stiffness of ``n_fe`` Hermite elements per
+    unit EI and its first ``n_modes`` clamped modes (with the tip body's mass when ``tip``
+    is given), scaled to unit peak deflection, positive at the tip. The shapes of
+    K v = ω² M v do not depend on EI (K is EI times a matrix of the geometry), so the key
+    holds only what they depend on: a calibration or sweep of EI reuses one eigen-solve
+    (it was 36 % of a link_motor fit). Kept per process (read-only): the ladder's modal
+    rungs on one mesh share one eigen-solve (rung auto builds several)."""
+    L = length
+    beam = Beam(length=length, EI=1.0, mass_per_length=mass_per_length)
     fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
     K, M = np.array(fe.K), np.array(fe.M_e)
     if tip is not None and (tip.mass > 0 or tip.inertia > 0):

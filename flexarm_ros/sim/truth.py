@@ -143,18 +143,28 @@ def _reference_scene(scene, terms):
     refuse a closed loop)."""
     import dataclasses
     sc = dataclasses.replace(scene, control=None)
+    defaults = type(sc.fidelity)()
     return sc.with_fidelity(rung="rod", refine=terms, dt=0.0, tolerance=0.0,
-                            estimate=False, integrator="rk4")
+                            estimate=False, integrator="rk4",
+                            modal_basis=defaults.modal_basis,
+                            foreshortening=defaults.foreshortening, rtol=defaults.rtol,
+                            atol=defaults.atol,
+                            tolerance_metric=defaults.tolerance_metric)
+
+
+def _rod_columns(scene, T, terms, simulate):
+    """The output columns the check compares (t, tip, tip deflections) of the scene on the
+    rod with ``terms`` terms over T s, and the link names (kept per process, keyed by the
+    reference scene — the fidelity keys the rod does not read set to their defaults — so
+    every rung and tolerance of one scene, and the pairs of references, share the runs).
+    ``simulate``: the batch run without a check
+    (:func:`flexarm_ros.sim.simulate._simulate`, passed in: this module sits below it)."""
+    return _rod_run(_reference_scene(scene, terms), T, simulate)
 
 
 @functools.lru_cache(maxsize=16)
-def _rod_columns(scene, T, terms, simulate):
-    """The output columns the check compares (t, tip, tip deflections) of the scene on the
-    rod with ``terms`` terms over T s, and the link names (kept per process: the
-    tolerances of one scene, and the pairs of references, share the runs). ``simulate``:
-    the batch run without a check (:func:`flexarm_ros.sim.simulate._simulate`, passed in:
-    this module sits below it)."""
-    run = simulate(_reference_scene(scene, terms), T)
+def _rod_run(ref_scene, T, simulate):
+    run = simulate(ref_scene, T)
     cols = {k: np.asarray(v) for k, v in run.columns.items()
             if k in ("t", "tip_x", "tip_y") or k.endswith("_tip_deflection")}
     return cols, [lm.name for lm in run.chain.links]

@@ -48,8 +48,10 @@ setup(
         # clusters, SALib's Morris and Sobol, the Dask dashboard, Parquet tables
         "ensemble": ["dask>=2024.8", "distributed>=2024.8", "SALib>=1.5", "bokeh>=3.1",
                      "pyarrow>=14"],
-        "dev": ["pytest>=7", "hypothesis>=6", "rosbags>=0.9", "colcon-common-extensions", "colcon-ros",
-                "ros-ament-package"],
+        # the suite runs on pytest-xdist workers (pytest.ini: -n auto, one ROS domain per
+        # worker) with a per-test time limit (pytest-timeout) so a hang fails, not stalls
+        "dev": ["pytest>=7", "pytest-xdist>=3.5", "pytest-timeout>=2.2", "hypothesis>=6",
+                "rosbags>=0.9", "colcon-common-extensions", "colcon-ros", "ros-ament-package"],
     },
     zip_safe=True,
     maintainer="flexarm_ros developers",

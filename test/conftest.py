@@ -1,9 +1,135 @@
-"""Suite-wide settings: DDS on loopback and a private ROS domain per test run."""
+"""Suite-wide settings.
+
+* DDS on loopback and a private ROS domain per test run — and, under pytest-xdist
+  (``-n``), one domain per worker, so the workers' graphs never hear each other.
+* Markers for what is slow to set up, so a developer can leave it out of the inner loop
+  (README, Development): ``ros`` (the test opens a ROS 2 context in its own process),
+  ``subprocess`` (it starts a child process: a twin in processes, a CLI, a build),
+  ``heavy`` (a numerical study or long run, over ~2 s on a 2-core host), ``slow`` (long
+  studies CI leaves out). A test carrying none of them is marked ``quick``:
+  ``python -m pytest -m quick`` is the inner loop.
+* The ``ros`` and ``subprocess`` markers are kept true: a test that opens a ROS context or
+  starts a process without its marker fails and says which marker to add, so the inner
+  loop never grows a ROS graph or a child process unnoticed.
+"""
+
+import os
+import subprocess
+
+import pytest
 
 from flexarm_ros.nodes import environment
 
+SET_UP = ("ros", "subprocess", "heavy", "slow")
+
+
+def _worker_domain() -> None:
+    """Under xdist, worker ``gwN`` takes the run's domain shifted by N + 1 (mod the valid
+    range), so parallel workers of one run, and the run's controller, differ."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not worker.startswith("gw"):
+        return
+    environment.private_graph(pid=os.getppid())      # the run's domain (the controller's)
+    base = int(os.environ[environment.DOMAIN])
+    os.environ[environment.DOMAIN] = str(1 + (base + int(worker[2:])) % environment.DOMAINS)
+
+
+_worker_domain()
 environment.private_graph()
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: long studies (CI runs -m 'not slow')")
+    for line in (
+            "slow: long studies (CI runs -m 'not slow'; run them with -m slow)",
+            "ros: opens a ROS 2 context (rclpy) in the test's process",
+            "subprocess: starts a child process (a twin in processes, a CLI, a build)",
+            "heavy: a numerical study or long run (over ~2 s on a 2-core host)",
+            "quick: none of ros, subprocess, heavy, slow (added by conftest): the inner "
+            "loop"):
+        config.addinivalue_line("markers", line)
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if not any(item.get_closest_marker(m) for m in SET_UP):
+            item.add_marker(pytest.mark.quick)
+
+
+class _Seen:
+    """What the running test (its set-up, call and tear-down) started: ROS contexts and
+    child processes (``subprocess`` and ``multiprocessing``: a Dask local cluster's
+    workers count)."""
+    ros = 0
+    processes = 0
+
+
+def _count(owner, name, field):
+    original = getattr(owner, name)
+
+    def counted(self, *args, **kwargs):
+        setattr(_Seen, field, getattr(_Seen, field) + 1)
+        return original(self, *args, **kwargs)
+    setattr(owner, name, counted)
+
+
+def _count_what_tests_start():
+    import multiprocessing.process
+    _count(subprocess.Popen, "__init__", "processes")
+    _count(multiprocessing.process.BaseProcess, "start", "processes")
+    try:
+        from rclpy.context import Context
+    except ImportError:                  # no rclpy: no test can open a context
+        return
+    _count(Context, "init", "ros")
+
+
+_count_what_tests_start()
+
+
+#: Shared fixtures (module or session scope) that opened a ROS context or started a
+#: process when they were set up, by name: every test using one needs its marker, not only
+#: the test that happened to set it up first on this worker.
+_SHARED_FIXTURES: dict[str, set[str]] = {}
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_fixture_setup(fixturedef, request):
+    before = (_Seen.ros, _Seen.processes)
+    yield
+    if fixturedef.scope != "function":
+        kinds = {m for m, b, a in (("ros", before[0], _Seen.ros),
+                                   ("subprocess", before[1], _Seen.processes)) if a > b}
+        if kinds:
+            _SHARED_FIXTURES.setdefault(fixturedef.argname, set()).update(kinds)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    _Seen.ros = _Seen.processes = 0
+
+
+def needed_markers(item) -> list[str]:
+    """The set-up markers the test's run showed it needs: what it (or its function
+    fixtures) opened, plus what its shared fixtures opened when they were set up."""
+    kinds = {m for m, n in (("ros", _Seen.ros), ("subprocess", _Seen.processes)) if n}
+    for name in getattr(item, "fixturenames", ()):
+        kinds |= _SHARED_FIXTURES.get(name, set())
+    return sorted(kinds)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Fail a test that opened a ROS context or started a process without the marker
+    that says so (see the module doc): its tear-down report turns failed, naming the
+    marker (failing the report, not raising, keeps pytest's set-up state intact)."""
+    outcome = yield
+    if call.when != "teardown":
+        return
+    missing = [m for m in needed_markers(item) if not item.get_closest_marker(m)]
+    report = outcome.get_result()
+    if missing and report.passed:
+        report.outcome = "failed"
+        report.longrepr = (
+            f"{item.nodeid} opened {_Seen.ros} ROS context(s) and started "
+            f"{_Seen.processes} process(es) (its shared fixtures included): mark it "
+            + " and ".join(f"@pytest.mark.{m}" for m in missing) + " (test/conftest.py)")

@@ -44,6 +44,7 @@ def test_dense_output_is_the_step_at_step_ends_and_fourth_order_between():
     assert 10 < ratio < 25, (errs, ratio)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,duration,tols", [
     ("two_link_free", 2.0, (1e-3, 1e-5, 1e-7, 1e-9)),
     ("link_tipmass", 0.5, (1e-3, 1e-7, 1e-9)),
@@ -69,6 +70,7 @@ def test_the_tolerance_is_met_and_the_step_grows_as_it_loosens(name, duration, t
         assert steps[-1] < steps[0]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,duration,over", [
     ("two_link_free", 1.0, {"rung": "cubic", "integrator": "rk4"}),  # 15.7 ms, 9.97 stable
     ("two_link_free", 1.0, {"integrator": "rk4"}),               # modal 3: 7.3 ms, 4.62 stable
@@ -157,6 +159,7 @@ def test_the_tolerance_with_a_wall_is_met_through_the_impacts(name):
     assert all(a >= b for a, b in zip(steps, steps[1:])) and steps[-1] < steps[0], steps
 
 
+@pytest.mark.heavy
 def test_pilots_over_the_whole_run_measure_instead_of_growing_a_window(monkeypatch):
     """Where the pilots are cheap they cover the whole run: two_link_free (modal 3, rkn4,
     1 s) at 1e-6 m steps 6.2 ms where a 0.1 s window grown linearly to the run asked
@@ -268,6 +271,7 @@ def test_explain_says_the_tolerance_chooses_the_step(capsys):
     assert capsys.readouterr().out.splitlines()[1].endswith("automatic step")
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,over,tol", [
     ("link", {}, 1e-5),                              # modal 3: 83 µs
     ("link_tipmass", {}, 1e-7),                      # the case step halving undershot 3×
@@ -296,6 +300,7 @@ def test_the_trapezoid_rule_meets_a_tolerance(name, over, tol):
     assert s["check"]["status"] == "ok"
 
 
+@pytest.mark.heavy
 def test_the_trapezoids_automatic_step_is_chosen_for_accuracy():
     """Without --dt or --tolerance the trapezoid's step is chosen by its error estimate
     for the default tip tolerance (1e-5 m), not the output period: on seed 001's link
@@ -337,6 +342,7 @@ def test_a_tolerance_the_trapezoid_cannot_afford_is_refused(monkeypatch):
     assert "at most 4 steps per output interval" in msg and "--integrator rk4" in msg
 
 
+@pytest.mark.heavy
 def test_two_link_free_as_shipped_is_within_a_micrometre_of_the_exact_beam():
     """The scene's default (rod 3, rkn4 at its automatic step) against the rod with 10
     terms at 0.1 ms, over 1 s: within 1e-6 m at the tip (measured 2e-7); the second-order

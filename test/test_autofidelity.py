@@ -47,6 +47,7 @@ def _deflection_err(res, ref) -> float:
     return max(float(np.max(np.abs(res.columns[k] - ref.columns[k]))) for k in keys)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,duration,tol", [
     # seed 001 link with tip mass at the default 1e-5 m: modal 3 meets the position but
     # not the deflection (its few clamped modes split hub angle and bending wrongly), so
@@ -98,6 +99,7 @@ def test_auto_takes_rkn4_where_it_steps_further(monkeypatch, name, tol):
         assert _err(res, ref) <= tol
 
 
+@pytest.mark.heavy
 def test_the_linear_estimates_track_the_nonlinear_errors():
     """link_tipmass, 1 s: every analysed candidate's a-priori spatial estimate lies within a
     factor 2.5 of its measured nonlinear error against FEM 8 (at its own stable step), and the
@@ -313,6 +315,7 @@ def test_estimate_from_the_cli_and_its_refusals(tmp_path, capsys):
                          "which runs its controller in the loop" in err
 
 
+@pytest.mark.heavy
 def test_the_estimate_with_a_wall_covers_the_impacts():
     """two_link_case1, 2.5 s, the seed's cubic: through the strike and the bounce the rungs
     part by millimetres (cubic 1.9e-3 m from FEM 8; modal 8 is within 2.5e-5 m of FEM 8,

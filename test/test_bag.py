@@ -547,6 +547,7 @@ def test_message_helpers():
         {"label": "id", "size": 2, "stride": 2}]
 
 
+@pytest.mark.subprocess
 def test_bag_package_imports_without_rclpy():
     code = ("import sys; sys.modules['rclpy'] = None\n"
             "import flexarm_ros.bag, flexarm_ros.bag.reader, flexarm_ros.bag.writer\n"

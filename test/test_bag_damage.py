@@ -163,6 +163,7 @@ def test_flipped_byte_in_the_middle_chunk_loses_that_chunk_only(golden, tmp_path
     assert twin_bag.twin_info(bag)["scene"] == "two_link_case1"
 
 
+@pytest.mark.heavy
 def test_garbage_after_the_header_is_scanned_past(golden, tmp_path):
     """Random bytes over offsets 40–400 (the header record and the start of the twin's
     metadata): the reader finds the next valid record and reads every message mcap's
@@ -272,6 +273,7 @@ def _readers_agree(path: Path, want: list[tuple], decode: bool = False) -> None:
                     assert same(values[topic], vals), topic
 
 
+@pytest.mark.heavy
 @needs_rosbags
 def test_repair_of_a_corrupt_golden_bag_is_read_by_every_reader(golden, tmp_path, capsys):
     from flexarm_ros.cli import main
@@ -327,6 +329,7 @@ while True:
 """
 
 
+@pytest.mark.subprocess
 @needs_rosbags
 def test_repair_of_a_sigkilled_writer_is_read_by_every_reader(tmp_path):
     """A real writer process killed by SIGKILL mid-run: no summary, no footer, mcap's
@@ -534,6 +537,8 @@ def _flexarm(*args, cwd):
                           timeout=300)
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 @pytest.mark.parametrize("damage", ["flip", pytest.param("cut", marks=pytest.mark.slow),
                                     pytest.param("garbage", marks=pytest.mark.slow)])
 def test_compare_and_replay_on_damaged_bags_never_trace_back(golden, tmp_path, damage):

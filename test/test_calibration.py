@@ -100,6 +100,7 @@ def test_intervals_from_the_residual_level_when_no_noise_is_given(base, truth_ru
         assert abs(p["value"] - TRUTH[p["key"]]) < 3 * p["stderr"]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("given", [True, False], ids=["noise-given", "noise-from-residuals"])
 def test_95_percent_intervals_cover_the_truth_about_95_percent_of_the_time(base, truth_run,
                                                                            given):
@@ -245,6 +246,8 @@ def test_feature_targets_alone_fit_a_value(capsys, record, truth_run):
     assert p["value"] == pytest.approx(1.2, rel=1e-3)
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_the_dask_runner_gives_the_same_fit(base, truth_run):
     from flexarm_ros.ensemble.runner import open_executor
     start = set_keys(base, {R: 1.5, EI: 1950.0})
@@ -404,6 +407,7 @@ def test_targets_the_scene_cannot_give_exit_2_before_the_fit(capsys, record, tar
     assert code == 2 and expect in err, err
 
 
+@pytest.mark.heavy
 def test_starts_that_end_in_other_valleys_raise_a_warning(base, truth_run):
     """The tip record's cost in EI has valleys a few percent apart (a phase wrap per
     period): from starts spread over the box some end elsewhere, and the fit says so."""
@@ -451,6 +455,9 @@ def _twin_case(scene, bag, seed, s_q=2e-3, s_w=5e-5):
                      "m")])
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_twin_bag_is_fitted_with_the_twins_loop(base, twin_bag):
     """The scene declares no controller; the bag was made by the twin (commands sampled at
     1 kHz, held): system_of_record gives the scene the twin's control section, and the
@@ -475,6 +482,8 @@ def test_a_twin_bag_is_fitted_with_the_twins_loop(base, twin_bag):
     assert abs(values["open"] - 2000.0) > 0.3
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_twin_bag_fit_covers_the_truth(base, twin_bag):
     """One noise seed: R and EI within their 95 % intervals (the 20-seed coverage: slow)."""
     from flexarm_ros.calibration.setup import system_of_record
@@ -500,6 +509,9 @@ def test_twin_bag_intervals_cover_the_truth_17_of_20_times(base, twin_bag):
     assert np.all(hits >= 17), hits
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_the_cli_fits_a_twin_bag_with_the_twins_loop(capsys, twin_bag):
     scene, bag = twin_bag
     assert main(["calibrate", str(scene), str(bag), "--param", f"{EI}=500:8000@1980",

@@ -102,6 +102,7 @@ def test_bad_input_exits_with_a_clear_message(argv, fragment, capsys, tmp_path,
     assert not (tmp_path / "x.txt").exists()
 
 
+@pytest.mark.subprocess
 def test_console_entry_point_runs_default_scene(tmp_path):
     from flexarm_ros.scene import DEFAULT_SCENE
     out = tmp_path / "run.csv"
@@ -112,6 +113,7 @@ def test_console_entry_point_runs_default_scene(tmp_path):
     assert r.stdout.startswith(f"{DEFAULT_SCENE}: ") and out.exists()
 
 
+@pytest.mark.subprocess
 def test_core_imports_without_rclpy():
     code = ("import sys; sys.modules['rclpy'] = None; "
             "import flexarm_ros.model.chain, flexarm_ros.sim.simulate, flexarm_ros.cli, "

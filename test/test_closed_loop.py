@@ -215,6 +215,9 @@ def test_a_diverging_closed_loop_names_what_diverged():
         assert "commands [" in text or "inputs" in text, text
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_the_ros_lockstep_bag_equals_the_batch_run(tmp_path):
     """A real lockstep ROS run of two_link_position: its ground_truth/joint_states equal
     the compiled batch run's joints at every tick to 1e-9 rad."""

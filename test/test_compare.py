@@ -287,6 +287,7 @@ def _no_nan(value):
     raise AssertionError(f"non-JSON constant {value}")
 
 
+@pytest.mark.heavy
 def test_json_stable_and_keys_pinned(capsys):
     args = (GOLDEN, SYNTHETIC, "--json", "--channels", "acc_B,acc_C", "tip_x", "tip_y",
             "contact", "normal_force")
@@ -313,6 +314,7 @@ def test_json_stable_and_keys_pinned(capsys):
     assert r["threshold"] == 0.1
 
 
+@pytest.mark.heavy
 def test_report_renders(golden, tmp_path):
     names = ["acc_B", "acc_C", "tip_x", "tip_y", "contact", "normal_force"]
     cmp = C.compare(golden, load_channels(SYNTHETIC), channels=names)
@@ -493,6 +495,7 @@ def test_bad_input_exit_status_2(tmp_path, capsys):
             assert w in err, (w, err)
 
 
+@pytest.mark.heavy
 def test_truncated_bag_is_analysed_up_to_the_cut(golden, tmp_path, capsys):
     cut = tmp_path / "cut.mcap"
     data = GOLDEN.read_bytes()
@@ -516,6 +519,7 @@ def test_truncated_bag_is_analysed_up_to_the_cut(golden, tmp_path, capsys):
     assert "warning" in err and str(cut) in err and "truncated" in err
 
 
+@pytest.mark.heavy
 def test_cli_writes_report_and_exit_status(tmp_path, capsys):
     rep = tmp_path / "r"
     code, out, err = _cli(capsys, GOLDEN, SYNTHETIC, "--report", rep, "--channels",

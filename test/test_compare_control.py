@@ -185,6 +185,7 @@ def test_control_run_fails_a_slow_overshooting_or_reversed_response(tmp_path, ca
     assert {"link1_joint:final_error", "link1_joint:rise_time"} <= set(r["failed"])
 
 
+@pytest.mark.heavy
 def test_json_keys_of_the_control_block(tmp_path, capsys):
     ref = _table(tmp_path / "ref.csv", first_order(0.05), np.zeros_like(T))
     code, r = _cmp(capsys, ref, ref)

@@ -296,6 +296,7 @@ def _compliant_vs_impulse(mu, stiffnesses):
     return out
 
 
+@pytest.mark.heavy
 def test_compliant_contact_converges_to_the_impulse_rung():
     """Frictionless strike: as the wall stiffens the compliant rung's penetration, normal
     impulse and tip path converge to the impulse rung's (measured: k = 1e5 / 1e6 / 1e7 N/m
@@ -386,6 +387,7 @@ def _reference_only(monkeypatch):
     monkeypatch.setattr(contact_stepper.ContactStepper, "__init__", init)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("case", ["strike", "stick", "reverse", "separate", "chatter"])
 def test_compiled_contact_stepping_equals_the_reference(case, monkeypatch):
     """model.compiled.contact (compiled smooth stepping, Schur-complement constrained dynamics)
@@ -431,6 +433,7 @@ def _case2_fine():
     return simulate(load_scene("two_link_case2").with_fidelity(dt=6.25e-5), 2.5)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("reference_only", [False, True])
 def test_a_strike_right_after_a_bounce_is_not_missed(reference_only, monkeypatch):
     """two_link_case2 bounces off the wall at 2.265 s and strikes it again about 1 ms

@@ -174,6 +174,7 @@ def _step(arm, x, t, dt, V):
 
 
 # ---------------------------------------------------------------------------- package
+@pytest.mark.subprocess
 def test_control_imports_without_rclpy_and_documents_its_api():
     code = ("import sys; sys.modules['rclpy'] = None; import flexarm_ros.control; "
             "assert not any(m.startswith('rclpy') and sys.modules[m] is not None "

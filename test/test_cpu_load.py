@@ -30,6 +30,7 @@ print(json.dumps([t0, t1, c1 - c0]))
 """
 
 
+@pytest.mark.subprocess
 def test_the_sampler_measures_a_childs_cpu_over_its_window():
     sampler = CpuSampler(root_role="test", period=0.02).start()
     try:
@@ -47,6 +48,7 @@ def test_the_sampler_measures_a_childs_cpu_over_its_window():
     assert got["test"] < 0.5 * own           # this process only waited for the child
 
 
+@pytest.mark.subprocess
 def test_a_process_is_named_by_the_node_it_runs():
     p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(5)",
                           "flexarm_ros.nodes.controller"])

@@ -238,6 +238,8 @@ def _sweep(scene):
     return a
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_same_table_on_every_executor_to_the_bit(scene, external_cluster, tmp_path):
     pytest.importorskip("distributed")
     a = _sweep(scene)
@@ -278,6 +280,7 @@ def test_same_table_on_every_executor_to_the_bit(scene, external_cluster, tmp_pa
         [[repr(r[c]) for c in serial.columns] for r in serial.rows]
 
 
+@pytest.mark.subprocess
 def test_a_killed_worker_leaves_a_complete_table(scene):
     """SIGKILL one of two workers while tasks run: the scheduler reruns its tasks (the
     nanny starts a fresh worker) and the table equals the serial one."""
@@ -480,6 +483,8 @@ def test_distribution_leaving_the_schema_bounds_exits_2(tmp_path, capsys):
 
 
 # ------------------------------------------------------------- the study on the runner
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     """flexarm study's ladder rows as tasks: on a Dask worker they give the serial rows'
     errors, frequencies and step counts to the bit (only the timing columns differ)."""
@@ -501,6 +506,7 @@ def test_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     assert sum(line.startswith("[") for line in lines) == len(ladder)   # one per row
 
 
+@pytest.mark.subprocess
 def test_contact_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     """The contact trade's rows (flexarm study on a scene with a wall) as tasks: on a Dask
     worker the same rows as in this process (timing columns aside) — to round-off: after

@@ -64,6 +64,7 @@ def _received(ctx, executor_cls, n=500):
     return got
 
 
+@pytest.mark.ros
 def test_every_message_in_order_to_every_kind_of_callback(ctx):
     got = _received(ctx, DrainExecutor)
     ref = list(range(500))
@@ -74,6 +75,7 @@ def test_every_message_in_order_to_every_kind_of_callback(ctx):
     assert got["b"] == [[float(i), -float(i)] for i in range(500)]
 
 
+@pytest.mark.ros
 def test_the_same_as_rclpys_executor(ctx):
     ours = _received(ctx, DrainExecutor, 200)
     c2 = Context()
@@ -86,6 +88,7 @@ def test_the_same_as_rclpys_executor(ctx):
     assert ours["raw"] == theirs["raw"]
 
 
+@pytest.mark.ros
 def test_timers_fire_at_their_period_and_stop_when_cancelled(ctx):
     node = rclpy.create_node("t", context=ctx)
     calls = []
@@ -105,6 +108,7 @@ def test_timers_fire_at_their_period_and_stop_when_cancelled(ctx):
     node.destroy_node()
 
 
+@pytest.mark.ros
 def test_a_node_destroyed_by_a_callback_is_not_called_again(ctx):
     pub_node = rclpy.create_node("p", context=ctx)
     node = rclpy.create_node("victim", context=ctx)

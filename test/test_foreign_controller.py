@@ -76,6 +76,9 @@ def _start_example(tmp_path):
     return proc, log
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 @pytest.mark.parametrize("mode, processes", [("lockstep", False), ("realtime", True),
                                              ("realtime", False)])
 def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode, processes):
@@ -120,6 +123,8 @@ def test_a_foreign_controller_moves_the_arm_to_its_target(tmp_path, mode, proces
     assert "target [0.66, 0.53] rad" in text and "Traceback" not in text, text
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_lockstep_waits_for_a_controller_and_says_so(tmp_path, capfd):
     """Without any controller the lockstep twin does not start; after a few seconds it
     says (WARN) that it waits for a controller on joint_states. Realtime does not wait."""
@@ -145,10 +150,10 @@ def test_lockstep_waits_for_a_controller_and_says_so(tmp_path, capfd):
                     break
         assert proc.poll() is None                      # still waiting, not started
     finally:
-        proc.terminate()
         driver.terminate()
-        proc.communicate(timeout=30)
-        driver.wait(30)
+        _end(proc)
+        proc.communicate(timeout=10)
+        _end(driver)
     warn = [ln for ln in lines if want in ln]
     assert warn and "WARN" in warn[0], lines
     res = run("two_link_position", 0.2, "realtime", record=None, namespace=NS,
@@ -190,6 +195,9 @@ except Exception:
 """
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_lockstep_without_answers_ends_as_stalled_and_keeps_the_bag(tmp_path):
     """A controller that reads joint_states and has a command publisher but never
     commands (as if its answer were lost): lockstep cannot step.
@@ -206,8 +214,7 @@ def test_lockstep_without_answers_ends_as_stalled_and_keeps_the_bag(tmp_path):
                   simulator={"stall_timeout_s": 4.0})
         wall = time.monotonic() - t0
     finally:
-        proc.terminate()
-        proc.wait(30)
+        _end(proc)
         proc.stdout.close()
     assert res.stalled and "lockstep stalled" in res.stalled and "tick 0" in res.stalled
     assert "motor_driver/commands" in res.stalled
@@ -273,6 +280,9 @@ print("ready", flush=True)
 ''' + SCRIPT_TAIL
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 @pytest.mark.parametrize("layout", ["one", "split"])
 def test_every_effort_of_an_outside_amplifier_the_twin_stepped_on_is_in_the_bag(
         tmp_path, layout):
@@ -346,6 +356,8 @@ node.create_subscription(JointState, "joint_states", on_state, QOS)
 ''' + SCRIPT_TAIL
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_commands_beyond_one_per_state_in_lockstep_are_counted_and_said(tmp_path, capfd):
     """A controller that answers some states twice: a Float64MultiArray has no stamp, so
     the driver cannot tell the extra from the next state's answer, but the run counts
@@ -383,6 +395,7 @@ except (KeyboardInterrupt, Exception):
 '''
 
 
+@pytest.mark.subprocess
 def test_a_wait_names_an_endpoint_of_the_wrong_type(tmp_path):
     """A controller whose command publisher and state subscription have the wrong types
     is never matched by DDS: the simulator's and the driver's waits say what is on their
@@ -428,6 +441,9 @@ def test_a_wait_names_an_endpoint_of_the_wrong_type(tmp_path):
     assert want["motor_driver"] in seen["simulator"], seen["simulator"]
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_start_timeout_ends_a_twin_whose_controller_never_came(tmp_path, capsys):
     """``--start-timeout``: lockstep without a controller ends as stalled (exit 3) after
     the timeout, naming what it waited for, with no tick; a bad value is one line."""

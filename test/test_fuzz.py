@@ -284,6 +284,8 @@ def test_scene_case_list_covers_every_shipped_scene():
     assert kinds == {"set", "delete", "unknown"}
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_fuzz_scenes_sample(worker, tmp_path):
     cases = random.Random(SEED).sample(scene_cases(), FAST_SCENE_CASES)
     failures, codes = run_scene_cases(cases, worker, tmp_path)

@@ -166,6 +166,7 @@ def test_twin_run_is_refused_before_any_node_starts():
 
 
 
+@pytest.mark.subprocess
 def test_simulator_node_started_on_its_own_checks_the_budget():
     """``ros2 run flexarm_ros simulator`` (no ``flexarm run`` before it): the node's own
     process refuses the run in one line, exit 2, before it publishes anything."""
@@ -200,6 +201,7 @@ def test_fine_eigen_mesh_matrices_equal_the_full_build():
         assert np.array_equal(getattr(full, a), getattr(light, a)), a
 
 
+@pytest.mark.subprocess
 def test_forty_modes_build_within_a_memory_limit():
     """modal 40 used to build a 480-element S tensor (14 GB, killed by the kernel)."""
     code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30)); "
@@ -430,6 +432,8 @@ def test_replay_names_a_twin_topic_with_another_type(tmp_path, capsys):
             "expected geometry_msgs/msg/PointStamped") in msg
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_console_script_prints_one_line_and_no_traceback(tmp_path):
     """The real entry point, in a process: bad input is one line on stderr, exit 2."""
     latin = tmp_path / "latin1.yaml"

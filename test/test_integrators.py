@@ -45,6 +45,7 @@ def test_trapezoid_converges_at_second_order(reference):
     assert all(3.0 < r < 5.0 for r in ratios), ratios    # 2² = 4
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("integ", ["rk45", "radau", "bdf", "lsoda"])
 def test_scipy_methods_agree_with_reference(integ, reference):
     res = simulate(_scene(integrator=integ, rtol=1e-9, atol=1e-12), duration=0.2)

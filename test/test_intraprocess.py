@@ -41,6 +41,8 @@ def _lockstep(path, intraprocess, duration=0.05):
     return out, dds_readers
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_the_bus_records_the_same_bag_as_dds_byte_for_byte(tmp_path):
     """Lockstep two_link_case1, 50 ticks, all nodes in one process: with the bus and with
     DDS between the nodes, every topic holds the same messages at the same log times —
@@ -56,6 +58,8 @@ def test_the_bus_records_the_same_bag_as_dds_byte_for_byte(tmp_path):
     assert readers_dds[T.JOINT_STATES] == 2 and readers_dds[T.GT_JOINT_STATES] == 2
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
     """A node in another DDS participant (another context) subscribing to joint_states
     receives the twin's messages while the twin's own nodes use the bus."""
@@ -95,6 +99,8 @@ def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
         rclpy.shutdown(context=ctx)
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
     """Garbage published raw on effort_controller/commands by a foreign node: the simulator
     refuses it as a second publisher's, counted with the other rejections (the run summary
@@ -143,6 +149,7 @@ def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
     assert got == ref
 
 
+@pytest.mark.ros
 def test_bytes_that_are_not_a_command_from_the_only_publisher_are_rejected(tmp_path):
     """Without the twin's controller, a node that sends only bytes that are not a
     Float64MultiArray on motor_driver/commands: the driver rejects each (``not a CDR

@@ -40,6 +40,7 @@ def test_message_dicts_survive_rclpy_objects_bit_for_bit(scene):
 
 
 # -------------------------------------------------------------------------- packaging
+@pytest.mark.subprocess
 @pytest.mark.parametrize("node", ["simulator", "motor_driver", "controller", "recorder"])
 def test_node_help_prints_usage_and_parameters(node):
     r = subprocess.run([sys.executable, "-m", f"flexarm_ros.nodes.{node}", "--help"],
@@ -51,6 +52,7 @@ def test_node_help_prints_usage_and_parameters(node):
         assert f"  {p} (default" in r.stdout
 
 
+@pytest.mark.subprocess
 def test_node_reports_a_bad_scene_and_exits_2():
     r = subprocess.run([sys.executable, "-m", "flexarm_ros.nodes.controller", "--ros-args",
                         "-p", "scene:=no_such_scene"], capture_output=True, text=True,
@@ -59,6 +61,7 @@ def test_node_reports_a_bad_scene_and_exits_2():
     assert "no_such_scene" in r.stderr
 
 
+@pytest.mark.subprocess
 def test_core_packages_import_and_cosimulate_without_rclpy():
     code = textwrap.dedent("""
         import sys
@@ -100,6 +103,7 @@ def _graph(**kw):
     return InProcessGraph(namespace=NS, **kw)
 
 
+@pytest.mark.ros
 def test_malformed_commands_never_crash_the_driver_nor_reach_the_plant(capfd):
     from std_msgs.msg import Float64MultiArray
     g = _graph(scene="two_link_position", mode="fast", duration=0.3)
@@ -173,6 +177,8 @@ def _check_watchdog(path, scene, duration, slack_ticks=5):
     assert sum(not z for _, z in zero) > 50             # it was driving before
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_driver_watchdog_zero_volts_when_the_controller_dies(tmp_path):
     scene = load_scene("two_link_position")
     out = tmp_path / "watchdog.mcap"

@@ -1,6 +1,7 @@
 """The ament_python layout builds with colcon and installs what `ros2 run` executes; a pip
 wheel puts only the ``flexarm*`` names on PATH."""
 
+import pytest
 import configparser
 import os
 import shutil
@@ -29,6 +30,8 @@ def _colcon():
     return str(exe) if exe.exists() else shutil.which("colcon")
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_colcon_build_installs_the_executable_and_scenes(tmp_path):
     colcon = _colcon()
     assert colcon, "colcon is part of the [dev] extra: pip install -e .[dev]"
@@ -61,6 +64,7 @@ def test_colcon_build_installs_the_executable_and_scenes(tmp_path):
     assert r.stdout.startswith("usage: simulator") and "  rung (default" in r.stdout
 
 
+@pytest.mark.subprocess
 def test_pip_metadata_puts_only_the_flexarm_names_on_path(tmp_path):
     """``pip install .`` / ``pip install -e .`` install a wheel whose entry points
     setuptools' ``egg_info`` step writes (the PEP 517 hooks run it before bdist_wheel /

@@ -69,6 +69,9 @@ def _granted(priority: int) -> str:
     return out[0]
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 @pytest.mark.parametrize("argv,gt_every,layout", [
     ([], 10, "one"), (["--ground-truth-rate", "0"], 1, "one"),
     (["--layout", "split"], 10, "split")])
@@ -96,6 +99,7 @@ def test_realtime_run_summary_agrees_with_its_bag(tmp_path, capsys, argv, gt_eve
     assert s["ticking_wall_time_s"] < s["wall_time_s"]
 
 
+@pytest.mark.subprocess
 def test_realtime_run_in_processes_reports_the_same_summary(tmp_path, capsys):
     s = _run_json(capsys, "two_link_case1", "--mode", "realtime", "--duration", "0.5",
                   "--processes", "--record", str(tmp_path / "rt.mcap"))
@@ -113,6 +117,9 @@ def test_realtime_run_in_processes_reports_the_same_summary(tmp_path, capsys):
                                      if n != "simulator")
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_ground_truth_at_a_set_rate_keeps_the_values_of_every_tick(tmp_path, capsys):
     """ground_truth/tip and ground_truth/coordinates every 10th tick (100 Hz of 1 kHz):
     their messages are the co-simulation's at those ticks, byte for byte; every other
@@ -134,6 +141,7 @@ def test_ground_truth_at_a_set_rate_keeps_the_values_of_every_tick(tmp_path, cap
     assert s["recorded"][T.resolve(NS, T.GT_TIP)] == 11
 
 
+@pytest.mark.ros
 def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path, capsys):
     """The kernel's own answer for the pacing thread (sched_getscheduler of its thread id,
     polled while it runs in this process, once the kernel knows it as ``flexarm-pacer``:
@@ -251,6 +259,8 @@ print(len(ls.sim.plant.stepper.impacts), bool(before), ",".join(loaded) or "none
 """
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_no_kernel_is_loaded_or_compiled_after_start_up_not_even_at_the_impact():
     """A realtime tick must not stop to load or compile a numba function: the simulator
     core's start-up loads every kernel a tick can call, including those only an impact

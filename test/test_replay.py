@@ -92,6 +92,8 @@ def _finish(listener, proc, expected, timeout=60.0):
     return out, err
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_replay_publishes_the_bag_with_its_clock(bag_path):
     bag = read_bag(bag_path)
     data = {t: [to_dict(m) for _, m in bag[t]] for t in bag.topics if t != T.CLOCK}
@@ -120,6 +122,9 @@ def test_replay_publishes_the_bag_with_its_clock(bag_path):
     assert clock == [t for t, _ in bag[T.CLOCK]]            # = the recorded /clock too
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_rate_namespace_and_topic_selection(bag_path):
     """--rate 0.25 stretches the 50 ms bag to 200 ms of wall time; --namespace moves the
     selected topics (and only those) under /other; /clock stays global."""
@@ -149,6 +154,8 @@ def test_rate_namespace_and_topic_selection(bag_path):
     assert 0.9 * DURATION / 0.25 < report["wall_s"] < 2.0
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_ctrl_c_stops_a_loop_cleanly(bag_path):
     domain = _domain(3)
     listener = Listener(domain, {T.CLOCK: "rosgraph_msgs/msg/Clock"})

@@ -159,6 +159,7 @@ def test_centerline_ends_at_the_recorded_tip(rrd, bag_path):
     assert np.abs(path[0, :2] - tips[0]).max() < 1e-6
 
 
+@pytest.mark.heavy
 def test_centerlines_match_the_tip_in_double_precision(bag_path, tmp_path, cosim):
     """Before rerun's float32: to 1e-9, also when the coordinates come in another name
     order (mapped by name, not index)."""
@@ -244,6 +245,7 @@ def _env(**extra):
     return env
 
 
+@pytest.mark.subprocess
 def test_replay_rerun_converts_without_ros(bag_path, tmp_path):
     out = tmp_path / "cli.rrd"
     p = subprocess.run([sys.executable, "-m", "flexarm_ros.cli", "replay", str(bag_path),
@@ -255,6 +257,7 @@ def test_replay_rerun_converts_without_ros(bag_path, tmp_path):
     assert [t for t, _ in rows] == list(range(0, 100_000_001, 20_000_000))
 
 
+@pytest.mark.subprocess
 def test_run_rerun_spawn_without_display_fails_before_running(tmp_path):
     env = _env()
     env.pop("DISPLAY", None)
@@ -267,6 +270,8 @@ def test_run_rerun_spawn_without_display_fails_before_running(tmp_path):
     assert "real-time factor" not in p.stdout                       # did not run
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_run_rerun_converts_the_recorded_run(tmp_path):
     """`flexarm run --no-record --rerun` records to a temporary bag and converts it."""
     out = tmp_path / "run.rrd"

@@ -175,6 +175,8 @@ def test_the_twin_plant_steps_rkn4_where_the_scene_names_it():
         == "rk4"
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
 def test_flexarm_run_reports_the_plants_integrator(capfd):
     """``flexarm run --json`` names the integrator the plant stepped with; a batch-only one
     is said at WARN level (ROS logging writes to the process's stderr: capfd)."""

@@ -41,6 +41,9 @@ def _lockstep_run(scene, duration, path, **kw):
 
 
 # ----------------------------------------------------------------------- equivalence
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 @pytest.mark.parametrize("scene,duration", [("link_motor", 0.2), ("two_link_case1", 0.1),
                                             ("two_link_sanding", 0.1),
                                             # past the valve step (0.1 s) and 0.133 s,
@@ -69,6 +72,8 @@ def test_lockstep_run_records_exactly_the_cosimulation(tmp_path, scene, duration
     assert js == [m.data for m in ref.topic(T.JOINT_STATES)]
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_lockstep_with_the_simulator_in_its_own_process_records_the_cosimulation(tmp_path):
     """--layout split: the simulator's process and this one exchange the messages over
     their bridge; the bag is the batch co-simulation's, bit for bit."""
@@ -82,6 +87,9 @@ def test_lockstep_with_the_simulator_in_its_own_process_records_the_cosimulation
                                              for m in ref.topic(topic)], topic
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
+@pytest.mark.heavy
 def test_lockstep_runs_are_byte_identical(tmp_path):
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
     _lockstep_run("two_link_case1", 0.05, a)
@@ -107,6 +115,8 @@ def test_lockstep_in_processes_equals_the_cosimulation(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the CLI
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_flexarm_run_writes_a_finalized_bag_with_metadata(tmp_path, capsys):
     from flexarm_ros import __version__
     from flexarm_ros.cli import main
@@ -131,6 +141,9 @@ def test_flexarm_run_writes_a_finalized_bag_with_metadata(tmp_path, capsys):
     assert depths == {DEPTH}
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
+@pytest.mark.heavy
 def test_flexarm_run_takes_the_fidelity_overrides_and_quiet_keeps_the_summary(tmp_path,
                                                                              capfd):
     """--rung etc. reach every node: the recorder embeds the model that ran (explain) and a
@@ -162,6 +175,8 @@ def test_flexarm_run_takes_the_fidelity_overrides_and_quiet_keeps_the_summary(tm
     assert "expected >= 4 segments" in capfd.readouterr().err
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_flexarm_run_set_reaches_every_node_the_summary_and_the_bag(tmp_path, capsys):
     """--set: every node builds the modified scene (the bag equals the co-simulation of
     that scene), the --json summary has "set", the bag's flexarm_ros metadata the sets
@@ -233,6 +248,7 @@ def test_run_refuses_an_unknown_layout():
         run("link_motor", 0.01, "lockstep", record=None, layout="two", progress=False)
 
 
+@pytest.mark.subprocess
 def test_an_unknown_beam_sum_setting_is_refused_naming_the_variable():
     r = subprocess.run([sys.executable, "-c", "import flexarm_ros.model.chain"],
                        env={**os.environ, "FLEXARM_BEAM_SUMS": "fast"},
@@ -289,6 +305,8 @@ def test_position_control_reaches_the_tip_target():
     assert volts.max() < 4.5
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_position_control_ros_run_follows_the_cosimulation(tmp_path):
     """A short fast-mode ROS run (latest-value hold, not lockstep) of two_link_position:
     the tool heads for the target like the co-simulation's (within 1 mm)."""
@@ -376,6 +394,9 @@ def _consistent(bag):
         assert times == sorted(times), topic
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_ctrl_c_finalizes_the_bag(tmp_path):
     out = tmp_path / "int.mcap"
     proc = _flexarm("link_motor", "--duration", "100", "--record", str(out), "--quiet")
@@ -416,6 +437,8 @@ def test_sigint_to_the_simulator_process_finalizes_the_bag(tmp_path):
     _consistent(bag)
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_sigkill_leaves_a_finalized_bag_of_what_was_recorded(tmp_path):
     """SIGKILL of `flexarm run` (one process): its bag writer process (on the other core,
     bag/writer_process.py) sees its input end and finalizes the bag with every message it
@@ -492,6 +515,7 @@ def test_colcon_install_has_the_node_executables(tmp_path):
     assert (prefix / "share" / "flexarm_ros" / "config" / "two_link_sanding.yaml").exists()
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("flag", [True, False])
 def test_a_child_never_imports_the_package_from_its_working_directory(tmp_path, monkeypatch,
                                                                       flag):
@@ -513,6 +537,9 @@ def test_a_child_never_imports_the_package_from_its_working_directory(tmp_path, 
     assert r.returncode != 0 and "the shadowing folder" in r.stderr
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_recorded_run_next_to_a_clone_writes_its_bag(tmp_path, monkeypatch):
     """``flexarm run`` from the directory that holds a clone named flexarm_ros (the bag
     writer is a child process)."""
@@ -523,6 +550,8 @@ def test_a_recorded_run_next_to_a_clone_writes_its_bag(tmp_path, monkeypatch):
     assert read_bag(tmp_path / "x.mcap")
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_run_that_never_started_keeps_the_bag_already_there(tmp_path, capsys):
     """A good bag at --record survives a run that never ticked (here: lockstep without a
     controller, ended by --start-timeout); a run that ticks replaces it, as an overwrite

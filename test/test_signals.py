@@ -20,8 +20,9 @@ from mcap.reader import NonSeekingReader, make_reader
 from flexarm_ros.bag import TruncatedBagWarning, read_bag
 from flexarm_ros.run import NODES, die_with_parent
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
-                                reason="the parent-death signal and /proc are Linux's")
+pytestmark = [pytest.mark.subprocess,
+              pytest.mark.skipif(not sys.platform.startswith("linux"),
+                                 reason="the parent-death signal and /proc are Linux's")]
 
 
 def _children(pid: int) -> list[int]:
@@ -76,6 +77,7 @@ def _cleanup(proc):
     proc.communicate(timeout=30)                     # reaps it and closes the pipes
 
 
+@pytest.mark.heavy
 def test_sigkill_of_the_parent_takes_the_nodes_down(tmp_path):
     """SIGKILL cannot be caught by `flexarm run`; the kernel's parent-death signal
     (SIGTERM) still reaches every node: none is left after 2 s, and the recorder, stopped
@@ -128,6 +130,7 @@ def test_ctrl_c_to_the_process_group_exits_0_with_a_finalized_bag(tmp_path):
     assert bag.rosbag2_metadata()["message_count"] == n
 
 
+@pytest.mark.heavy
 def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
     """The recorder node SIGKILLed mid-run: `flexarm run` says so (exit 1, the recorder's
     status named) and rewrites the bag complete with `flexarm bag repair`, keeping the
@@ -207,6 +210,7 @@ def test_a_node_whose_teardown_hangs_ends_with_the_status_it_earned(diverged, co
     assert "time.sleep(30)" in r.stderr or "line 5" in r.stderr, r.stderr
 
 
+@pytest.mark.heavy
 def test_ctrl_c_to_a_split_run_exits_0_with_a_finalized_bag(tmp_path):
     """--layout split (the simulator in its own process, the bag written by another): a
     terminal's Ctrl-C reaches all three; the run ends with exit 0, a finalized bag, and

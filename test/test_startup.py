@@ -35,6 +35,7 @@ def _loaded(names) -> str:
     return (f"[m for m in {tuple(names)!r} if m in sys.modules]")
 
 
+@pytest.mark.subprocess
 def test_cli_import_loads_no_scipy_numba_or_ros(tmp_path):
     got = _child("import json, sys\nimport flexarm_ros.cli\n"
                  f"print(json.dumps({_loaded(NOT_FOR_SIMULATE + ('scipy', 'numba'))}))",
@@ -42,6 +43,7 @@ def test_cli_import_loads_no_scipy_numba_or_ros(tmp_path):
     assert got == []
 
 
+@pytest.mark.subprocess
 def test_rk4_simulate_process_imports_and_gc(tmp_path):
     """``flexarm simulate`` of an rk4 scene, as the console script runs it (``main()``
     reading sys.argv): no solve_ivp, optimizer, plotting or ROS module is loaded; the

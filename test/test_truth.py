@@ -31,6 +31,7 @@ def _physics(name):
     return simulate(sc.with_fidelity(dt=0.5 * h), DURATIONS[name]).columns
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("tol", [1e-3, 1e-4, 1e-5, 1e-6])
 @pytest.mark.parametrize("name", ["spin_up", "link_tipmass", "two_link_free"])
 def test_a_tolerance_is_met_against_the_physics_or_said_not_to_be(name, tol):

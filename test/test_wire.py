@@ -306,6 +306,8 @@ def _tip(messages):
     return np.array([p["point"]["x"], p["point"]["y"]])
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_lockstep_under_attack_equals_the_clean_run_message_for_message(tmp_path):
     """two_link_case1, lockstep, 0.1 s: the graph's own controller and driver send NaN,
     ±inf, ±1e300 and wrong lengths before each real command/effort; a second publisher
@@ -346,6 +348,8 @@ def test_lockstep_under_attack_equals_the_clean_run_message_for_message(tmp_path
     assert not bag.truncated and _all_finite(bag)
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_realtime_under_attack_stays_finite_and_within_the_drive_limits(tmp_path):
     """The same attack in realtime (0.15 s): every step holds an accepted effort, so the
     plant stays finite, every effort on the wire and applied stays within the joints'
@@ -365,6 +369,8 @@ def test_realtime_under_attack_stays_finite_and_within_the_drive_limits(tmp_path
     assert max(t for topic in bag.topics for t, _ in bag[topic]) <= round(counts["t"] * 1e9)
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_recorder_stamps_with_the_simulators_clock_when_sent(tmp_path):
     """The recorder alone; a test node owns /clock (no simulator on the graph) and sends,
     per tick, /clock then joint_states and encoder counts. Every message is logged at the
@@ -404,6 +410,7 @@ def test_recorder_stamps_with_the_simulators_clock_when_sent(tmp_path):
         assert [t for t, _ in bag[topic]] == want, topic
 
 
+@pytest.mark.ros
 def test_one_source_per_topic_the_latest_wins_and_a_successor_takes_over():
     """Without the graph's controller the first publisher whose command is taken owns
     motor_driver/commands: its latest command wins, a second publisher's valid commands
@@ -467,6 +474,8 @@ def _check_diverged_bag(path):
     assert _all_finite(bag)
 
 
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_divergence_in_a_run_exits_3_with_one_message(tmp_path, capsys):
     from flexarm_ros.cli import main
     out = tmp_path / "div.mcap"
@@ -479,6 +488,7 @@ def test_divergence_in_a_run_exits_3_with_one_message(tmp_path, capsys):
     _check_diverged_bag(out)
 
 
+@pytest.mark.subprocess
 def test_divergence_in_a_run_with_processes_exits_3_with_one_message(tmp_path):
     out = tmp_path / "divp.mcap"
     exe = Path(sys.executable).with_name("flexarm")

@@ -14,6 +14,8 @@ from flexarm_ros.bag.stamping import SimTimeStamper
 from flexarm_ros.bag.writer_process import WriterProcess, WriterProcessError
 from flexarm_ros.bag import BagWriter
 
+pytestmark = [pytest.mark.subprocess]
+
 NAMES = {"clock": "/clock", "joint_states": "/ns/joint_states", "r": "/ns/rejected"}
 CLOCK = "rosgraph_msgs/msg/Clock"
 JS = "sensor_msgs/msg/JointState"

@@ -44,6 +44,7 @@ _LINK = re.compile(r"(?<!!)\[(?:[^\]\[]|\[[^\]]*\])*\]\(([^)\s]+)\)")
 _IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
 _HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 _FENCE = re.compile(r"^\s*(```|~~~)")
+_LEAD = re.compile(r"^\s*(?:[-*]\s+)?\*\*([^*]+?)\*\*")
 
 
 # --------------------------------------------------------------------------- helpers
@@ -76,8 +77,10 @@ def slug(heading: str) -> str:
     return kept.replace(" ", "-")
 
 
-def headings(path: Path) -> list[str]:
-    """The headings of a Markdown file, outside fenced code."""
+def headings(path: Path, leads: bool = False) -> list[str]:
+    """The headings of a Markdown file, outside fenced code; with ``leads`` also the bold
+    leads that open a paragraph (``**The trapezoid rule** (since …)``), which the docs use
+    as sub-sections."""
     out, fenced = [], False
     for line in path.read_text(encoding="utf-8").splitlines():
         if _FENCE.match(line):
@@ -86,6 +89,10 @@ def headings(path: Path) -> list[str]:
         m = None if fenced else _HEADING.match(line)
         if m:
             out.append(m.group(2))
+        elif leads and not fenced:
+            m = _LEAD.match(line)
+            if m:
+                out.append(m.group(1))
     return out
 
 
@@ -110,7 +117,7 @@ def _has_number(path: Path, number: str) -> bool:
 def _has_title(path: Path, title: str) -> bool:
     want = _plain(title)
     return bool(want) and any(_plain(t).startswith(want) or slug(h) == want
-                              for h in headings(path)
+                              for h in headings(path, leads=True)
                               for t in (h, re.sub(r"\A(?:§\s*)?\d+(?:\.\d+)*\.?\s+", "", h)))
 
 

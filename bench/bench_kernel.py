@@ -14,7 +14,7 @@ Per case, µs per right-hand side evaluation inside the compiled RK4 loop
     python bench/bench_kernel.py [--json]
 
 The ratios, not the absolute figures, are what carries from machine to machine
-(docs/design_notes.md, "The kernel without reference counting").
+(docs/decisions/0016-the-compiled-kernel.md, "No reference counting in the hot loops").
 """
 
 from __future__ import annotations

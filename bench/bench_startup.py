@@ -29,7 +29,7 @@ model, the output columns and writing the table. This bench times
     python bench/bench_startup.py --json
 
 Timings are machine- and load-dependent: compare figures taken on the same machine at the
-same moment. README "Start-up" has the figures of this change.
+same moment. docs/performance.md, "Start-up" has the figures of this change.
 """
 
 from __future__ import annotations

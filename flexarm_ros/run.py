@@ -543,7 +543,7 @@ class SplitGraph:
     (:class:`InProcessGraph`), their buses joined over a Unix socket
     (:mod:`~flexarm_ros.nodes.bridge`): the plant's tick on one core, the driver,
     controller and recorder on the other, messages between them as bytes written once
-    per tick (docs/design_notes.md, *The simulator in a process of its own*). With
+    per tick (docs/decisions/0009-the-bag-writer-process-and-the-split-layout.md). With
     ``pin`` the simulator's process runs alone on the last CPU."""
 
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
@@ -902,8 +902,9 @@ def _take_cpu(res: RunResult, sampler, sim: dict | None, sim_role: str,
 
 def default_layout(mode: str) -> str:
     """One process in every mode: on the 2-core host "split" did not keep the wall clock
-    measurably better in realtime (docs/design_notes.md, *The simulator in a process of
-    its own*); bench/bench_realtime.py compares the layouts on the machine at hand."""
+    measurably better in realtime
+    (docs/decisions/0009-the-bag-writer-process-and-the-split-layout.md);
+    bench/bench_realtime.py compares the layouts on the machine at hand."""
     return "one"
 
 

@@ -198,7 +198,8 @@ def test_tip_mass_without_rotary_inertia_fd_is_second_order(mu):
 
 @pytest.mark.parametrize("mu", [2.0, 10.0])
 def test_clamped_free_modes_converge_slowly_with_a_tip_mass(mu):
-    """Documents PHYSICS.md: plain clamped-free modes cannot carry the tip shear, so with a
+    """Documents docs/physics.md §5.2: plain clamped-free modes cannot carry the tip shear, so
+    with a
     tip mass they converge slowly (f3 still several % off with 10 modes), while the modes
     of the beam WITH its tip body are accurate at the same mode count."""
     tip = _tip(mu)

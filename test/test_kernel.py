@@ -113,8 +113,8 @@ print(repr(r.run.dt), r.run.rhs_evaluations, r.columns["tip_x"].tobytes().hex())
 @pytest.mark.slow
 def test_a_fresh_compile_and_a_cache_load_give_the_same_bits(tmp_path):
     """A process that compiles the kernel and one that loads it from numba's cache run the
-    same bits (with fast-math's 'reassoc' they did not: docs/design_notes.md, "Why not
-    'reassoc'"); the ensembles' Dask workers depend on it. Two subprocesses, one empty
+    same bits (with fast-math's 'reassoc' they did not: docs/decisions/0016-the-compiled-kernel.md,
+    "Why not 'reassoc'"); the ensembles' Dask workers depend on it. Two subprocesses, one empty
     cache directory; the first compiles (about a minute)."""
     import os
     import subprocess

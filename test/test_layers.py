@@ -1,4 +1,4 @@
-"""The layers import downwards only (README, Development): read from the source, every
+"""The layers import downwards only (docs/development.md, *Layout*): read from the source, every
 ``import``/``from`` of the project, lazy ones inside functions included.
 
     errors   ← nothing of the project

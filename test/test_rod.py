@@ -147,7 +147,7 @@ def test_the_spin_up_converges_below_the_second_order_floor():
     """Kane et al.'s spin-up (20 s): the rod with 5 terms and its stretch lies within
     2e-6 m of 8 terms over the whole run, and within 2e-6 m of it in the tip deflection;
     the converged second-order rung (modal 4, the default until now) stays ~2e-3 m away — the floor the
-    quadratic foreshortening leaves (PHYSICS.md: 0.2–0.4 % of the 0.574 m peak)."""
+    quadratic foreshortening leaves (docs/physics.md §5.4: 0.2–0.4 % of the 0.574 m peak)."""
     sc = load_scene("spin_up").with_fidelity(output_dt=0.01)
     runs = {}
     for key, over in (("rod5", dict(rung="rod", refine=5)), ("rod8", dict(rung="rod",

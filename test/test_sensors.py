@@ -1,4 +1,4 @@
-"""Sensors against independent truths (PHYSICS.md "sensors come from the model").
+"""Sensors against independent truths (docs/physics.md, "Sensors come from the model").
 
 * accelerometer on a link spinning at constant Ω: centripetal specific force −Ω²·r along
   the link (r the distance from the joint axis), zero across it; at rest in a vertical

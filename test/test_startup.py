@@ -1,4 +1,5 @@
-"""Start-up of a ``flexarm simulate`` process (README "Start-up"): what it imports, how it
+"""Start-up of a ``flexarm simulate`` process (docs/performance.md, "Start-up"): what it
+imports, how it
 writes its CSV tables and its collector settings. Timings live in bench/bench_startup.py,
 never here."""
 

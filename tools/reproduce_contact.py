@@ -38,7 +38,7 @@ from flexarm_ros.sim.simulate import simulate  # noqa: E402
 
 DURATION = 3.5
 CALIBRATION_BEGIN = "<!-- calibration: tools/calibrate_seed000.py -->"
-SOURCE = {  # experiment, author's simulation (Hz); seed 000 Sec. 5.6 / SEEDS.md
+SOURCE = {  # experiment, author's simulation (Hz); seed 000 Sec. 5.6 / docs/physics.md §14.1
     "two_link_case1": {"A": (10.96, 11.53), "B": (10.94, 11.52), "C": (10.56, 11.53),
                        "D": (None, None)},
     "two_link_case2": {"A": ((9.31, 9.71), (10.05, 10.14)), "B": ((9.31, 9.71), (10.05, 10.14)),

@@ -11,7 +11,7 @@ tests pin exactly what this report measures.
 
 Sources: seed 000 Hariharesan 1998 (two-link arm, Cases 1-3), seed 001 Esfandiar &
 Daneshmand 2012 (single link: torque pulse, +-3 V motor test), seed 002 Gannon 1986
-(hydraulic arm, 0 / 2.115 / 4.233 kg). See /work/shared/design/SEEDS.md.
+(hydraulic arm, 0 / 2.115 / 4.233 kg). See docs/physics.md §14 (the sources).
 """
 
 from __future__ import annotations

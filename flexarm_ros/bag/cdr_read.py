@@ -3,8 +3,9 @@ classes.
 
 rclpy builds a message object per message (``deserialize_message``, or a subscription's
 take): on the 2-core host that cost ~44 µs per JointState or Float64MultiArray, eight of
-them per lockstep tick (cProfile, one-process graph, docs/design_notes.md *Intra-process
-delivery*). These readers walk the same bytes with ``struct`` (little-endian XCDR1, the
+them per lockstep tick (cProfile, one-process graph,
+docs/decisions/0008-an-intra-process-bus.md). These readers walk the same bytes with ``struct``
+(little-endian XCDR1, the
 rules in :mod:`flexarm_ros.bag.cdr_fixed`) into plain objects with the attribute paths
 the nodes read (``m.data``, ``m.header.stamp.sec``, ``m.position``, ``m.wrench.force.x``,
 …); float64 sequences come as tuples, names as lists of str. Tested against rclpy's

@@ -3,7 +3,7 @@
 Why (cProfile of the one-process realtime graph on two_link_case1, session 10): the
 recorder took about a fifth of every tick on the one core a Python process runs on, while
 the second core sat nearly idle; a DDS hop into another process costs the publisher
-25–90 µs per message (docs/design_notes.md, *Intra-process delivery*). Here the recorder
+25–90 µs per message (docs/decisions/0008-an-intra-process-bus.md). Here the recorder
 node stays in the graph's process — it still decides what is taken (source rule,
 validation, rejections) — and hands what it takes to a child process through a pipe,
 written at a ``/clock`` at most every :data:`SEND_PERIOD_S`; the child runs

@@ -2,7 +2,7 @@
 
 Every rung describes the transverse deflection of a beam clamped to its hub as
 ``w(x) = φ(x)ᵀ η`` and the foreshortening of its neutral fibre as
-``u_f(x) = −½ ηᵀ S(x) η`` with ``S(x) = ∫₀ˣ φ′ φ′ᵀ ds`` (PHYSICS.md, floating frame).
+``u_f(x) = −½ ηᵀ S(x) η`` with ``S(x) = ∫₀ˣ φ′ φ′ᵀ ds`` (docs/physics.md §3.1).
 A rung hands the chain a :class:`BeamDiscretization`: mass points (abscissa, mass, φ, S),
 the tip quantities (φ(L), φ′(L), S(L)), the stiffness K and damping D matrices and the
 curvature basis φ″ for strain. The chain never needs to know which rung it got.
@@ -249,7 +249,7 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
     """The first ``n_modes`` clamped modes of the beam, from a Hermite FEM eigen-solve.
 
     With ``with_tip`` the tip body's mass, inertia and CG offset are included in the
-    eigenproblem (modes that can carry the tip shear, PHYSICS.md); otherwise plain
+    eigenproblem (modes that can carry the tip shear, docs/physics.md §5.2); otherwise plain
     clamped-free modes. Each mode is scaled to unit peak deflection, positive at the tip.
     The FEM eigen-solve avoids the textbook closed form, which cancels catastrophically
     above ~8 modes.
@@ -317,7 +317,8 @@ def finite_differences(beam, n_seg):
     ½EI Σ_i w_i h κ_i² (trapezoidal weights) with the central-difference curvature
     κ_i = (y_{i−1} − 2y_i + y_{i+1})/h², the clamped root through the ghost node y_{−1} = y_1
     and, at the tip, the one-sided κ_n = (y_n − 2y_{n−1} + y_{n−2})/h² (keeps second-order
-    convergence with a tip inertia; docs/design_notes.md). Its interior rows are the seed's
+    convergence with a tip inertia; docs/decisions/0004-finite-differences-in-energy-form.md).
+    Its interior rows are the seed's
     stencil EI(1, −4, 6, −4, 1)/h⁴ per unit length; being symmetric it conserves energy,
     which the seed's unsymmetric ghost-node rows do not (a documented improvement). Tip slope
     by the second-order one-sided difference (the seed's backward difference is first

@@ -13,7 +13,7 @@ c (r̈ = J q̈ + c) are propagated down the chain (E = [[0, −1], [1, 0]]):
 
     ṙ = ȯ + ψ̇ E A s + A ṡ,    r̈ = ö + ψ̈ E A s − ψ̇² A s + 2ψ̇ E A ṡ + A s̈.
 
-Equations of motion (PHYSICS.md):
+Equations of motion (docs/physics.md §4):
 
     M(q) q̈ = Q_input + Q_grav − h(q, q̇) − K q − D q̇,
     M = M_drive + Σ_p m_p J_pᵀJ_p + Σ_bodies (m J_cgᵀJ_cg + I J_ψᵀJ_ψ),

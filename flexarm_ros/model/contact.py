@@ -1,7 +1,7 @@
 """Contact of the tool with a wall: impulse–constraint (seed 000) and compliant rungs.
 
-Gap and contact Jacobians (PHYSICS.md): the tool point r (fixed in the last tip frame) has
-gap g = n·(r − p_wall) ≥ 0, normal and tangential Jacobians J_n = nᵀJ, J_t = tᵀJ
+Gap and contact Jacobians (docs/physics.md §8.1): the tool point r (fixed in the last tip
+frame) has gap g = n·(r − p_wall) ≥ 0, normal and tangential Jacobians J_n = nᵀJ, J_t = tᵀJ
 (t = E n), velocities v_n = J_n q̇, v_t = J_t q̇, and r̈ = J q̈ + c.
 
 **Impulse–constraint rung** (seed 000 Ch. 4, Hariharesan 1998): three smooth modes and
@@ -33,7 +33,7 @@ the start; ζ = 1 by default: no contact rebound, as the impulse rung) and regul
 Coulomb friction −μ F_n v_t/√(v_t² + v_s²) enter the equations of motion as
 J_nᵀF_n + J_tᵀF_t. Cheap per step, stiff: the automatic step follows the contact's
 eigenvalue ω(ζ + √(ζ² − 1)), ω = √(k_eff G_nn), known before the run (why not a
-Hunt–Crossley damping c ∝ δ^e: docs/design_notes.md).
+Hunt–Crossley damping c ∝ δ^e: docs/decisions/0003-compliant-contact-with-fixed-damping.md).
 """
 
 from __future__ import annotations

@@ -15,7 +15,8 @@ so θ(x) = Σ_k a_k Θ_k(x) with Θ_k = ∫₀ˣ P_k, linear in the coordinates,
 frame's turn θ(L). The strain energy is quadratic: ½EI∫κ² + ½EA∫ε², K constant (Legendre
 polynomials are orthogonal: EI·L/(2k+1) on the diagonal).
 
-Why this formulation (measured on the spin-up, PHYSICS.md and docs/decisions/0002): few
+Why this formulation (measured on the spin-up: docs/physics.md §6.1 and
+docs/decisions/0002-the-top-rung-and-the-check.md): few
 coordinates, smooth (global polynomial) curvature, exact kinematics. The one axial
 coordinate takes the shape of the static centrifugal stretch, ε ∝ 1 − (x/L)² (the exact
 axial strain of a spinning uniform bar, N(x) ∝ L² − x²): the stretch matters below 1e-4 m

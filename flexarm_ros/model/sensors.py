@@ -1,4 +1,4 @@
-"""Sensors read from the model, exactly (PHYSICS.md "sensors"; seed 000 Sec. 5 test bed,
+"""Sensors read from the model, exactly (docs/physics.md §9; seed 000 Sec. 5 test bed,
 seed 002 Sec. 4 instrumentation).
 
 Every value comes from the state and the accelerations q̈ solved at that instant — never

@@ -39,7 +39,7 @@ is dropped while a subscriber lags by less than 1000 messages per topic)."""
 def publisher(node, msgtype: str, topic: str):
     """A publisher with :data:`QOS` and no QoS-event handlers: rclpy's default handlers
     add waitables that every executor wait has to scan (a large share of a lockstep tick,
-    docs/design_notes.md)."""
+    docs/decisions/0005-a-lean-executor-and-raw-cdr.md)."""
     from flexarm_ros.nodes._msgconv import msg_class
     from flexarm_ros.nodes.intraprocess import BusPublisher, bus_of
     pub = node.create_publisher(msg_class(msgtype), topic, QOS,
@@ -438,7 +438,8 @@ def _node_main(cls, args=None) -> int:
         exe.add_node(node)
         # a node that need not answer at once (the recorder) pauses between drains: one
         # wake-up takes a batch of messages instead of one (measured: the recorder's CPU
-        # per tick at 1 kHz fell from 650 to 360 µs, docs/design_notes.md)
+        # per tick at 1 kHz fell from 650 to 360 µs,
+        # docs/decisions/0007-realtime-on-two-cores.md)
         pause = float(getattr(node, "spin_pause_s", 0.0))
         with profiled(cls.EXECUTABLE):
             while ctx.ok() and not stop.set and not getattr(node, "finished", False):

@@ -1,7 +1,7 @@
 """The intra-process bus across two processes: the simulator alone in one, the other nodes
 in the other, joined by a Unix socket.
 
-Why (measured, docs/design_notes.md *The simulator in a process of its own*): in one
+Why (measured, docs/decisions/0009-the-bag-writer-process-and-the-split-layout.md): in one
 process every node shares one core (Python's GIL) and a 1 kHz tick of seed 000 costs about
 a millisecond there — the real-time factor stays near 0.9 and most ticks start late, while
 the second core idles; one process per node (``--processes``) pays a DDS hop per message

@@ -4,7 +4,8 @@ rclpy's SingleThreadedExecutor hands out one callback per ``spin_once``: for eac
 message it rebuilds the generator state, wraps the callback in a Task and checks every
 entity's callback group, and it waits again whenever its generator runs dry. Profiled on
 a lockstep run of ``two_link_case1`` with the recorder (18 receptions per control tick),
-that machinery took about half of the tick (docs/design_notes.md). rclpy's
+that machinery took about half of the tick
+(docs/decisions/0005-a-lean-executor-and-raw-cdr.md). rclpy's
 EventsExecutor would avoid it, but (rclpy 9.1) it fails with ``SystemError`` on
 subscriptions whose callback takes a ``MessageInfo`` — which the source rule
 (:mod:`~flexarm_ros.nodes._wire`) and the recorder's stamps need.

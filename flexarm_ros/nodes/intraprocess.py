@@ -1,6 +1,6 @@
 """Intra-process delivery between the twin's nodes when they share one process.
 
-Why (measured, ``docs/design_notes.md``, *Intra-process delivery*): on the 2-core host, a
+Why (measured, ``docs/decisions/0008-an-intra-process-bus.md``): on the 2-core host, a
 DDS publish with one reliable reader cost 25 µs of CPU back to back and 70–90 µs at a
 1 kHz pace (5 µs with no reader), and each reader pays again to take the message. The
 twin's tick sends ~12 messages, most to two readers (a consumer and the recorder): the

@@ -45,7 +45,8 @@ byte-identical to :func:`flexarm_ros.bag.writer.encode_cdr` of the core's messag
 no rclpy message objects and no dicts on the hot path. The analysis-only
 topics ``ground_truth/tip`` and ``ground_truth/coordinates`` go out every tick in
 ``lockstep`` and ``fast``, at 100 Hz in ``realtime`` (at 1 kHz on two cores the budget
-does not allow every tick: docs/design_notes.md), or at ``ground_truth_rate_hz`` when set
+does not allow every tick: docs/decisions/0007-realtime-on-two-cores.md), or at
+``ground_truth_rate_hz`` when set
 (``ground_truth/joint_states`` is the driver's input and goes out every tick).
 
 Publishing starts once what the twin needs is matched: the driver on

@@ -352,7 +352,7 @@ class Input:
 
 @dataclass(frozen=True, kw_only=True)
 class Sensor:
-    """A sensor read from the model at its own sample rate (PHYSICS.md "sensors").
+    """A sensor read from the model at its own sample rate (docs/physics.md §9).
 
     encoder: counts = ⌊n·(θ − θ₀)·lines·quadrature/2π⌋ of the drive coordinate θ (gearbox
     output side; n the drive's gear ratio when ``on_motor_shaft``), integer.

@@ -46,7 +46,7 @@ MIN_CALL_STEPS = 250
 def solve_ivp_method(integrator: str):
     """scipy's OdeSolver class of ``integrator`` (rk45, dop853, radau, bdf, lsoda),
     imported on first use: rk4 and trapezoid runs never load scipy.integrate (start-up,
-    README "Start-up")."""
+    docs/performance.md, "Start-up")."""
     import scipy.integrate
     return getattr(scipy.integrate, SOLVE_IVP[integrator])
 

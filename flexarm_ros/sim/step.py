@@ -23,7 +23,7 @@ from flexarm_ros.model.linear import RK4_AUTO, RK4_STABILITY, grid_step
 #: the automatic step with a wall is this fraction of RK4_AUTO/|λ|max: impacts excite the
 #: highest retained mode, which the full automatic step damps by ~6 % per step (|R(1.5i)| =
 #: 0.94); at half of it (0.1 %) two_link_case1's accelerometers stay within 0.4 % of a
-#: converged run (docs/design_notes.md, "Contact stepping past the output period")
+#: converged run (docs/decisions/0012-contact-stepping-past-the-output-period.md)
 CONTACT_STEP_FRACTION = 0.5
 
 __all__ = ["CONTACT_STEP_FRACTION", "RK4_AUTO", "RK4_STABILITY", "choose_step", "grid_step",

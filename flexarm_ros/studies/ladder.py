@@ -13,7 +13,8 @@ Reference
     which is orders of magnitude below the period of the modes that move the tip, so
     RK4's time error of the tip path, O((ω h)⁴), is negligible next to the mesh error,
     while DOP853 at a tight tolerance costs many times more (the comparison is in
-    docs/design_notes.md). The reference can be replaced (``reference=`` spec) and the test suite checks an RK4
+    docs/decisions/0024-the-ladder-studys-reference-is-rk4.md). The reference can be replaced
+    (``reference=`` spec) and the test suite checks an RK4
     reference against a DOP853 rtol 1e-10 one.
 
 Columns of a row

@@ -5,7 +5,8 @@ Why: a realtime tick starts late when the CPUs it needs are busy, and a graph th
 most of them per tick turns every stall of the host into a run of late ticks (after a
 stall of S seconds the backlog drains at (1 − c/T) per tick, c the CPU per tick of the
 busiest CPU and T the period, so ~S/(T − c) ticks start late). Measured on the 2-core
-host (docs/design_notes.md, *Session 17*): ``--processes`` needed ~1.9 ms of CPU per
+host (docs/decisions/0010-the-hosts-floor-and-the-cpu-per-tick.md): ``--processes`` needed ~1.9
+ms of CPU per
 1 ms tick (simulator 0.88, motor_driver 0.40, controller 0.33, recorder 0.33), all but
 the whole machine. The run summary reports it so that a user sees it on their machine.
 

@@ -29,7 +29,7 @@ shared 2-core host a FIFO plant takes the CPU from the user's own controller —
 example controller in its own process (``--processes``, an overloaded graph here) the
 arm ended 3.5–26 % of its move off target under FIFO 50 against 0.2–1.2 % at normal
 priority, while the gain was only the wake-up latency (p50 0.05 against 0.11 ms;
-docs/design_notes.md, *Session 14*). Where the kernel refuses (no ``CAP_SYS_NICE`` and
+docs/decisions/0011-sched-fifo-is-opt-in.md). Where the kernel refuses (no ``CAP_SYS_NICE`` and
 no ``RLIMIT_RTPRIO``), the thread runs at normal priority and the node warns once. The
 run summary says which (``scheduling``). A FIFO thread never runs back to back for
 longer than ``late_bound``: past it, either policy moves the next deadline a period
@@ -107,7 +107,7 @@ class Lateness:
 REALTIME_GT_HZ = 100.0
 """The default rate of ``ground_truth/tip`` and ``ground_truth/coordinates`` in realtime:
 analysis topics that no bench has, thinned so that the hardware topics keep the wall
-clock (measured: docs/design_notes.md)."""
+clock (measured: docs/decisions/0007-realtime-on-two-cores.md)."""
 
 
 def ground_truth_rate(rate: float, mode: str) -> float:

@@ -75,7 +75,8 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     # and without 'reassoc': with it a process that compiled the kernel and one that loaded
     # it from numba's cache rounded differently (ensembles' tables differed between Dask
     # workers in the last bits); without it the kernel costs the same within the host's
-    # noise (bench/bench_kernel.py; docs/design_notes.md, "Why not 'reassoc'")
+    # noise (bench/bench_kernel.py; docs/decisions/0016-the-compiled-kernel.md, "Why not
+    # 'reassoc'")
     _FLAGS = {"contract", "arcp", "nsz", "afn"}
     jit = numba.njit(cache=True, error_model="numpy", fastmath=_FLAGS)
     jit_inline = numba.njit(cache=True, error_model="numpy", inline="always",
@@ -85,8 +86,8 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     # (an atomic instruction each) at every inlined call, per point, per stage — perf
     # showed NRT_incref/NRT_decref taking about two thirds of a rigid rung's chain_terms.
     # Such a function allocates nothing and returns no array it made: its callers (plain
-    # ``jit`` wrappers) hand it its scratch arrays (docs/design_notes.md, "The kernel
-    # without reference counting")
+    # ``jit`` wrappers) hand it its scratch arrays (docs/decisions/0016-the-compiled-kernel.md,
+    # "No reference counting in the hot loops")
     # ``FLEXARM_KERNEL_NRT=1`` compiles them with it, as before (bench/bench_kernel.py's
     # comparison; a fallback should a numba release refuse the option)
     jit_raw = (jit if os.environ.get("FLEXARM_KERNEL_NRT") else

@@ -5,8 +5,8 @@ exactly the same M(q), h(q, q̇) and Q_grav (same points, same S(x), same propag
 loops that numba compiles, and runs a whole fixed-step RK4 integration inside compiled
 code. Tests check both give the same numbers to round-off; without numba (or with
 ``FLEXARM_NO_NUMBA=1``) the chain falls back to the numpy path. The cost of one
-right-hand side on either path is measured by ``bench/bench_ladder.py`` (README,
-Performance).
+right-hand side on either path is measured by ``bench/bench_ladder.py`` (docs/performance.md,
+*Batch integration*).
 """
 
 from __future__ import annotations

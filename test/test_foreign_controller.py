@@ -208,18 +208,15 @@ def test_lockstep_without_answers_ends_as_stalled_and_keeps_the_bag(tmp_path):
                             text=True, env=child_environment())
     try:
         assert proc.stdout.readline().strip() == "ready"
-        t0 = time.monotonic()
         res = run("two_link_position", 1.0, "lockstep", record=tmp_path / "run.mcap",
                   namespace=NS, progress=False, nodes=("simulator", "motor_driver"),
                   simulator={"stall_timeout_s": 4.0})
-        wall = time.monotonic() - t0
     finally:
         _end(proc)
         proc.stdout.close()
     assert res.stalled and "lockstep stalled" in res.stalled and "tick 0" in res.stalled
     assert "motor_driver/commands" in res.stalled
     assert res.to_json()["stalled"] == res.stalled and res.ticks == 0
-    assert wall < 60                          # ended by the watchdog, not by the test
     bag = read_bag(tmp_path / "run.mcap")
     assert len(bag[f"{NS}/{T.JOINT_STATES}"]) == 1
 

@@ -19,7 +19,7 @@ import math
 import os
 import subprocess
 import sys
-import time
+import re
 from pathlib import Path
 
 import numpy as np
@@ -63,14 +63,22 @@ def one_error_line(capsys, code, expect=2) -> str:
 
 
 # ------------------------------------------------------------------------ work budget
-def test_armature_rate_sets_the_step_and_is_named_with_its_closed_form(tmp_path, capsys):
+def test_armature_rate_sets_the_step_and_is_named_with_its_closed_form(tmp_path, capsys,
+                                                                     monkeypatch):
     """inductance 1e-9 H: the current's eigenvalue is −R/L (the mechanical rates are 1e6
-    times slower); the refusal names it, the current, L and R, and the quasi-static fix."""
+    times slower); the refusal names it, the current, L and R, and the quasi-static fix —
+    up front: the integrator is never entered (the run itself: ~1e10 steps)."""
+    import flexarm_ros.sim.integrate as integ
+
+    def never(*args, **kwargs):
+        raise AssertionError("a step was taken: the refusal must come first")
+    for name in ("warm_up", "rk4_dense", "rk4_loop", "trapezoid_loop"):
+        monkeypatch.setattr(integ.kloops, name, never)
+    for name in ("_run_rk4_dense", "_run_trapezoid", "rk4_step"):
+        monkeypatch.setattr(integ, name, never)
     data = _set(shipped("link_motor"), ("links", 0, "joint", "drive", "inductance"), 1e-9)
     R = data["links"][0]["joint"]["drive"]["resistance"]
-    t0 = time.perf_counter()
     code = main(simulate_argv(tmp_path, data))
-    wall = time.perf_counter() - t0
     msg = one_error_line(capsys, code)
     assert msg.startswith("flexarm: error: fidelity.max_steps: the run needs")
     lam = float(msg.split("λ = ")[1].split(" ")[0])
@@ -79,7 +87,6 @@ def test_armature_rate_sets_the_step_and_is_named_with_its_closed_form(tmp_path,
                  f"links[0].joint.drive.resistance = {R:g}", "quasi_static",
                  "expected at most 1e+08"):
         assert frag in msg, frag
-    assert wall < 20.0           # refused up front (the run itself: ~1e10 steps)
 
 
 def test_fixed_step_count_is_duration_over_dt(capsys):
@@ -139,15 +146,14 @@ def test_joint_damper_on_the_second_link_is_named_by_participation(tmp_path, cap
     assert "links[1].joint.drive_damping = 1e+12" in msg
 
 
+@pytest.mark.timeout(300)      # a hang guard, not a speed test: unstopped, it runs for hours
 def test_adaptive_run_is_stopped_by_its_pace(tmp_path, capsys):
     """dop853 has no step to check up front: the pace of its first steps projects the
     total, and the run stops within a window of steps, not after hours."""
     data = _set(shipped("link"), ("links", 0, "beam", "mass_per_length"), 1e-12)
     data["fidelity"].update(rung="fd", refine=10)      # the seed's own: nodes link1_y…
-    t0 = time.perf_counter()
     code = main(simulate_argv(tmp_path, data, "--integrator", "dop853", "--max-steps",
                               "1e5"))
-    assert time.perf_counter() - t0 < 60.0
     msg = one_error_line(capsys, code)
     assert "the dop853 run has taken" in msg and "link1_y" in msg
     assert "mass_per_length = 1e-12" in msg
@@ -181,13 +187,12 @@ def test_simulator_node_started_on_its_own_checks_the_budget():
 
 
 # ------------------------------------------------------------------------- model size
+@pytest.mark.timeout(300)      # a hang guard, not a speed test (fem 200 took 27 s to build)
 def test_a_model_too_large_to_build_is_refused_before_building(capsys):
-    t0 = time.perf_counter()
     for rung, refine in (("fem", 200), ("fd", 400)):
         code = main(["modes", "link", "--rung", rung, "--refine", str(refine)])
         msg = one_error_line(capsys, code)
         assert f"fidelity.refine: got {refine}" in msg and "expected at most 200" in msg
-    assert time.perf_counter() - t0 < 10.0      # fem 200 alone took 27 s to build
 
 
 def test_fine_eigen_mesh_matrices_equal_the_full_build():
@@ -324,6 +329,7 @@ def test_durations(command, value, capsys):
     assert f"--duration: got {float(value)}" in msg and "> 0 s" in msg
 
 
+@pytest.mark.timeout(300)      # a hang guard: every case is refused before any work
 def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
     """Each refusal comes before any simulation (two_link_case1's 6 s would take longer
     than the refusal) and leaves nothing behind."""
@@ -355,12 +361,10 @@ def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
          "is a file"),
     ]
     for argv, flag, why in cases:
-        t0 = time.perf_counter()
         code = main([str(a) for a in argv])
         msg = one_error_line(capsys, code)
         assert msg.startswith(f"flexarm: error: {flag}: got '"), msg
         assert why in msg, msg
-        assert time.perf_counter() - t0 < 5.0, argv
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv", "d.mcap", "f"]
     code = main(["replay", str(bag), "--rerun", str(tmp_path / "no" / "v.rrd")])
     assert code == 2 and "--rerun" in capsys.readouterr().err
@@ -496,8 +500,8 @@ def test_progress_shows_simulated_time_over_total(scene, monkeypatch, capsys):
     # 0.5 s: enough steps for more than one compiled call (integrate.MIN_CALL_STEPS each)
     assert main(["simulate", scene, "--duration", "0.5", "--rung", "cubic"]) == 0
     err = capsys.readouterr().err
-    shown = [s for s in err.split("\r") if s.strip()]
-    assert any(s.strip().startswith("t = ") and "/ 0.5 s (" in s for s in shown), err
+    shown = [s for s in re.split(r"[\r\n]", err) if s.strip()]     # a first run's
+    assert any(s.strip().startswith("t = ") and "/ 0.5 s (" in s for s in shown), err  # compile notice too
     assert main(["simulate", scene, "--duration", "0.5", "--rung", "cubic",
                  "--quiet"]) == 0
     assert capsys.readouterr().err == ""

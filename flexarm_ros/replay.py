@@ -137,7 +137,7 @@ def replay(plan: ReplayPlan, rate: float = 1.0, loop: bool = False,
     from rclpy.duration import Duration
     from rclpy.signals import SignalHandlerOptions
 
-    from flexarm_ros.nodes._common import StopFlag, publisher
+    from flexarm_ros.nodes.common import StopFlag, publisher
     from flexarm_ros.nodes._msgconv import msg_class, to_msg
 
     from flexarm_ros.nodes import environment

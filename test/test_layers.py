@@ -50,13 +50,19 @@ def _imports(path: Path, module: str | None = None) -> set[str]:
                 mod = node.module or ""
             if mod.split(".")[0] != "flexarm_ros":
                 continue
-            found.add(mod)
-            # `from flexarm_ros.model import chain` imports the submodule model.chain
-            found |= {f"{mod}.{a.name}" for a in node.names
-                      if (PKG.parent / (mod + "." + a.name).replace(".", "/")).with_suffix(
-                          ".py").exists()
-                      or (PKG.parent / (mod + "." + a.name).replace(".", "/")).is_dir()}
+            # `from flexarm_ros.model import chain` imports the submodule model.chain (as
+            # `import flexarm_ros.model.chain` would); the package itself counts when a
+            # name is read from its __init__
+            subs = {f"{mod}.{a.name}" for a in node.names if _is_module(f"{mod}.{a.name}")}
+            found |= subs
+            if len(subs) < len(node.names):
+                found.add(mod)
     return found
+
+
+def _is_module(name: str) -> bool:
+    path = PKG.parent / name.replace(".", "/")
+    return path.with_suffix(".py").exists() or path.is_dir()
 
 
 def _layer(module: str) -> str:

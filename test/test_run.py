@@ -125,7 +125,7 @@ def test_flexarm_run_writes_a_finalized_bag_with_metadata(tmp_path, capsys):
     assert meta["message_count"] == bag.message_count
     assert meta["duration"]["nanoseconds"] == 50_000_000
     assert meta["storage_identifier"] == "mcap"
-    from flexarm_ros.nodes._common import DEPTH  # what the nodes' publishers offer
+    from flexarm_ros.nodes.common import DEPTH  # what the nodes' publishers offer
     depths = {q["depth"] for t in meta["topics_with_message_count"]
               for q in t["topic_metadata"]["offered_qos_profiles"]}
     assert depths == {DEPTH}
@@ -348,7 +348,7 @@ def _clock_watcher():
     from rosgraph_msgs.msg import Clock
     from rclpy.node import Node
 
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     from flexarm_ros.run import InProcessGraph
     g = InProcessGraph(nodes=())
     node = Node("clock_watcher", context=g.context)

@@ -146,7 +146,7 @@ def tip_history(chain, x0, t_end, h, output_dt, max_ratio,
     return chain.energies(run.t, run.q, run.qd, run.z)[1], run.dt   # one compiled pass
 
 
-def _check_tolerance(tol, why_floor: str) -> None:
+def check_tolerance(tol, why_floor: str) -> None:
     """SceneError unless ``tol`` is a finite bound of at least MIN_TOLERANCE_M."""
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
         raise SceneError(f"fidelity.tolerance: got {tol!r}, expected a tip-position error "
@@ -161,7 +161,7 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                        max_ratio: float = 0.5, contact=None) -> StepChoice:
     """The RK4 step meeting the tip tolerance ``tol`` (m) over a run of ``t_end`` s (the
     contact stepper's with a wall ``contact``)."""
-    _check_tolerance(tol, "the step-halving estimate is round-off")
+    check_tolerance(tol, "the step-halving estimate is round-off")
     from flexarm_ros.sim.integrate import input_breakpoints, smooth
     if contact is not None:
         from flexarm_ros.sim.step import choose_step
@@ -287,7 +287,7 @@ def trapezoid_step_for_tolerance(chain, t_end: float, tol: float,
     model), its error equals the trapezoid's to 1 % on the seed 001 links (modal, fd, fem)
     and within 0.98–1.29× on two_link_free (docs/accuracy.md)."""
     from flexarm_ros.model.autofidelity import _Linear, one_blas_thread
-    _check_tolerance(tol, "the linear estimate is round-off")
+    check_tolerance(tol, "the linear estimate is round-off")
     with one_blas_thread():
         return _trapezoid_step(_Linear(chain), chain, t_end, tol, output_dt)
 

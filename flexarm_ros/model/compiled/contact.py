@@ -101,7 +101,7 @@ def _eval(t, x, mode, s, out, model, ws, cp, sc):
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    kchain._forces(t, q, qd, x[2 * nf:], model, ws)
+    kchain.fill_forces(t, q, qd, x[2 * nf:], model, ws)
     M = ws.M
     f = ws.f
     Mff = ws.Mff
@@ -260,7 +260,7 @@ def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out, acc,
         presc = model.presc
         for j in range(presc.shape[0]):
             qdd[presc[j]] = ws.pdd[j]
-        ksensors._readings(ws.q, ws.qd, qdd, model, ws, acc[0], acc[1], acc[2], acc[3],
+        ksensors.fill_readings(ws.q, ws.qd, qdd, model, ws, acc[0], acc[1], acc[2], acc[3],
                            acc[4], ACC[k])
 
 
@@ -417,7 +417,7 @@ def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp,
         else:
             ind0[0] = ind1[0]           # free flight: the end state is the next start
             have_ind0 = True
-        if kchain._deflection_ratio(x1, model) > max_ratio:
+        if kchain.deflection_ratio(x1, model) > max_ratio:
             return kchain.DEFLECTION, t, impulse, steps, calls, drift_max, True, k
         t1 = t + dt
         dimp = (dt / 6.0) * (l1 + 2.0 * l2 + 2.0 * l3 + l4)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from flexarm_ros.bag.reader import Bag, BagError, read_bag, to_dict
-from flexarm_ros.bag.twin_bag import recorded_namespace
+from flexarm_ros.twin.recording import recorded_namespace
 from flexarm_ros.twin import topics as T
 
 __all__ = ["ReplayPlan", "ReplayResult", "load_plan", "remap", "replay"]

@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from flexarm_ros.child_process import python_module
 from flexarm_ros.nodes import environment
 from flexarm_ros.nodes.parameters import MODES, fidelity_parameters
 from flexarm_ros.scene import DEFAULT_SCENE
@@ -498,7 +499,7 @@ class ProcessGraph:
                     1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
                             progress, fidelity, sim, sets)
-                cmd = environment.python_module(f"flexarm_ros.nodes.{name}") + [
+                cmd = python_module(f"flexarm_ros.nodes.{name}") + [
                     "--ros-args", "-r", f"__ns:={namespace}"]
                 if not progress:
                     cmd += ["--log-level", "warn"]

@@ -498,7 +498,7 @@ def test_a_child_never_imports_the_package_from_its_working_directory(tmp_path, 
     """A folder named ``flexarm_ros`` in the working directory (the directory that holds
     a clone) must not shadow the installed package in the graph's child processes: with
     ``-P`` (Python ≥ 3.11) and with the bootstrap used before it."""
-    from flexarm_ros.nodes.environment import python_module
+    from flexarm_ros.child_process import python_module
     shadow = tmp_path / "flexarm_ros"
     shadow.mkdir()
     (shadow / "__init__.py").write_text("raise ImportError('the shadowing folder')\n")

@@ -144,19 +144,34 @@ def _path_through(graph, comp: set[str]) -> list[str]:
 
 def _private_imports(sources) -> list[str]:
     """``module imports _name from other`` for every ``from flexarm_ros… import _name`` (a
-    name, module or attribute, that starts with one underscore) of another module."""
+    name, module or attribute, that starts with one underscore) of another module, and
+    ``module reads other._name`` where ``other`` is a project module it imported."""
     bad = []
     for m, p in sources.items():
-        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        bound = {}                   # local name -> the project module it is bound to
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                bound |= {a.asname: a.name for a in node.names
+                          if a.asname and a.name.split(".")[0] == "flexarm_ros"}
             if not isinstance(node, ast.ImportFrom):
                 continue
             mod = _resolve(node, m, p)
             if mod.split(".")[0] != "flexarm_ros" or mod == m:
                 continue
+            bound |= {a.asname or a.name: f"{mod}.{a.name}" for a in node.names
+                      if f"{mod}.{a.name}" in sources or _is_module(f"{mod}.{a.name}")}
             bad += [f"{m} imports {a.name} from {mod}" for a in node.names
-                    if a.name.startswith("_") and not a.name.startswith("__")
-                    and (m, mod, a.name) not in PRIVATE_ALLOWED]
+                    if _private(a.name) and (m, mod, a.name) not in PRIVATE_ALLOWED]
+        bad += [f"{m} reads {bound[n.value.id]}.{n.attr}" for n in ast.walk(tree)
+                if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)
+                and n.value.id in bound and bound[n.value.id] != m and _private(n.attr)
+                and (m, bound[n.value.id], n.attr) not in PRIVATE_ALLOWED]
     return bad
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
 
 
 def _layer(module: str) -> str:
@@ -258,20 +273,22 @@ def _fake_package(tmp_path, files: dict[str, str]) -> dict[str, Path]:
 
 def test_the_checks_see_a_cycle_a_private_import_and_an_upward_import(tmp_path):
     """The checks above on a tiny broken tree: a three-module cycle closed by a lazy import,
-    a private name taken from another module, and the model importing the CLI (so they
-    cannot pass on a graph they fail to read)."""
+    a private name taken from another module (imported, and read off the module), and the
+    model importing the CLI (so they cannot pass on a graph they fail to read)."""
     fake = _fake_package(tmp_path, {
         "a.py": "from flexarm_ros.fake.b import thing\n",
         "b.py": "import flexarm_ros.fake.c\nthing = 1\n",
         "c.py": "def f():\n    from .a import _hidden\n",
         "d.py": "from flexarm_ros.fake.a import public\n",
+        "e.py": "from flexarm_ros.fake import d as D\nD._inside()\nD.public()\n",
     })
     graph = _graph(fake)
     assert graph["flexarm_ros.fake.d"] == {"flexarm_ros.fake.a"}
     assert _cycles(graph) == [["flexarm_ros.fake.a", "flexarm_ros.fake.b",
                                "flexarm_ros.fake.c", "flexarm_ros.fake.a"]]
     assert _private_imports(fake) == [
-        "flexarm_ros.fake.c imports _hidden from flexarm_ros.fake.a"]
+        "flexarm_ros.fake.c imports _hidden from flexarm_ros.fake.a",
+        "flexarm_ros.fake.e reads flexarm_ros.fake.d._inside"]
     # no cycle once the lazy import is gone
     fake["flexarm_ros.fake.c"].write_text("def f():\n    return 0\n")
     assert _cycles(_graph(fake)) == []

@@ -527,7 +527,7 @@ def chain_terms(q, qd, model, ws):
 
 
 @_jit_raw
-def _cholesky_solve(A, b, nf, L, y, x):
+def cholesky_solve(A, b, nf, L, y, x):
     """Solve A x = b for symmetric positive-definite A (nf × nf); False if A is not SPD."""
     for j in range(nf):
         d = A[j, j]
@@ -637,7 +637,7 @@ def rhs_into(t, x, out, model, ws):
         ff[a] = f[free[a]]
         for b in range(nf):
             Mff[a, b] = M[free[a], free[b]]
-    if not _cholesky_solve(Mff, ff, nf, L, y, acc):
+    if not cholesky_solve(Mff, ff, nf, L, y, acc):
         for a in range(nf):
             acc[a] = np.nan
     for a in range(nf):

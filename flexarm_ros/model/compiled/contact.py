@@ -150,14 +150,14 @@ def _eval(t, x, mode, s, out, model, ws, cp, sc):
     res[R_VY] = vy
     cn = nx * ccx + ny * ccy
     ct = tx * ccx + ty * ccy
-    ok = kchain._cholesky_solve(Mff, ff, nf, L, yy, y1)
+    ok = kchain.cholesky_solve(Mff, ff, nf, L, yy, y1)
     ln = 0.0
     lt = 0.0
     if ok and mode == SLIDING:
         mu = cp[CP_MU]
         for a in range(nf):
             w[a] = jn[a] - mu * s * jt[a]
-        kchain._cholesky_solve(Mff, w, nf, L, yy, y2)
+        kchain.cholesky_solve(Mff, w, nf, L, yy, y2)
         den = 0.0
         num = -cn
         nj = 0.0
@@ -175,8 +175,8 @@ def _eval(t, x, mode, s, out, model, ws, cp, sc):
             for a in range(nf):
                 acc[a] = y1[a] + ln * y2[a]
     elif ok and mode == STICKING:
-        kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)
-        kchain._cholesky_solve(Mff, jt, nf, L, yy, y3)
+        kchain.cholesky_solve(Mff, jn, nf, L, yy, y2)
+        kchain.cholesky_solve(Mff, jt, nf, L, yy, y3)
         gnn = 0.0
         gnt = 0.0
         gtt = 0.0
@@ -383,7 +383,7 @@ def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp,
             Mff = ws.Mff
             L = ws.L
             yy = ws.y
-            kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
+            kchain.cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
             gnn = 0.0
             vn = 0.0
             for a in range(nf):
@@ -396,7 +396,7 @@ def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp,
                 for a in range(nf):
                     x1[nf + a] -= y2[a] * (vn / gnn)
             else:
-                kchain._cholesky_solve(Mff, jt, nf, L, yy, y3)  # M⁻¹ j_t
+                kchain.cholesky_solve(Mff, jt, nf, L, yy, y3)  # M⁻¹ j_t
                 gnt = 0.0
                 gtt = 0.0
                 vt = 0.0

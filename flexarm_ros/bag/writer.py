@@ -80,7 +80,7 @@ from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import LIBRARY_IDENTIFIER as _MCAP_LIBRARY
 
 from flexarm_ros import __version__
-from flexarm_ros.bag import msgdefs
+import flexarm_ros.bag.msgdefs as msgdefs
 from flexarm_ros.bag.mcap_file import McapFile
 
 __all__ = ["BagWriter", "DEFAULT_QOS", "INFO_METADATA_NAME", "ROSBAG2_METADATA_NAME",

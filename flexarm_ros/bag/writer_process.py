@@ -197,7 +197,7 @@ def main() -> int:
         print("error: the bag writer process got no start record", flush=True)
         return 2
     init = json.loads(_read(inp, _HEAD.unpack(head)[4]) or b"{}")
-    from flexarm_ros.bag import BagWriter
+    from flexarm_ros.bag.writer import BagWriter
     try:
         writer = BagWriter(init["path"], metadata=init["info"], qos_depth=init["qos_depth"])
         for name, data in init["extra"].items():

@@ -25,7 +25,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from flexarm_ros.nodes import environment
+import flexarm_ros.nodes.environment as environment
 from flexarm_ros.nodes.parameters import COMMON, FIDELITY, MODES, fidelity_overrides
 from flexarm_ros.twin.cores import to_ns, control_period
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.model import autofidelity, beams
+from flexarm_ros.model import auto_search, autofidelity, beams
 from flexarm_ros.scene import load_scene
 from flexarm_ros.sim.simulate import simulate
 
@@ -75,7 +75,7 @@ def reference(name, T, over, cache: Path) -> np.ndarray:
 
 
 def _clear():
-    autofidelity._choose.cache_clear()
+    auto_search._choose.cache_clear()
     beams._mode_shapes.cache_clear()
 
 

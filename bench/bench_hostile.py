@@ -57,7 +57,7 @@ def _hostile(case):
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray, Int32MultiArray, String
 
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     topic, kind, payload = CASES[case]
     cls = {"F": Float64MultiArray, "I": Int32MultiArray, "S": String}[kind]
     ctx = Context()

@@ -45,7 +45,7 @@ STEPS = 1000
 
 def _per_rhs(scene_name, over, sums) -> float:
     """µs per right-hand side: ``STEPS`` RK4 steps from the scene's initial state."""
-    from flexarm_ros.model import chain as chain_mod
+    from flexarm_ros.model import rung_chain as chain_mod
     from flexarm_ros.model.compiled import chain as kchain, loops
     from flexarm_ros.model.statics import initial_state
     from flexarm_ros.scene import load_scene
@@ -56,7 +56,7 @@ def _per_rhs(scene_name, over, sums) -> float:
     else:
         chain_mod.BEAM_SUMS = "invariants"          # the default (FLEXARM_BEAM_SUMS)
     try:
-        ch = chain_mod.Chain(load_scene(scene_name).with_fidelity(**over))
+        ch = chain_mod.RungChain(load_scene(scene_name).with_fidelity(**over))
     finally:
         chain_mod.by_invariants, chain_mod.BEAM_SUMS = auto, default
     q0, qd0, z0 = initial_state(ch)

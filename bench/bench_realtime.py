@@ -84,7 +84,7 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
     import rclpy
     from rclpy.context import Context
     from flexarm_ros.scene import load_scene
-    from flexarm_ros.nodes import _common as C
+    from flexarm_ros.nodes import common as C
     from flexarm_ros.bag.cdr_fixed import CdrBuilder
     from flexarm_ros.bag.writer import encode_cdr
     from flexarm_ros.twin import topics as T

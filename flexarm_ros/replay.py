@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from flexarm_ros.bag.reader import Bag, BagError, read_bag, to_dict
-from flexarm_ros.bag.twin_bag import recorded_namespace
+from flexarm_ros.twin.recording import recorded_namespace
 from flexarm_ros.twin import topics as T
 
 __all__ = ["ReplayPlan", "ReplayResult", "load_plan", "remap", "replay"]
@@ -137,7 +137,7 @@ def replay(plan: ReplayPlan, rate: float = 1.0, loop: bool = False,
     from rclpy.duration import Duration
     from rclpy.signals import SignalHandlerOptions
 
-    from flexarm_ros.nodes._common import StopFlag, publisher
+    from flexarm_ros.nodes.common import StopFlag, publisher
     from flexarm_ros.nodes._msgconv import msg_class, to_msg
 
     from flexarm_ros.nodes import environment

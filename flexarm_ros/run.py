@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from flexarm_ros.child_process import python_module
 from flexarm_ros.nodes import environment
 from flexarm_ros.nodes.parameters import MODES, fidelity_parameters
 from flexarm_ros.scene import DEFAULT_SCENE
@@ -317,7 +318,7 @@ class InProcessGraph:
         from rclpy.signals import SignalHandlerOptions
 
         from flexarm_ros.nodes import node_classes
-        from flexarm_ros.nodes._common import make_executor
+        from flexarm_ros.nodes.common import make_executor
         environment.private_graph()
         self.context = Context()
         rclpy.init(context=self.context, domain_id=environment.domain_id(),
@@ -498,7 +499,7 @@ class ProcessGraph:
                     1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
                             progress, fidelity, sim, sets)
-                cmd = environment.python_module(f"flexarm_ros.nodes.{name}") + [
+                cmd = python_module(f"flexarm_ros.nodes.{name}") + [
                     "--ros-args", "-r", f"__ns:={namespace}"]
                 if not progress:
                     cmd += ["--log-level", "warn"]
@@ -559,7 +560,7 @@ class SplitGraph:
         try:
             mine, theirs = bridge.socket_pair()
             members = [(namespace, n) for n in list(nodes) + (["recorder"] if record else [])]
-            self.graph.bus.attach(mine)
+            bridge.attach(self.graph.bus, mine)
             self.procs = ProcessGraph(
                 scene, mode, duration, record, namespace, progress, nodes=("simulator",),
                 fidelity=fidelity, simulator=simulator, start_recorder=False,
@@ -701,7 +702,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     ``processes=True``); None: :func:`default_layout`."""
     t0 = time.monotonic()                    # the summary's "with start-up" counts from here
     from flexarm_ros.scene import load_scene
-    from flexarm_ros.nodes._common import StopFlag
+    from flexarm_ros.nodes.common import StopFlag
     if mode not in MODES:
         raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
     if layout is None:
@@ -715,7 +716,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     loaded = apply_sets(load_scene(scene), sets).with_fidelity(**(fidelity or {}))
     name = loaded.name
     _compile_once(loaded, progress)
-    from flexarm_ros.sim.budget import check_plant_work
+    from flexarm_ros.sim.plant import check_plant_work
     check_plant_work(loaded, duration)          # the work budget, before any node starts
     from flexarm_ros.twin.cores import control_period
     from flexarm_ros.twin.pacing import check_settings

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flexarm_ros.cli import main
-from flexarm_ros.model import autofidelity
+from flexarm_ros.model import auto_search, autofidelity, linear_response
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.scene import load_scene, load_scene_dict
 from flexarm_ros.sim.simulate import simulate
@@ -84,10 +84,10 @@ def test_auto_takes_rkn4_where_it_steps_further(monkeypatch, name, tol):
     The check against the physics comes after it (test above)."""
     sc = load_scene(name).with_fidelity(rung="auto", tolerance=tol)
     with_rkn4 = autofidelity.resolve(sc, 1.0)[0]
-    monkeypatch.setattr(autofidelity._Analysis, "_with_rkn4", lambda self, *a: None)
-    autofidelity._choose.cache_clear()           # the choice is kept per process
+    monkeypatch.setattr(auto_search._Analysis, "_with_rkn4", lambda self, *a: None)
+    auto_search._choose.cache_clear()           # the choice is kept per process
     rk4_only = autofidelity.resolve(sc, 1.0)[0]
-    autofidelity._choose.cache_clear()
+    auto_search._choose.cache_clear()
     a, b = simulate(with_rkn4, 1.0), simulate(rk4_only, 1.0)
     assert (a.chain.fidelity.integrator, b.chain.fidelity.integrator) == ("rkn4", "rk4")
     assert (a.chain.fidelity.rung, a.chain.fidelity.refine) == (
@@ -252,7 +252,7 @@ def test_the_block_recurrence_equals_the_step_by_step_one():
          0.0005: np.eye(ns) + 0.01 * rng.standard_normal((ns, ns))}
     keys = np.array([0.001] * 70 + [0.0005] * 3 + [0.001] * 40)
     G = np.repeat(rng.standard_normal((3, ns)), [50, 23, 40], axis=0)
-    X = autofidelity._recur(P, keys, G, ns)
+    X = linear_response.recur(P, keys, G, ns)
     x = np.zeros(ns)
     for k in range(len(keys)):
         x = P[keys[k]] @ x + G[k]

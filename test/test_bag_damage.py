@@ -26,10 +26,11 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from flexarm_ros.bag import (BagError, BagWriter, CorruptChunkWarning, TruncatedBagWarning,
-                             iter_messages, read_bag, to_dict, twin_bag)
+                             iter_messages, read_bag, to_dict)
 from flexarm_ros.bag import messages as m
 from flexarm_ros.bag.reader import scan
 from flexarm_ros.bag.repair import REPAIR_METADATA_NAME, default_output, repair
+from flexarm_ros.twin import recording
 
 try:
     from rosbags.highlevel import AnyReader
@@ -160,7 +161,7 @@ def test_flipped_byte_in_the_middle_chunk_loses_that_chunk_only(golden, tmp_path
     assert [(d.start, d.end, d.kind, d.lost_messages, d.lost_time_ns) for d in bag.damage] \
         == [(start, end, "corrupt", len(lost), (t0, t1))]
     assert bag.summary_message_count == total and bag.truncated
-    assert twin_bag.twin_info(bag)["scene"] == "two_link_case1"
+    assert recording.twin_info(bag)["scene"] == "two_link_case1"
 
 
 @pytest.mark.heavy
@@ -186,8 +187,8 @@ def test_garbage_after_the_header_is_scanned_past(golden, tmp_path):
     assert "0 messages lost; Metadata record 'flexarm_ros' lost" in str(caught[0].message)
     assert bag.message_count == 30008 and "flexarm_ros" not in bag.metadata
     assert "model" in bag.metadata                       # the record after the garbage
-    assert twin_bag.twin_info(bag)["scene"] == "two_link_case1"
-    assert twin_bag.embedded_scene(bag).name == "two_link_case1"
+    assert recording.twin_info(bag)["scene"] == "two_link_case1"
+    assert recording.embedded_scene(bag).name == "two_link_case1"
 
 
 def test_truncations_give_the_complete_chunks_before_the_cut(golden):

@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from flexarm_ros.nodes import _common  # noqa: E402,F401  (loads rosidl quietly first)
+from flexarm_ros.nodes import common  # noqa: E402,F401  (loads rosidl quietly first)
 from rclpy.serialization import serialize_message  # noqa: E402
 
 from flexarm_ros.bag.cdr_read import READERS, CdrError, decode  # noqa: E402

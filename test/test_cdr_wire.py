@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-import flexarm_ros.nodes._common  # noqa: E402,F401  (loads rclpy's type support quietly)
+import flexarm_ros.nodes.common  # noqa: E402,F401  (loads rclpy's type support quietly)
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 
 from flexarm_ros.bag import messages as msg  # noqa: E402

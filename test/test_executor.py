@@ -16,7 +16,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int32  # noqa: E402
 
-from flexarm_ros.nodes._common import QOS  # noqa: E402
+from flexarm_ros.nodes.common import QOS  # noqa: E402
 from flexarm_ros.nodes.executor import DrainExecutor  # noqa: E402
 
 

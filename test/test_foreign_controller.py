@@ -397,7 +397,8 @@ def test_a_wait_names_an_endpoint_of_the_wrong_type(tmp_path):
     """A controller whose command publisher and state subscription have the wrong types
     is never matched by DDS: the simulator's and the driver's waits say what is on their
     topics instead of waiting as if nobody were there."""
-    from flexarm_ros.nodes.environment import child_environment, python_module
+    from flexarm_ros.child_process import python_module
+    from flexarm_ros.nodes.environment import child_environment
     script = tmp_path / "wrong.py"
     script.write_text(WRONG_TYPES)
     env = child_environment()

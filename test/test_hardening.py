@@ -163,7 +163,7 @@ def test_twin_run_is_refused_before_any_node_starts():
     from flexarm_ros.run import run
     data = _set(shipped("link_motor"), ("links", 0, "joint", "drive", "inductance"), 1e-9)
     sc = load_scene_dict(data)
-    from flexarm_ros.sim.budget import check_plant_work
+    from flexarm_ros.sim.plant import check_plant_work
     # the plant has no drive states (the driver integrates the current exactly): fine
     check_plant_work(sc, 1.0)
     with pytest.raises(WorkTooLarge) as info:

@@ -67,7 +67,7 @@ def test_a_foreign_subscriber_still_gets_every_message_on_dds(tmp_path):
     from rclpy.context import Context
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05,
                record=tmp_path / "x.mcap")
     ctx = Context()
@@ -111,7 +111,7 @@ def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
     from rclpy.context import Context
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     from flexarm_ros.scene import load_scene
     from flexarm_ros.twin.cosim import cosimulate
     from flexarm_ros.bag.writer import encode_cdr
@@ -159,7 +159,7 @@ def test_bytes_that_are_not_a_command_from_the_only_publisher_are_rejected(tmp_p
     from rclpy.context import Context
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05, record=None,
                nodes=("simulator", "motor_driver"))
     ctx = Context()
@@ -184,7 +184,7 @@ def test_an_unusable_profile_dir_is_named_and_does_not_stop_the_node(tmp_path, m
                                                                      capsys):
     """FLEXARM_PROFILE_DIR pointing at a file: a message naming the variable, the value and
     the expectation; the spinning runs unprofiled. A usable one gets the profile."""
-    from flexarm_ros.nodes._common import PROFILE_ENV, profiled
+    from flexarm_ros.nodes.common import PROFILE_ENV, profiled
     blocker = tmp_path / "a_file"
     blocker.write_text("")
     monkeypatch.setenv(PROFILE_ENV, str(blocker / "prof"))

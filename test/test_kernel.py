@@ -62,7 +62,7 @@ def test_beam_sums_by_points_and_by_invariants_match_numpy(rung, foreshortening,
     """Either way of summing a beam's inertia in the compiled kernel (forced here on every
     rung, also where the cost rule would not choose it) against the numpy reference, which
     sums over the points."""
-    import flexarm_ros.model.chain as chain_mod
+    import flexarm_ros.model.rung_chain as chain_mod
     monkeypatch.setattr(chain_mod, "by_invariants", lambda ne, points, fs: sums == "invariants")
     chain = Chain(_scene(rung, foreshortening=foreshortening), backend="numba")
     assert chain.model.invariant.all() == (sums == "invariants")
@@ -78,7 +78,7 @@ def test_beam_sums_by_points_and_by_invariants_match_numpy(rung, foreshortening,
 
 
 def test_the_cost_rule_takes_invariants_for_modal_and_cubic_not_fine_meshes(monkeypatch):
-    import flexarm_ros.model.chain as chain_mod
+    import flexarm_ros.model.rung_chain as chain_mod
     monkeypatch.setattr(chain_mod, "BEAM_SUMS", "invariants")   # the default, whatever the env says
     chain_of = {r: Chain(_scene(r, **({"refine": 8} if r == "fem" else {})), backend="numba")
                 for r in ("cubic", "modal", "fem")}

@@ -7,6 +7,10 @@
     sim      ← model, scene, errors
     analysis, viz: never model/ or sim/ internals (the public ``flexarm_ros.model`` API only)
     nothing  ← cli
+
+and every layer only from the layers before it in :data:`ORDER`. No module imports itself
+through others (no import cycle, module- or function-level), and no module imports another
+module's ``_private`` name (make it public or move it where it is used).
 """
 
 import ast
@@ -25,6 +29,16 @@ ALLOWED = {
     "testing": set(),
 }
 
+#: every layer, lowest first: a layer imports only layers before it (``""`` is the
+#: package's own ``__init__``, the version)
+ORDER = ("errors", "", "testing", "child_process", "scene", "io", "model", "sim", "control",
+         "bag", "twin", "analysis", "viz", "ensemble", "studies", "calibration", "nodes",
+         "replay", "run", "cli")
+
+#: (importing module, imported module, name): imports of a ``_private`` name allowed, each
+#: with its reason (none today)
+PRIVATE_ALLOWED: set[tuple[str, str, str]] = set()
+
 
 def _module_name(path: Path) -> str:
     parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
@@ -36,27 +50,128 @@ def _module_name(path: Path) -> str:
 def _imports(path: Path, module: str | None = None) -> set[str]:
     """Absolute names of the project modules a file imports (relative imports resolved;
     ``module`` is the file's module name, by default from its place in the package)."""
-    me = (module or _module_name(path)).split(".")
-    package = me if path.name == "__init__.py" else me[:-1]
+    me = module or _module_name(path)
     found = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
             found |= {a.name for a in node.names if a.name.split(".")[0] == "flexarm_ros"}
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package[:len(package) - node.level + 1]
-                mod = ".".join(base + ([node.module] if node.module else []))
-            else:
-                mod = node.module or ""
+            mod = _resolve(node, me, path)
             if mod.split(".")[0] != "flexarm_ros":
                 continue
-            found.add(mod)
-            # `from flexarm_ros.model import chain` imports the submodule model.chain
-            found |= {f"{mod}.{a.name}" for a in node.names
-                      if (PKG.parent / (mod + "." + a.name).replace(".", "/")).with_suffix(
-                          ".py").exists()
-                      or (PKG.parent / (mod + "." + a.name).replace(".", "/")).is_dir()}
+            # `from flexarm_ros.model import chain` imports the submodule model.chain (as
+            # `import flexarm_ros.model.chain` would); the package itself counts when a
+            # name is read from its __init__
+            subs = {f"{mod}.{a.name}" for a in node.names if _is_module(f"{mod}.{a.name}")}
+            found |= subs
+            if len(subs) < len(node.names):
+                found.add(mod)
     return found
+
+
+def _resolve(node: ast.ImportFrom, module: str, path: Path) -> str:
+    """The absolute module of a ``from … import`` in ``module`` (file ``path``)."""
+    if not node.level:
+        return node.module or ""
+    me = module.split(".")
+    package = me if path.name == "__init__.py" else me[:-1]
+    base = package[:len(package) - node.level + 1]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _is_module(name: str) -> bool:
+    path = PKG.parent / name.replace(".", "/")
+    return path.with_suffix(".py").exists() or path.is_dir()
+
+
+def _graph(sources) -> dict[str, set[str]]:
+    """{module: the project modules it imports} over ``sources`` ({module: path})."""
+    return {m: {d for d in _imports(p, m) if d in sources and d != m}
+            for m, p in sources.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of ``graph``: one per strongly connected component of more than one
+    module (Tarjan), each as a closed path ``[a, b, …, a]`` through it."""
+    index, low, stack, on, comps = {}, {}, [], set(), []
+
+    def strong(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = set()
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.add(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                comps.append(comp)
+
+    for v in sorted(graph):
+        if v not in index:
+            strong(v)
+    return [_path_through(graph, comp) for comp in comps]
+
+
+def _path_through(graph, comp: set[str]) -> list[str]:
+    """A shortest closed path from the component's first module back to it, inside it."""
+    start = min(comp)
+    prev, frontier = {start: None}, [start]
+    while frontier:
+        nxt = []
+        for v in frontier:
+            for w in sorted(graph[v] & comp):
+                if w == start:
+                    path = [v]
+                    while prev[path[-1]] is not None:
+                        path.append(prev[path[-1]])
+                    return path[::-1] + [start]
+                if w not in prev:
+                    prev[w] = v
+                    nxt.append(w)
+        frontier = nxt
+    return sorted(comp)
+
+
+def _private_imports(sources) -> list[str]:
+    """``module imports _name from other`` for every ``from flexarm_ros… import _name`` (a
+    name, module or attribute, that starts with one underscore) of another module, and
+    ``module reads other._name`` where ``other`` is a project module it imported."""
+    bad = []
+    for m, p in sources.items():
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        bound = {}                   # local name -> the project module it is bound to
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                bound |= {a.asname: a.name for a in node.names
+                          if a.asname and a.name.split(".")[0] == "flexarm_ros"}
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            mod = _resolve(node, m, p)
+            if mod.split(".")[0] != "flexarm_ros" or mod == m:
+                continue
+            bound |= {a.asname or a.name: f"{mod}.{a.name}" for a in node.names
+                      if f"{mod}.{a.name}" in sources or _is_module(f"{mod}.{a.name}")}
+            bad += [f"{m} imports {a.name} from {mod}" for a in node.names
+                    if _private(a.name) and (m, mod, a.name) not in PRIVATE_ALLOWED]
+        bad += [f"{m} reads {bound[n.value.id]}.{n.attr}" for n in ast.walk(tree)
+                if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)
+                and n.value.id in bound and bound[n.value.id] != m and _private(n.attr)
+                and (m, bound[n.value.id], n.attr) not in PRIVATE_ALLOWED]
+    return bad
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
 
 
 def _layer(module: str) -> str:
@@ -108,3 +223,76 @@ def test_the_checker_sees_a_violation(tmp_path):
                     "    from flexarm_ros.sim.plant import Plant\n")
     deps = _imports(fake, "flexarm_ros.scene.probe")
     assert {"flexarm_ros.model.chain", "flexarm_ros.sim.plant"} <= deps
+
+
+# ------------------------------------------------------------------ all layers, no cycles
+MODULES = {_module_name(p): p for p in SOURCES}
+
+
+def test_every_layer_has_its_place_in_the_order():
+    missing = {_layer(m) for m in MODULES} - set(ORDER)
+    assert not missing, f"layers not in ORDER (place them): {sorted(missing)}"
+
+
+def _against_order(graph) -> list[str]:
+    rank = {layer: i for i, layer in enumerate(ORDER)}
+    return [f"{m} ({_layer(m) or 'flexarm_ros'}) imports {d} ({_layer(d) or 'flexarm_ros'})"
+            for m, deps in sorted(graph.items()) for d in sorted(deps)
+            if _layer(d) != _layer(m)
+            and rank.get(_layer(d), len(ORDER)) >= rank.get(_layer(m), -1)]
+
+
+def test_every_layer_imports_only_the_layers_before_it():
+    bad = _against_order(_graph(MODULES))
+    assert not bad, "imports against ORDER (lowest first):\n" + "\n".join(bad)
+
+
+def test_no_import_cycle():
+    cycles = _cycles(_graph(MODULES))
+    assert not cycles, "import cycles (module- and function-level imports):\n" + "\n".join(
+        " -> ".join(c) for c in cycles)
+
+
+def test_no_module_imports_another_modules_private_name():
+    bad = _private_imports(MODULES)
+    assert not bad, "\n".join(bad)
+
+
+def _fake_package(tmp_path, files: dict[str, str]) -> dict[str, Path]:
+    """{module: path} of a throw-away package ``flexarm_ros.fake`` (``files``: {relative
+    path: source})."""
+    out = {}
+    for rel, text in files.items():
+        path = tmp_path / "flexarm_ros" / "fake" / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        name = "flexarm_ros.fake." + rel[:-3].replace("/", ".")
+        out[name.removesuffix(".__init__")] = path
+    return out
+
+
+def test_the_checks_see_a_cycle_a_private_import_and_an_upward_import(tmp_path):
+    """The checks above on a tiny broken tree: a three-module cycle closed by a lazy import,
+    a private name taken from another module (imported, and read off the module), and the
+    model importing the CLI (so they cannot pass on a graph they fail to read)."""
+    fake = _fake_package(tmp_path, {
+        "a.py": "from flexarm_ros.fake.b import thing\n",
+        "b.py": "import flexarm_ros.fake.c\nthing = 1\n",
+        "c.py": "def f():\n    from .a import _hidden\n",
+        "d.py": "from flexarm_ros.fake.a import public\n",
+        "e.py": "from flexarm_ros.fake import d as D\nD._inside()\nD.public()\n",
+    })
+    graph = _graph(fake)
+    assert graph["flexarm_ros.fake.d"] == {"flexarm_ros.fake.a"}
+    assert _cycles(graph) == [["flexarm_ros.fake.a", "flexarm_ros.fake.b",
+                               "flexarm_ros.fake.c", "flexarm_ros.fake.a"]]
+    assert _private_imports(fake) == [
+        "flexarm_ros.fake.c imports _hidden from flexarm_ros.fake.a",
+        "flexarm_ros.fake.e reads flexarm_ros.fake.d._inside"]
+    # no cycle once the lazy import is gone
+    fake["flexarm_ros.fake.c"].write_text("def f():\n    return 0\n")
+    assert _cycles(_graph(fake)) == []
+    # direction: model (low) importing cli (top), and the reverse that is fine
+    assert _against_order({"flexarm_ros.model.chain": {"flexarm_ros.cli"},
+                           "flexarm_ros.cli": {"flexarm_ros.model.chain"}}) == [
+        "flexarm_ros.model.chain (model) imports flexarm_ros.cli (cli)"]

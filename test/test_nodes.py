@@ -112,7 +112,7 @@ def test_malformed_commands_never_crash_the_driver_nor_reach_the_plant(capfd):
         from rclpy.node import Node
         node = Node("fault_injector", namespace=NS, context=g.context)   # the test's node
         g.executor.add_node(node)
-        from flexarm_ros.nodes._common import QOS
+        from flexarm_ros.nodes.common import QOS
         pub = node.create_publisher(Float64MultiArray, T.COMMANDS, QOS)
         efforts = []
         node.create_subscription(Float64MultiArray, T.EFFORTS,
@@ -215,7 +215,7 @@ def test_killed_controller_process_trips_the_watchdog(tmp_path):
     node = Node("watcher", context=watcher.context)
     watcher.executor.add_node(node)
     now = [0.0]
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     node.create_subscription(Clock, T.CLOCK, lambda m: now.__setitem__(
         0, m.clock.sec + 1e-9 * m.clock.nanosec), QOS)
     pg = ProcessGraph("two_link_position", "fast", 2.0, out, NS)

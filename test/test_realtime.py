@@ -211,7 +211,7 @@ def test_a_stalled_effort_source_is_waited_for_again_once_it_speaks():
     new effort restores the bound; before, the plant ran unbounded ahead after a single
     start-up stall and two_link_case1 diverged (t = 0.94 s)."""
     import time
-    import flexarm_ros.nodes._common  # noqa: F401  (rclpy import order)
+    import flexarm_ros.nodes.common  # noqa: F401  (rclpy import order)
     from flexarm_ros.nodes.simulator import SimulatorNode
     sim = SimulatorNode.__new__(SimulatorNode)          # the wait's state, no ROS
     sim.finished = False

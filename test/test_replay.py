@@ -54,7 +54,7 @@ class Listener:
         from rclpy.context import Context
         from rclpy.signals import SignalHandlerOptions
 
-        from flexarm_ros.nodes._common import make_executor, subscription
+        from flexarm_ros.nodes.common import make_executor, subscription
         from flexarm_ros.nodes._msgconv import to_dict as ros_dict
         self.rclpy, self.ctx = rclpy, Context()
         rclpy.init(context=self.ctx, domain_id=domain,

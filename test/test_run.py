@@ -135,7 +135,7 @@ def test_flexarm_run_writes_a_finalized_bag_with_metadata(tmp_path, capsys):
     assert meta["message_count"] == bag.message_count
     assert meta["duration"]["nanoseconds"] == 50_000_000
     assert meta["storage_identifier"] == "mcap"
-    from flexarm_ros.nodes._common import DEPTH  # what the nodes' publishers offer
+    from flexarm_ros.nodes.common import DEPTH  # what the nodes' publishers offer
     depths = {q["depth"] for t in meta["topics_with_message_count"]
               for q in t["topic_metadata"]["offered_qos_profiles"]}
     assert depths == {DEPTH}
@@ -366,7 +366,7 @@ def _clock_watcher():
     from rosgraph_msgs.msg import Clock
     from rclpy.node import Node
 
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     from flexarm_ros.run import InProcessGraph
     g = InProcessGraph(nodes=())
     node = Node("clock_watcher", context=g.context)
@@ -522,7 +522,7 @@ def test_a_child_never_imports_the_package_from_its_working_directory(tmp_path, 
     """A folder named ``flexarm_ros`` in the working directory (the directory that holds
     a clone) must not shadow the installed package in the graph's child processes: with
     ``-P`` (Python ≥ 3.11) and with the bootstrap used before it."""
-    from flexarm_ros.nodes.environment import python_module
+    from flexarm_ros.child_process import python_module
     shadow = tmp_path / "flexarm_ros"
     shadow.mkdir()
     (shadow / "__init__.py").write_text("raise ImportError('the shadowing folder')\n")

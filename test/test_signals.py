@@ -189,7 +189,7 @@ def test_die_with_parent_arms_sigterm_and_refuses_an_orphan(monkeypatch):
 
 _HUNG = """
 import time, types
-from flexarm_ros.nodes._common import ShutdownGuard
+from flexarm_ros.nodes.common import ShutdownGuard
 ShutdownGuard("motor_driver", types.SimpleNamespace(diverged={diverged!r}), limit_s=0.3)
 time.sleep(30)          # a teardown that hangs
 """

@@ -1,4 +1,4 @@
-"""flexarm_ros.bag.twin_bag: the one reader of the twin's bag conventions, shared by
+"""flexarm_ros.twin.recording: the one reader of the twin's bag conventions, shared by
 ``flexarm compare`` (analysis) and the views (viz).
 
 Truth: sample times and values worked out by hand from a batch's layout (std_msgs rule
@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from flexarm_ros.analysis.channels import load_channels
-from flexarm_ros.bag import BagError, BagWriter, read_bag, twin_bag
+from flexarm_ros.bag import BagError, BagWriter, read_bag
+from flexarm_ros.twin import recording
 from flexarm_ros.io.experiment import CompareInputError
 from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.twin import topics as T
@@ -63,8 +64,8 @@ def strided(tmp_path_factory):
 
 def test_batch_with_stride_and_offset_against_hand_layout(strided):
     path, t_ns, values = strided
-    sb = twin_bag.sensor_batches(read_bag(path), T.ACCEL_BATCH,
-                                 twin_bag.embedded_scene(read_bag(path)))
+    sb = recording.sensor_batches(read_bag(path), T.ACCEL_BATCH,
+                                  recording.embedded_scene(read_bag(path)))
     assert sb.topic == f"{NS}/{T.ACCEL_BATCH}" and sb.rate_hz == 4000.0
     assert sb.names == ["acc_A", "acc_B", "acc_C", "acc_D"] and sb.notes == []
     assert np.array_equal(sb.t_ns, t_ns)
@@ -87,11 +88,11 @@ def test_analysis_and_viz_read_the_same_samples(strided):
 
 def test_metadata_readers(strided):
     bag = read_bag(strided[0])
-    assert twin_bag.twin_info(bag)["scene"] == SCENE
-    assert twin_bag.recorded_namespace(bag) == NS and twin_bag.namespace(bag) == NS
-    assert twin_bag.namespace(bag, "/other") == "/other"
-    assert twin_bag.embedded_scene(bag).name == SCENE
-    assert len(twin_bag.twin_messages(bag, T.ACCEL_BATCH)) == 2
+    assert recording.twin_info(bag)["scene"] == SCENE
+    assert recording.recorded_namespace(bag) == NS and recording.namespace(bag) == NS
+    assert recording.namespace(bag, "/other") == "/other"
+    assert recording.embedded_scene(bag).name == SCENE
+    assert len(recording.twin_messages(bag, T.ACCEL_BATCH)) == 2
 
 
 def test_without_scene_names_are_generic_and_rate_from_spacing(tmp_path):
@@ -99,8 +100,8 @@ def test_without_scene_names_are_generic_and_rate_from_spacing(tmp_path):
     path = _write(tmp_path / "noscene.mcap", [(750_000, _batch(rows[:3], 5, 1)),
                                               (1_500_000, _batch(rows[3:], 5, 1))])
     bag = read_bag(path)
-    assert twin_bag.embedded_scene(bag) is None and twin_bag.namespace(bag) == NS
-    sb = twin_bag.sensor_batches(bag, T.ACCEL_BATCH, None)
+    assert recording.embedded_scene(bag) is None and recording.namespace(bag) == NS
+    sb = recording.sensor_batches(bag, T.ACCEL_BATCH, None)
     assert sb.rate_hz == pytest.approx(4000.0) and "estimated" in sb.notes[0]
     assert sb.names == [f"accelerometer_{j}" for j in range(4)]
     assert np.array_equal(sb.values, rows)
@@ -123,4 +124,4 @@ def test_layout_past_the_data_is_named(tmp_path):
 def test_invalid_embedded_scene_is_a_bag_error(tmp_path):
     path = _write(tmp_path / "bad.mcap", [], "links: not-a-list\n")
     with pytest.raises(BagError, match="flexarm_ros.scene_yaml is not a valid scene"):
-        twin_bag.embedded_scene(read_bag(path))
+        recording.embedded_scene(read_bag(path))

@@ -186,7 +186,7 @@ class Hostile:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray, Int32MultiArray, String
 
-        from flexarm_ros.nodes._common import QOS
+        from flexarm_ros.nodes.common import QOS
         self.g, self.k, self.sent = g, 0, 0
         self.F, self.I, self.S = Float64MultiArray, Int32MultiArray, String
         node = Node("hostile", namespace=NS, context=g.context)
@@ -382,7 +382,7 @@ def test_recorder_stamps_with_the_simulators_clock_when_sent(tmp_path):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Int32MultiArray
 
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     path = tmp_path / "rec.mcap"
     g = _graph(scene="two_link_case1", mode="fast", nodes=(), record=path)
     try:
@@ -418,7 +418,7 @@ def test_one_source_per_topic_the_latest_wins_and_a_successor_takes_over():
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
 
-    from flexarm_ros.nodes._common import QOS
+    from flexarm_ros.nodes.common import QOS
     g = _graph(scene="two_link_position", mode="realtime", duration=0.0,
                nodes=("motor_driver",))
     try:

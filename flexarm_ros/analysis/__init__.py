@@ -5,7 +5,7 @@
 measures the source papers used by hand (impact time, bounce height, RMS / peak /
 amplitude errors, Gannon's normalized tip-amplitude and frequency errors, the 10 % test).
 :mod:`flexarm_ros.analysis.channels` reads the inputs (twin bags through
-:mod:`flexarm_ros.bag.twin_bag`, mapped foreign bags, CSV tables) into named channels;
+:mod:`flexarm_ros.twin.recording`, mapped foreign bags, CSV tables) into named channels;
 :mod:`flexarm_ros.analysis.compare` computes a
 :class:`~flexarm_ros.analysis.comparison.Comparison` (result schema in
 :mod:`flexarm_ros.analysis.comparison`), :mod:`flexarm_ros.analysis.report` draws it and

@@ -11,7 +11,7 @@ names and units from the scene embedded there):
 * ``<sensor>`` — accelerometers, strain gauges, potentiometers by their scene names; V with
   a ``sensitivity``, else m/s² / 1 / rad; from ``accelerometers/batch``, ``strain/batch``,
   ``potentiometer/batch``, one time per sample (layout, stride, offset and timing as
-  :mod:`flexarm_ros.bag.twin_bag` reads them: row i of a batch of n rows logged at t_m is
+  :mod:`flexarm_ros.twin.recording` reads them: row i of a batch of n rows logged at t_m is
   the sample at ``t_m - (n - 1 - i) / rate_hz``); without sensors of that kind in the
   scene ``<kind>_<j>``, unit unknown;
 * ``<encoder sensor>`` — count, ``encoders/counts``;
@@ -62,7 +62,7 @@ from typing import Any
 
 import numpy as np
 
-from flexarm_ros.bag import twin_bag
+from flexarm_ros.twin import recording
 from flexarm_ros.bag.reader import BagError, TruncatedBagWarning, read_bag
 from flexarm_ros.io.experiment import ChannelMap, CompareInputError, MapEntry, read_experiment_csv
 from flexarm_ros.io.units import TEXT, beam_coordinate, coordinate_unit
@@ -168,9 +168,9 @@ def _channel(name, unit, t, y, source, vibration=False, topic="") -> Channel | N
 
 def scene_of_bag(bag):
     """``(scene, problem)``: the scene embedded in a twin bag
-    (:func:`flexarm_ros.bag.twin_bag.embedded_scene`), or ``(None, why)``."""
+    (:func:`flexarm_ros.twin.recording.embedded_scene`), or ``(None, why)``."""
     try:
-        scene = twin_bag.embedded_scene(bag)
+        scene = recording.embedded_scene(bag)
     except BagError as exc:           # a scene from another software version
         return None, f"the embedded scene does not load ({exc})"
     if scene is None:
@@ -180,9 +180,9 @@ def scene_of_bag(bag):
 
 def _batch_channels(bag, topic, scene, ns, notes) -> list[Channel]:
     """One channel per column of a sensor batch topic
-    (:func:`flexarm_ros.bag.twin_bag.sensor_batches`: per-sample times, layout stride and
+    (:func:`flexarm_ros.twin.recording.sensor_batches`: per-sample times, layout stride and
     offset honoured); V with a ``sensitivity``, else the kind's SI unit; '' unnamed."""
-    sb = twin_bag.sensor_batches(bag, topic, scene, ns)
+    sb = recording.sensor_batches(bag, topic, scene, ns)
     if sb is None:
         return []
     notes.extend(sb.notes)
@@ -240,10 +240,10 @@ def bag_channels(bag, scene=None, notes: list | None = None) -> dict[str, Channe
     if scene is None:
         scene, _ = scene_of_bag(bag)
     notes = [] if notes is None else notes
-    ns = twin_bag.namespace(bag)
+    ns = recording.namespace(bag)
 
     def msgs(topic):
-        return twin_bag.twin_messages(bag, topic, ns)
+        return recording.twin_messages(bag, topic, ns)
 
     out: dict[str, Channel] = {}
 
@@ -434,7 +434,7 @@ def _map_entry(bag, cmap: ChannelMap, e: MapEntry):
         if e.rate_hz is not None:
             data = np.asarray(value, dtype=float).ravel()
             try:        # explicit 'columns': plain rows; else the message's layout
-                lay = twin_bag.batch_layout(None if e.columns else getattr(msg, "layout", None),
+                lay = recording.batch_layout(None if e.columns else getattr(msg, "layout", None),
                                             data.size, e.columns,
                                             where=f"{bag.path}: topic {e.topic!r} ({where}) "
                                                   f"at {log_ns} ns")
@@ -446,7 +446,7 @@ def _map_entry(bag, cmap: ChannelMap, e: MapEntry):
                                         f"{lay.channels} columns per row; expected an index "
                                         f"< {lay.channels}")
             if lay.samples:
-                ts.append(twin_bag.batch_times_ns(t_ns, lay.samples, e.rate_hz))
+                ts.append(recording.batch_times_ns(t_ns, lay.samples, e.rate_hz))
                 ys.append(data[lay.offset + lay.stride * np.arange(lay.samples) + col])
             continue
         if e.index is not None:
@@ -613,7 +613,7 @@ def load_bag(path, channel_map: ChannelMap | None = None,
         raise CompareInputError(
             f"{p}: the bag holds no messages{' (it is truncated)' if bag.truncated else ''}"
             f"; expected a recording (flexarm run --record, or a foreign bag with --map)")
-    meta = twin_bag.twin_info(bag)
+    meta = recording.twin_info(bag)
     if meta is not None:
         cs.scene_name = meta.get("scene")
         cs.scene, why = scene_of_bag(bag)
@@ -634,5 +634,5 @@ def load_bag(path, channel_map: ChannelMap | None = None,
         raise CompareInputError(
             f"{p}: no channel found (the bag holds {bag.message_count} messages"
             f"{'; it is truncated' if bag.truncated else ''}); expected the twin's topics "
-            f"under {twin_bag.namespace(bag) if meta is not None else 'the map'}")
+            f"under {recording.namespace(bag) if meta is not None else 'the map'}")
     return cs, bag

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.analysis.spectra import _series
+from flexarm_ros.analysis.spectra import checked_series
 
 __all__ = ["COMMAND_KINDS", "METRIC_KEYS", "RISE_FROM", "RISE_TO", "SETTLING_BAND",
            "Command", "detect_command", "noise_sigma", "step_threshold",
@@ -139,8 +139,8 @@ def detect_command(t, y, tt, target, quantum: float = 0.0) -> Command:
     """The command of the target ``(tt, target)`` against the output ``(t, y)`` over the
     output's span (module docstring). ``quantum``: the output's resolution (one encoder
     count in the output's unit; 0 when unknown)."""
-    t, y = _series(t, y, name="output", min_samples=2)
-    tt, target = _series(tt, target, name="target", min_samples=1)
+    t, y = checked_series(t, y, name="output", min_samples=2)
+    tt, target = checked_series(tt, target, name="target", min_samples=1)
     # the target over the output's span, with the value it holds at the span's start
     inside = (tt > t[0]) & (tt <= t[-1])
     ts = np.concatenate(([t[0]], tt[inside]))
@@ -212,8 +212,8 @@ def tracking_metrics(t, y, tt, target, *, quantum: float = 0.0,
     Raises:
         ValueError: invalid records (fewer than 2 output samples, non-increasing times).
     """
-    t, y = _series(t, y, name="output", min_samples=2)
-    tt, target = _series(tt, target, name="target", min_samples=1)
+    t, y = checked_series(t, y, name="output", min_samples=2)
+    tt, target = checked_series(tt, target, name="target", min_samples=1)
     if not (math.isfinite(band) and 0.0 < band < 1.0):
         raise ValueError(f"band must be a fraction in (0, 1), got {band!r}")
     e = y - _held(tt, target, t)

@@ -48,7 +48,7 @@ import numpy as np
 
 from flexarm_ros.analysis.channels import Channel, load_bag
 from flexarm_ros.analysis.metrics import is_boolean
-from flexarm_ros.bag import twin_bag
+from flexarm_ros.twin import recording
 from flexarm_ros.io.experiment import CompareInputError, write_experiment_csv
 from flexarm_ros.io.tables import sensor_table_path
 from flexarm_ros.twin import topics as T
@@ -173,7 +173,7 @@ def export_bag(bag_path, out, topics=None) -> ExportReport:
                                            "writes)")
     warn = list(cs.warnings) + [str(w.message) for w in caught
                                 if str(w.message) not in cs.warnings]
-    ns = twin_bag.namespace(bag)
+    ns = recording.namespace(bag)
     chosen = _select_topics(bag, ns, topics, cs.channels)
     batch = {T.resolve(ns, k) for k in T.BATCH_KINDS}
     main, sensors = {}, {}

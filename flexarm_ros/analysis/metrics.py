@@ -29,7 +29,7 @@ import math
 import numpy as np
 from scipy import signal as _sig
 
-from flexarm_ros.analysis.spectra import _series, resample
+from flexarm_ros.analysis.spectra import checked_series, resample
 
 #: Gannon's (after Petroka) pass mark: |relative error| <= 10 %.
 GANNON_THRESHOLD = 0.10
@@ -83,8 +83,8 @@ def estimate_offset(t_ref, y_ref, t_run, y_run, max_shift_s) -> float:
             than half the overlap, constant signals, or a best alignment at the edge of the
             search range (the true shift may lie beyond ``max_shift_s``).
     """
-    t_ref, y_ref = _series(t_ref, y_ref, name="reference", min_samples=4)
-    t_run, y_run = _series(t_run, y_run, name="run", min_samples=4)
+    t_ref, y_ref = checked_series(t_ref, y_ref, name="reference", min_samples=4)
+    t_run, y_run = checked_series(t_run, y_run, name="run", min_samples=4)
     max_shift = _positive(max_shift_s, "max_shift_s")
     a, b = _overlap(t_ref, t_run)
     dt = min(float(np.median(np.diff(t_ref))), float(np.median(np.diff(t_run))))
@@ -149,7 +149,7 @@ def event_time(t, y, threshold, direction=+1):
     Returns:
         The crossing time in seconds (float), or None when there is no crossing.
     """
-    t, y = _series(t, y)
+    t, y = checked_series(t, y)
     c = float(threshold)
     if not math.isfinite(c):
         raise ValueError(f"threshold must be finite, got {threshold!r}")
@@ -178,7 +178,7 @@ def step_events(t, y) -> dict:
     Raises:
         ValueError: invalid record, or a value other than 0 and 1.
     """
-    t, y = _series(t, y, name="flag", min_samples=1)
+    t, y = checked_series(t, y, name="flag", min_samples=1)
     if not is_boolean(y):
         bad = y[(y != 0.0) & (y != 1.0)][0]
         raise ValueError(f"flag: got the value {bad:g}, expected only 0 and 1")
@@ -206,7 +206,7 @@ def bounce_height(t, gap, t_impact, window_s):
     Raises:
         ValueError: invalid record, ``window_s`` not positive, or no sample in the window.
     """
-    t, gap = _series(t, gap, name="gap")
+    t, gap = checked_series(t, gap, name="gap")
     if t_impact is None:
         return None
     window = _positive(window_s, "window_s")
@@ -248,8 +248,8 @@ def channel_errors(t_ref, y_ref, t_run, y_run) -> dict:
         dict with keys ``rms_error``, ``peak_error``, ``relative_rms_error``,
         ``amplitude_error`` (floats).
     """
-    t_ref, y_ref = _series(t_ref, y_ref, name="reference")
-    t_run, y_run = _series(t_run, y_run, name="run")
+    t_ref, y_ref = checked_series(t_ref, y_ref, name="reference")
+    t_run, y_run = checked_series(t_run, y_run, name="run")
     a, b = _overlap(t_ref, t_run)
     sel = (t_ref >= a) & (t_ref <= b)
     if np.count_nonzero(sel) < 2:

@@ -34,7 +34,7 @@ from scipy import signal as _sig
 
 from flexarm_ros.analysis.comparison import (FREQ_DETREND, FREQ_MIN_BINS, FREQ_WINDOW,
                                              FREQ_ZERO_PAD, Comparison)
-from flexarm_ros.analysis.spectra import MIN_SAMPLES, _series, crop, uniform_record
+from flexarm_ros.analysis.spectra import MIN_SAMPLES, checked_series, crop, uniform_record
 
 __all__ = ["write_report"]
 
@@ -83,7 +83,7 @@ def _padded_spectrum(t, y):
     """The amplitude spectrum the peak estimator searches: linear detrend, periodic Hann
     window, ``FREQ_ZERO_PAD``-fold zero padding, scaled as
     :func:`flexarm_ros.analysis.spectra.spectrum` (``2 |Y| / sum(w)``)."""
-    t, y = _series(t, y, min_samples=MIN_SAMPLES)
+    t, y = checked_series(t, y, min_samples=MIN_SAMPLES)
     n = y.size
     w = _sig.get_window(FREQ_WINDOW, n, fftbins=True)
     nfft = FREQ_ZERO_PAD * n

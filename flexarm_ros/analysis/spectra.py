@@ -64,7 +64,7 @@ class Peak:
 
 # --------------------------------------------------------------------------- checks
 
-def _series(t, y, *, name: str = "signal", min_samples: int = 2, allow_2d: bool = False):
+def checked_series(t, y, *, name: str = "signal", min_samples: int = 2, allow_2d: bool = False):
     """Validate a record; return float arrays ``(t, y)``. Raises ValueError naming the problem."""
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -136,7 +136,7 @@ def spectrum(t, y, window: str = "hann", detrend=None):
     Returns:
         ``(freqs_hz, amplitude)``, both of length ``N // 2 + 1``.
     """
-    t, y = _series(t, y, min_samples=MIN_SAMPLES)
+    t, y = checked_series(t, y, min_samples=MIN_SAMPLES)
     fs = _sample_rate(t)
     n = y.shape[0]
     w = _window(window, n, SPECTRUM_WINDOWS)
@@ -206,7 +206,7 @@ def dominant_frequency(t, y, window: str = "hann", f_min=None, f_max=None,
         ValueError: non-uniform sampling, fewer than 16 samples, non-finite values,
             an empty band, no local spectral maximum in the band, bad options.
     """
-    t, y = _series(t, y, min_samples=MIN_SAMPLES)
+    t, y = checked_series(t, y, min_samples=MIN_SAMPLES)
     fs = _sample_rate(t)
     n = y.shape[0]
     if isinstance(zero_pad, bool) or not isinstance(zero_pad, (int, np.integer)) \
@@ -266,7 +266,7 @@ def resample(t, y, t_new):
         ValueError: invalid record, non-finite or non-1-D ``t_new``, or ``t_new``
             outside the data span.
     """
-    t, y = _series(t, y, allow_2d=True)
+    t, y = checked_series(t, y, allow_2d=True)
     t_new = np.asarray(t_new, dtype=float)
     if t_new.ndim != 1:
         raise ValueError(f"t_new must be 1-D, got shape {t_new.shape}")
@@ -295,7 +295,7 @@ def uniform(t, y, rate_hz=None):
     Returns:
         ``(t_uniform, y_uniform)``.
     """
-    t, y = _series(t, y, allow_2d=True)
+    t, y = checked_series(t, y, allow_2d=True)
     if rate_hz is None:
         rate = 1.0 / float(np.median(np.diff(t)))
     else:

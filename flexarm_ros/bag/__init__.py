@@ -3,11 +3,12 @@
 
 The module needs only numpy, PyYAML, ``mcap`` and ``mcap-ros2-support`` (no rclpy).
 See :mod:`.writer` for what "rosbag2-compatible" means and what a killed writer loses,
-:mod:`.reader` for how damaged files are read, :mod:`.msgdefs` for the message types,
-:mod:`.twin_bag` for what the twin's recordings hold (scene, namespace, sensor batches).
+:mod:`.reader` for how damaged files are read, :mod:`.msgdefs` for the message types;
+what the twin's recordings hold (scene, namespace, sensor batches) is read by
+:mod:`flexarm_ros.twin.recording`.
 """
 
-from flexarm_ros.bag import messages, msgdefs, twin_bag
+from flexarm_ros.bag import messages, msgdefs
 from flexarm_ros.bag.msgdefs import KNOWN_TYPES
 from flexarm_ros.bag.reader import (Bag, BagError, BagMessage, CorruptChunkWarning, Damage, TruncatedBagWarning, iter_messages, read_bag, to_dict)
 from flexarm_ros.bag.writer import INFO_METADATA_NAME, ROSBAG2_METADATA_NAME, BagWriter
@@ -28,5 +29,4 @@ __all__ = [
     "msgdefs",
     "read_bag",
     "to_dict",
-    "twin_bag",
 ]

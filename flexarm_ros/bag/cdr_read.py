@@ -14,7 +14,7 @@ the nodes read (``m.data``, ``m.header.stamp.sec``, ``m.position``, ``m.wrench.f
 
 Bytes that are not a message of the type (truncated, a count past the end, not UTF-8)
 raise :class:`CdrError`; the subscription that reads them drops the message and says so
-(:func:`flexarm_ros.nodes._common.subscription`).
+(:func:`flexarm_ros.nodes.common.subscription`).
 """
 
 from __future__ import annotations

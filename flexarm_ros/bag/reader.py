@@ -806,14 +806,14 @@ def scan(source: Any) -> tuple[_Scan, _Source]:
 
 # ---------------------------------------------------------------------------- decoding
 
-class _Undecodable(Exception):
+class Undecodable(Exception):
     """Internal: a message from unverified bytes (no CRC) failed to decode."""
 
 
-class _Decoders:
+class Decoders:
     """ROS 2 CDR decoders per channel.  A failure on bytes a chunk CRC vouched for is an
     incompatibility (:class:`BagError`); on unverified bytes it is damage
-    (:class:`_Undecodable`, the caller skips the message and counts it)."""
+    (:class:`Undecodable`, the caller skips the message and counts it)."""
 
     def __init__(self, name: str):
         self.name = name
@@ -835,7 +835,7 @@ class _Decoders:
         if isinstance(decoder, BagError):
             if verified:
                 raise decoder
-            raise _Undecodable(str(decoder))
+            raise Undecodable(str(decoder))
         try:
             return message.data if decoder is None else decoder(message.data)
         except Exception as err:
@@ -844,7 +844,7 @@ class _Decoders:
                     f"{where}): {err}")
             if verified:
                 raise BagError(text) from err
-            raise _Undecodable(text) from None
+            raise Undecodable(text) from None
 
 
 # ---------------------------------------------------------------------------- reading
@@ -856,7 +856,7 @@ def _iter(source: Any, topics: Iterable[str] | None, bag: Bag | None,
     name = src.name
     if bag is not None:
         bag.path = name
-    decoders = _Decoders(name)
+    decoders = Decoders(name)
     count = 0
     warned = 0
     silent: list[Damage] = []
@@ -878,7 +878,7 @@ def _iter(source: Any, topics: Iterable[str] | None, bag: Bag | None,
                     continue
                 try:
                     value = decoders(message, channel, schema, where, verified)
-                except _Undecodable as err:
+                except Undecodable as err:
                     undecodable.setdefault(channel.topic, []).append(str(err))
                     continue
                 if bag is not None:

@@ -38,9 +38,9 @@ from mcap.writer import IndexType
 from mcap.writer import Writer as _McapWriter
 
 from flexarm_ros import __version__
-from flexarm_ros.bag.reader import (BagError, Damage, _Decoders, _Undecodable, scan, seconds)
+from flexarm_ros.bag.reader import (BagError, Damage, Decoders, Undecodable, scan, seconds)
 from flexarm_ros.bag.writer import (INFO_METADATA_NAME, ROSBAG2_METADATA_NAME,
-                                    _default_compression, _dump_yaml, rosbag2_bag_metadata)
+                                    default_compression, dump_yaml, rosbag2_bag_metadata)
 
 __all__ = ["REPAIR_METADATA_NAME", "RepairReport", "default_output", "repair"]
 
@@ -172,7 +172,7 @@ def repair(source: str | os.PathLike, output: str | os.PathLike | None = None, *
 
 
 def _rewrite(scanner, f, report: RepairReport, out_name: str, chunk_size: int) -> None:
-    decode = _Decoders(scanner.name)
+    decode = Decoders(scanner.name)
     writer: _McapWriter | None = None
     schema_ids: dict[int, int] = {}       # old id -> new id
     channel_ids: dict[int, int] = {}
@@ -182,7 +182,7 @@ def _rewrite(scanner, f, report: RepairReport, out_name: str, chunk_size: int) -
     info: dict[str, str] | None = None
 
     def start(profile: str, library: str) -> _McapWriter:
-        w = _McapWriter(f, chunk_size=chunk_size, compression=_default_compression(),
+        w = _McapWriter(f, chunk_size=chunk_size, compression=default_compression(),
                         index_types=IndexType.ALL, use_chunking=True, use_statistics=True,
                         use_summary_offsets=True, repeat_channels=True, repeat_schemas=True,
                         enable_crcs=True)
@@ -218,7 +218,7 @@ def _rewrite(scanner, f, report: RepairReport, out_name: str, chunk_size: int) -
             if not verified:
                 try:
                     decode(message, channel, schema, where, False)
-                except _Undecodable:
+                except Undecodable:
                     report.undecodable += 1
                     return
             cid = channel_id(channel, schema)
@@ -297,7 +297,7 @@ def _rewrite(scanner, f, report: RepairReport, out_name: str, chunk_size: int) -
                                     [out_name], custom if isinstance(custom, dict) else None,
                                     str((old_rosbag2 or {}).get("ros_distro") or
                                         os.environ.get("ROS_DISTRO", "")))
-        writer.add_metadata(ROSBAG2_METADATA_NAME, {"serialized_metadata": _dump_yaml(meta)})
+        writer.add_metadata(ROSBAG2_METADATA_NAME, {"serialized_metadata": dump_yaml(meta)})
     writer.finish()
 
 

@@ -80,7 +80,7 @@ from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import LIBRARY_IDENTIFIER as _MCAP_LIBRARY
 
 from flexarm_ros import __version__
-from flexarm_ros.bag import msgdefs
+import flexarm_ros.bag.msgdefs as msgdefs
 from flexarm_ros.bag.mcap_file import McapFile
 
 __all__ = ["BagWriter", "DEFAULT_QOS", "INFO_METADATA_NAME", "ROSBAG2_METADATA_NAME",
@@ -116,7 +116,7 @@ _QOS_ENUMS_V8 = {
 }
 
 
-def _default_compression() -> str:
+def default_compression() -> str:
     try:
         import zstandard  # noqa: F401
 
@@ -147,7 +147,7 @@ class _NoAliasDumper(yaml.SafeDumper):
         return True
 
 
-def _dump_yaml(data: Any) -> str:
+def dump_yaml(data: Any) -> str:
     return yaml.dump(data, Dumper=_NoAliasDumper, sort_keys=False, width=2**31 - 1,
                      default_flow_style=False, allow_unicode=True).rstrip("\n")
 
@@ -498,7 +498,7 @@ def rosbag2_bag_metadata(version: int, topics: list[tuple], start_ns: int | None
                 "name": name,
                 "type": msgtype,
                 "serialization_format": fmt,
-                "offered_qos_profiles": qos if version >= 9 else _dump_yaml(qos),
+                "offered_qos_profiles": qos if version >= 9 else dump_yaml(qos),
                 "type_description_hash": type_hash,
             },
             "message_count": count,
@@ -574,7 +574,7 @@ class BagWriter:
             self._writer = McapFile(
                 self._sink, Profile.ROS2, f"flexarm_ros/{__version__}; {_MCAP_LIBRARY}",
                 chunk_size=chunk_size,
-                compression=_default_compression() if codec is None else codec)
+                compression=default_compression() if codec is None else codec)
             if info:
                 self._writer.add_metadata(INFO_METADATA_NAME, info)
             self._sink.flush()
@@ -632,7 +632,7 @@ class BagWriter:
         qos = _qos_yaml(self._rosbag2_version, self._qos_depth)
         channel_id = self._writer.register_channel(
             topic=topic, message_encoding=MessageEncoding.CDR, schema_id=schema_id,
-            metadata={"offered_qos_profiles": _dump_yaml(qos),
+            metadata={"offered_qos_profiles": dump_yaml(qos),
                       "topic_type_hash": msgdefs.TYPE_HASHES.get(msgtype, "")})
         self._channels[topic] = (channel_id, msgtype)
         self._counts[topic] = 0
@@ -743,7 +743,7 @@ class BagWriter:
                 self.rosbag2_metadata = self._bag_metadata()
                 self._writer.add_metadata(
                     ROSBAG2_METADATA_NAME,
-                    {"serialized_metadata": _dump_yaml(self.rosbag2_metadata)})
+                    {"serialized_metadata": dump_yaml(self.rosbag2_metadata)})
                 self._writer.finish()
                 self._sink.flush()
             finally:
@@ -763,7 +763,7 @@ class BagWriter:
             if not self._closed or self.rosbag2_metadata is None:
                 raise ValueError("write_metadata_yaml: close the BagWriter first")
             out = self.path.parent / "metadata.yaml"
-            out.write_text(_dump_yaml({"rosbag2_bagfile_information": self.rosbag2_metadata})
+            out.write_text(dump_yaml({"rosbag2_bagfile_information": self.rosbag2_metadata})
                            + "\n", encoding="utf-8")
             return out
 

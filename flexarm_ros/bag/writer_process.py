@@ -28,6 +28,7 @@ import sys
 import time
 
 from flexarm_ros.bag.stamping import SimTimeStamper
+from flexarm_ros.child_process import python_module
 
 _HEAD = struct.Struct("<BIqqI")     # kind, topic index, source ts, extra (ns), payload bytes
 _INIT, _TOPIC, _MSG, _CLOCK, _CLOSE = range(5)
@@ -58,7 +59,6 @@ class WriterProcess:
         import tempfile
         self.names = names
         self._err = tempfile.TemporaryFile()     # never a pipe nobody reads while it runs
-        from flexarm_ros.nodes.environment import python_module
         self.proc = subprocess.Popen(python_module("flexarm_ros.bag.writer_process"),
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=self._err)
@@ -197,7 +197,7 @@ def main() -> int:
         print("error: the bag writer process got no start record", flush=True)
         return 2
     init = json.loads(_read(inp, _HEAD.unpack(head)[4]) or b"{}")
-    from flexarm_ros.bag import BagWriter
+    from flexarm_ros.bag.writer import BagWriter
     try:
         writer = BagWriter(init["path"], metadata=init["info"], qos_depth=init["qos_depth"])
         for name, data in init["extra"].items():

@@ -5,7 +5,7 @@ Names (``flexarm sweep --metric NAME``; the table column in brackets):
 ``impact_time`` [``impact_time_s``]
     time of the first located impact of the tool on the wall (the impulse rung's event
     time, :mod:`flexarm_ros.sim.contact_stepper`; compliant contact: the first sample with
-    gap <= 0, interpolated as in :func:`flexarm_ros.studies.contact._first_touch`); NaN
+    gap <= 0, interpolated as in :func:`flexarm_ros.analysis.run_metrics.first_touch`); NaN
     when the tool never reaches the wall. Always in the table of a scene with a wall.
 ``bounce_height`` [``bounce_height_m``]
     ``max(0, max gap)`` within 0.2 s after the first impact
@@ -27,7 +27,7 @@ Names (``flexarm sweep --metric NAME``; the table column in brackets):
     the controller's own target at the end, the run's ``<CHANNEL>_target`` column
     (``link1_joint``, ``tool_x``: a position or sanding controller's targets).
 ``energy_drift`` [``energy_drift``]
-    ``max_t |E − E(0)| / max_t T`` of :func:`flexarm_ros.studies.ladder.energy_drift`,
+    ``max_t |E − E(0)| / max_t T`` of :func:`flexarm_ros.analysis.run_metrics.energy_drift`,
     defined for a conservative scene (no inputs, no damping); NaN otherwise.
 ``wall_s_per_sim_s`` [``wall_s_per_sim_s``]
     integration wall seconds per simulated second (``SimResult.summary()``). A
@@ -49,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from flexarm_ros.analysis.run_metrics import energy_drift, first_touch
 from flexarm_ros.errors import SceneError
 
 BOUNCE_WINDOW_S = 0.2
@@ -214,8 +215,7 @@ def channel(res, name: str):
 def impact_time(res) -> float:
     if res.contact is None:
         return math.nan
-    from flexarm_ros.studies.contact import _first_touch
-    return float(_first_touch(res))
+    return float(first_touch(res))
 
 
 def _bounce(res) -> float:
@@ -276,7 +276,6 @@ def _final_error(res, m: Metric) -> float:
 
 
 def _energy_drift(res) -> float:
-    from flexarm_ros.studies.ladder import energy_drift
     v = energy_drift(res)
     return math.nan if v is None else float(v)
 

@@ -273,7 +273,7 @@ def _solve_kkt(A, b):
         return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def _stick_or_slip(contact, t, x):
+def stick_or_slip(contact, t, x):
     """At zero slip speed: stick if static friction holds, else slip against λ_t."""
     _, ln, lt, _ = contact.rhs(t, x, STICKING)
     if abs(lt) <= contact.mus * ln:

@@ -7,11 +7,11 @@ import numpy as np
 
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model import drives
-from flexarm_ros.model.chain import Chain
+from flexarm_ros.model.rung_chain import RungChain
 from flexarm_ros.model.linear import reduced_coordinates, tangent_stiffness
 
 
-def static_equilibrium(chain: Chain, q0: np.ndarray, tol=1e-10, max_iter=50) -> np.ndarray:
+def static_equilibrium(chain: RungChain, q0: np.ndarray, tol=1e-10, max_iter=50) -> np.ndarray:
     """Static configuration under gravity with the drives held at their initial angles.
 
     Solves f(q) = Q_grav(q) − K q = 0 for the free (non-drive) coordinates by Newton's
@@ -52,7 +52,7 @@ def static_equilibrium(chain: Chain, q0: np.ndarray, tol=1e-10, max_iter=50) -> 
                      f"too flexible for the small-deflection model under this load")
 
 
-def _loads(chain: Chain, k: int) -> str:
+def _loads(chain: RungChain, k: int) -> str:
     """The gravity and the scene values that load link ``k``'s beam (its stiffness and
     everything it carries), as ``key = value`` text."""
     sc = chain.scene
@@ -70,7 +70,7 @@ def _loads(chain: Chain, k: int) -> str:
     return ", ".join(parts)
 
 
-def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:
+def _check_stable(chain: RungChain, q: np.ndarray, keep: np.ndarray) -> None:
     """An equilibrium the arm cannot rest in (beyond buckling) is not a valid start."""
     Kt = tangent_stiffness(chain, q, keep)
     w, V = np.linalg.eigh(0.5 * (Kt + Kt.T))
@@ -84,7 +84,7 @@ def _check_stable(chain: Chain, q: np.ndarray, keep: np.ndarray) -> None:
             f"{_loads(chain, chain._link_of(keep[int(np.argmax(np.abs(V[:, 0])))]))}")
 
 
-def initial_state(chain: Chain):
+def initial_state(chain: RungChain):
     """(q0, q̇0, z0) from the scene, optionally at static equilibrium.
 
     Actuator states start at zero current; a hydraulic actuator starts at the load pressure
@@ -121,7 +121,7 @@ def initial_state(chain: Chain):
     return q0, qd0, z0
 
 
-def initial_x(chain: Chain) -> np.ndarray:
+def initial_x(chain: RungChain) -> np.ndarray:
     """The first-order initial state x0 = [q_free, q̇_free, z] (see :func:`initial_state`)."""
     q0, qd0, z0 = initial_state(chain)
     return np.concatenate([q0[chain.free], qd0[chain.free], z0])

@@ -26,24 +26,11 @@ from __future__ import annotations
 
 import time
 
-from flexarm_ros.nodes.intraprocess import bus_of
+from flexarm_ros.nodes.intraprocess import bus_of, gid_of
 from flexarm_ros.twin.validation import FOREIGN, NOT_CDR
 
 RESOLVE_S = 0.5
 UNKNOWN = "_NODE_NAME_UNKNOWN_"
-
-
-def gid_of(info) -> bytes | None:
-    """The publisher GID of a message (``MessageInfo``), or None when rmw gives none."""
-    if not info:
-        return None
-    try:                                  # a dict (rclpy's MessageInfo, the bus's info)
-        data = info["publisher_gid"]["data"]
-    except (TypeError, KeyError, IndexError):
-        return None
-    if data is None:
-        return None
-    return data if type(data) is bytes else bytes(data)
 
 
 class Source:

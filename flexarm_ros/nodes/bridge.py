@@ -38,6 +38,8 @@ import socket
 import struct
 import threading
 
+from flexarm_ros.nodes.intraprocess import install
+
 _HEAD = struct.Struct("<BHqI")
 _PUB, _SUB, _MSG = range(3)
 ENV = "FLEXARM_BRIDGE"
@@ -196,15 +198,20 @@ def child_environment(sock: socket.socket, members) -> dict:
     return {ENV: json.dumps({"fd": sock.fileno(), "members": [list(m) for m in members]})}
 
 
+def attach(bus, sock) -> None:
+    """Join ``bus`` (:class:`~flexarm_ros.nodes.intraprocess.Bus`) to another process's
+    over ``sock``."""
+    bus.bridge = Bridge(bus, sock)
+
+
 def attach_from_environment(context):
     """In a node process started with :data:`ENV`: install the bus with every member of
     both processes and attach its end of the socket; None when not started so."""
     spec = os.environ.get(ENV)
     if not spec:
         return None
-    from flexarm_ros.nodes.intraprocess import install
     spec = json.loads(spec)
     bus = install(context, [tuple(m) for m in spec["members"]])
     sock = socket.socket(fileno=int(spec["fd"]))
-    bus.attach(sock)
+    attach(bus, sock)
     return bus

@@ -27,7 +27,7 @@ from rclpy.node import Node
 from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import ControllerCore
-from flexarm_ros.nodes import _common as C
+import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes._wire import Rejections, Source
 
 

@@ -53,31 +53,6 @@ def child_environment() -> dict:
     return dict(os.environ)
 
 
-#: ``python -c`` bootstrap of :func:`python_module` before Python 3.11 (no ``-P``): drop the
-#: working directory from sys.path, then run the module as ``-m`` would
-_SAFE_RUN = ("import runpy, sys; sys.path[:] = [p for p in sys.path if p not in ('', '.')]; "
-             "m = sys.argv.pop(1); sys.argv[0] = m; "
-             "runpy.run_module(m, run_name='__main__', alter_sys=True)")
-
-
-def python_module(module: str, safe_path_flag: bool | None = None) -> list:
-    """The command line of a child process that runs ``python -m module`` (this
-    interpreter) importing the package from where this process did, never from the
-    child's working directory. ``python -m`` puts the working directory first on
-    sys.path: a folder named ``flexarm_ros`` there — the directory that holds a clone —
-    would shadow the installed package and every child would fail on import (met by a
-    new user running ``flexarm run`` next to their clone). Python ≥ 3.11: ``-P``; before
-    it a bootstrap that drops the working directory first (``safe_path_flag``: force one
-    or the other; None: by version). ``PYTHONPATH`` keeps working either way (a ROS
-    install needs it), unlike ``-I``."""
-    import sys
-    if safe_path_flag is None:
-        safe_path_flag = sys.version_info >= (3, 11)
-    if safe_path_flag:
-        return [sys.executable, "-P", "-m", module]
-    return [sys.executable, "-c", _SAFE_RUN, module]
-
-
 def domain_id(env: MutableMapping | None = None) -> int:
     """The ROS domain id in ``env`` (default ``os.environ``; 0, ROS's default, when unset).
     Raises ValueError naming the variable when it is not an integer in 0..232."""

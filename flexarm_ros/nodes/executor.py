@@ -59,7 +59,7 @@ def _enter(stack: ExitStack, entities) -> list:
 
 class DrainExecutor:
     """``add_node``, ``remove_node``, ``spin_once(timeout_sec)``, ``shutdown`` — the part of
-    the rclpy executor interface the twin uses (:func:`flexarm_ros.nodes._common.node_main`,
+    the rclpy executor interface the twin uses (:func:`flexarm_ros.nodes.common.node_main`,
     :class:`flexarm_ros.run.InProcessGraph`)."""
 
     BUS_SLICE_S = 0.005

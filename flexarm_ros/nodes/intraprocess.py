@@ -58,6 +58,19 @@ def bus_of(context) -> "Bus | None":
     return _BUSES.get(context)
 
 
+def gid_of(info) -> bytes | None:
+    """The publisher GID of a message (``MessageInfo``), or None when rmw gives none."""
+    if not info:
+        return None
+    try:                                  # a dict (rclpy's MessageInfo, the bus's info)
+        data = info["publisher_gid"]["data"]
+    except (TypeError, KeyError, IndexError):
+        return None
+    if data is None:
+        return None
+    return data if type(data) is bytes else bytes(data)
+
+
 def _relative(ns: str, topic_abs: str) -> str:
     prefix = "/" + ns.strip("/") + "/" if ns.strip("/") else "/"
     return topic_abs[len(prefix):] if topic_abs.startswith(prefix) else topic_abs
@@ -83,12 +96,7 @@ class Bus:
         self._delivering = False
         self._polled = 0.0
         self._last_ts = 0
-        self.bridge = None              # the other process's bus (nodes/bridge.py)
-
-    def attach(self, sock) -> None:
-        """Join this bus to another process's over ``sock`` (:mod:`.bridge`)."""
-        from flexarm_ros.nodes.bridge import Bridge
-        self.bridge = Bridge(self, sock)
+        self.bridge = None              # the other process's bus (bridge.attach)
 
     def flush(self) -> None:
         """Send what is buffered for the other process (no-op without a bridge)."""
@@ -288,7 +296,6 @@ class BusSubscription:
         """A DDS reader for foreign publishers; the in-process publishers' copies (known
         by GID) are dropped: they came by the bus."""
         def on_dds(m, info):
-            from flexarm_ros.nodes._wire import gid_of
             if gid_of(info) not in self.bus.local_gids(self.topic):
                 self.callback(m, info)
         self.dds = self.node.create_subscription(

@@ -1,6 +1,6 @@
 """The ROS parameters every node of the twin takes, and how the ``flexarm`` fidelity options
 travel as parameters (no rclpy here: ``flexarm run`` builds the values, the nodes declare
-them through :mod:`flexarm_ros.nodes._common`).
+them through :mod:`flexarm_ros.nodes.common`).
 
 Each entry is ``name: (default, description)``; the default's type is the parameter's type.
 The fidelity parameters mirror ``flexarm simulate``'s options ``--rung``, ``--refine``,

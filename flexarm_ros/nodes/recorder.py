@@ -70,10 +70,11 @@ from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.scene.overrides import decode_sets
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, NOT_CDR, Validator
-from flexarm_ros.nodes import _common as C
+import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes._msgconv import msg_class, to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
-from flexarm_ros.nodes._wire import Rejections, Source, gid_of, show
+from flexarm_ros.nodes._wire import Rejections, Source, show
+from flexarm_ros.nodes.intraprocess import gid_of
 
 
 def finite(obj) -> bool:

@@ -79,7 +79,7 @@ from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, check_settings,
                                      ground_truth_rate, name_thread, realtime_scheduling)
 from flexarm_ros.twin.validation import FOREIGN
-from flexarm_ros.nodes import _common as C
+import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 

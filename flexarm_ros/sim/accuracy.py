@@ -146,7 +146,7 @@ def tip_history(chain, x0, t_end, h, output_dt, max_ratio,
     return chain.energies(run.t, run.q, run.qd, run.z)[1], run.dt   # one compiled pass
 
 
-def _check_tolerance(tol, why_floor: str) -> None:
+def check_tolerance(tol, why_floor: str) -> None:
     """SceneError unless ``tol`` is a finite bound of at least MIN_TOLERANCE_M."""
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
         raise SceneError(f"fidelity.tolerance: got {tol!r}, expected a tip-position error "
@@ -161,7 +161,7 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
                        max_ratio: float = 0.5, contact=None) -> StepChoice:
     """The RK4 step meeting the tip tolerance ``tol`` (m) over a run of ``t_end`` s (the
     contact stepper's with a wall ``contact``)."""
-    _check_tolerance(tol, "the step-halving estimate is round-off")
+    check_tolerance(tol, "the step-halving estimate is round-off")
     from flexarm_ros.sim.integrate import input_breakpoints, smooth
     if contact is not None:
         from flexarm_ros.sim.step import choose_step
@@ -277,7 +277,7 @@ def trapezoid_step_for_tolerance(chain, t_end: float, tol: float,
     ``t_end``: the largest divisor output_dt/k of the output period whose error on the
     linearized model — the model stepped by the trapezoidal rule exactly as the compiled
     loop steps it, against its exact response (e^{AΔt}), max over the output grid — is at
-    most SAFETY·tol (:meth:`autofidelity._Linear.trapezoid`).
+    most SAFETY·tol (:meth:`~flexarm_ros.model.linear_response.LinearResponse.trapezoid`).
 
     Why not step halving as for RK4: on the ladder's stiff rungs the trapezoid's steps near
     the output period lie far outside the asymptotic range of the highest modes (ω·h ~ 1),
@@ -286,10 +286,10 @@ def trapezoid_step_for_tolerance(chain, t_end: float, tol: float,
     assumption: measured against the nonlinear runs (DOP853 at rtol 1e-12 of the same
     model), its error equals the trapezoid's to 1 % on the seed 001 links (modal, fd, fem)
     and within 0.98–1.29× on two_link_free (docs/accuracy.md)."""
-    from flexarm_ros.model.autofidelity import _Linear, one_blas_thread
-    _check_tolerance(tol, "the linear estimate is round-off")
+    from flexarm_ros.model.linear_response import LinearResponse, one_blas_thread
+    check_tolerance(tol, "the linear estimate is round-off")
     with one_blas_thread():
-        return _trapezoid_step(_Linear(chain), chain, t_end, tol, output_dt)
+        return _trapezoid_step(LinearResponse(chain), chain, t_end, tol, output_dt)
 
 
 def _trapezoid_step(lin, chain, t_end, tol, output_dt) -> StepChoice:

@@ -77,16 +77,6 @@ def check_work(chain, x0, h, duration, integrator="rk4", contact=None) -> None:
         + " (or raise fidelity.max_steps / --max-steps to run it anyway)")
 
 
-def check_plant_work(scene, duration=None) -> None:
-    """The budget of a twin run (``flexarm run``) before its graph starts: builds the plant
-    the simulator node will step and checks ``duration`` s (None or 0: the scene's; inf:
-    no end, not checked). Also surfaces the plant's own scene errors early."""
-    from flexarm_ros.sim.plant import Plant
-    T = duration or scene.duration
-    if math.isfinite(T):
-        Plant(scene, duration=T)
-
-
 class Pace:
     """The budget of a run whose steps are not known in advance: call :meth:`check`
     after each step with the step count and the time reached."""

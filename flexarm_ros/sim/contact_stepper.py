@@ -16,7 +16,7 @@ from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import contact as kcontact
 from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.contact import (FREE, MIN_FLIGHT, PHASE_CODE, SLIDING, STICKING,
-                                       ImpactRecord, WallContact, _stick_or_slip,
+                                       ImpactRecord, WallContact, stick_or_slip,
                                        spring_damper_rate)
 from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.sim.integrate import hermite
@@ -184,7 +184,7 @@ class ContactStepper:
             sg = 0.0 if stick else (math.copysign(1.0, vt1) if vt1 != 0 else
                                     -math.copysign(1.0, pt) if pt else 1.0)
             if new_mode == SLIDING and abs(vt1) < 1e-12:
-                new_mode, sg = _stick_or_slip(c, tt, xx)
+                new_mode, sg = stick_or_slip(c, tt, xx)
             _, ln, _, _ = c.rhs(tt, xx, new_mode, sg)
             outcome = "sticking" if new_mode == STICKING else "sliding"
             if ln < 0 and tt - self.last_sep > MIN_FLIGHT:
@@ -199,7 +199,7 @@ class ContactStepper:
             self.last_sep = tt
             return xx, FREE, 0.0
         if self.mode == SLIDING:                           # slip speed reached zero
-            md, sg = _stick_or_slip(c, tt, xx)
+            md, sg = stick_or_slip(c, tt, xx)
             return xx, md, sg
         _, _, lt, _ = c.rhs(tt, xx, STICKING)              # static friction exceeded
         return xx, SLIDING, -math.copysign(1.0, lt)

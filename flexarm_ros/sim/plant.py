@@ -545,3 +545,12 @@ class Plant:
         ph, fn, ft, gap, r, v, _ = self.contact_sample
         return {"phase": PHASES[ph], "normal_force": fn, "friction_force": ft, "gap": gap,
                 "tool": r, "tool_velocity": v}
+
+
+def check_plant_work(scene, duration=None) -> None:
+    """The budget of a twin run (``flexarm run``) before its graph starts: builds the plant
+    the simulator node will step and checks ``duration`` s (None or 0: the scene's; inf:
+    no end, not checked). Also surfaces the plant's own scene errors early."""
+    T = duration or scene.duration
+    if math.isfinite(T):
+        Plant(scene, duration=T)

@@ -253,10 +253,10 @@ def check_tolerance_applies(chain, contact) -> None:
     this model's step: with an adaptive integrator, the trapezoid with a wall, backlash,
     together with fidelity.dt, or a bound outside (MIN_TOLERANCE_M, ∞). ``flexarm
     explain`` asks the same before it describes the choice."""
-    from flexarm_ros.sim.accuracy import _check_tolerance
+    from flexarm_ros.sim.accuracy import check_tolerance
     fid = chain.fidelity
     tol = fid.tolerance
-    _check_tolerance(tol, "the estimate is round-off")
+    check_tolerance(tol, "the estimate is round-off")
     if fid.integrator not in ("rk4", "rkn4", "trapezoid"):
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
                          f"{fid.integrator!r}, expected integrator rk4, rkn4 or trapezoid "

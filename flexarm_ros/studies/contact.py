@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from flexarm_ros.analysis.run_metrics import first_touch
 from flexarm_ros.errors import SceneError, SimulationDiverged
 from flexarm_ros.twin.batch import run_scene
 from flexarm_ros.ensemble.runner import run_tasks
@@ -31,34 +32,11 @@ BOUNCE_WINDOW = 0.2          # s after the first impact
 STIFFNESSES = (1e4, 1e5, 1e6, 1e7)
 
 
-def _first_touch(res) -> float:
-    """The located impact (impulse rung), or, for the compliant rung, the touch time
-    extrapolated from the last sample before penetration with the tool's normal speed
-    (t = t_k + g_k / (−ġ_k); interpolating to the first penetrating sample would be biased
-    late, that sample's gap being held back by the contact)."""
-    gap = res.columns["gap"]
-    t = res.columns["t"]
-    if res.contact is not None and res.contact.impacts:
-        return float(res.contact.impacts[0].time)
-    idx = np.nonzero(gap <= 0.0)[0]
-    if not len(idx):
-        return math.nan
-    k = idx[0]
-    if k == 0:
-        return float(t[0])
-    n = np.asarray(res.chain.scene.walls[0].normal, float)
-    n = n / np.linalg.norm(n)
-    gdot = n[0] * res.columns["tool_vx"][k - 1] + n[1] * res.columns["tool_vy"][k - 1]
-    if gdot >= 0.0:
-        return float(t[k])
-    return float(t[k - 1] + min(gap[k - 1] / -gdot, t[k] - t[k - 1]))
-
-
 def _metrics(res) -> dict:
     t = res.columns["t"]
     gap = res.columns["gap"]
     fn = res.columns["contact_normal_force"]
-    t0 = _first_touch(res)
+    t0 = first_touch(res)
     win = (t > t0) & (t <= t0 + BOUNCE_WINDOW) if math.isfinite(t0) else np.zeros_like(t, bool)
     P = res.columns["contact_normal_impulse"]
     k_half = int(np.searchsorted(t, 0.5 * t[-1]))

@@ -70,6 +70,7 @@ from typing import Callable, Iterable, Optional
 
 import numpy as np
 
+from flexarm_ros.analysis.run_metrics import energy_drift
 from flexarm_ros.model.beams import DEFAULT_REFINE
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.errors import SceneError, SimulationDiverged
@@ -187,28 +188,6 @@ def _errors(res, ref) -> dict:
         d = np.linalg.norm(at - tip_r[keep], axis=1)
     return {"tip_rms_error_m": float(np.sqrt(np.mean(d ** 2))),
             "tip_max_error_m": float(np.max(d))}
-
-
-def conservative(chain: Chain) -> bool:
-    """No inputs of any kind and no damping anywhere: total energy must be conserved."""
-    return not chain.scene.inputs and not np.any(chain.D)
-
-
-def energy_drift(res) -> Optional[float]:
-    """``max_t |E − E(0)| / max_t T`` for a conservative scene, else None (see module
-    doc)."""
-    chain = res.chain
-    if not conservative(chain):
-        return None
-    E = np.asarray(res.columns["energy"], float)
-    q, qd = res.run.q, res.run.qd
-    T = np.array([0.5 * qd[k] @ chain.kinematics(q[k], qd[k]).M @ qd[k]
-                  for k in range(len(q))])
-    change = float(np.max(np.abs(E - E[0])))
-    scale = float(np.max(T))
-    if scale <= 0.0:
-        return 0.0 if change == 0.0 else float("inf")
-    return change / scale
 
 
 def first_frequency(chain: Chain) -> Optional[float]:

@@ -32,7 +32,7 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.validation import Validator
 
 
-def _ns(t: float) -> int:
+def to_ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
@@ -155,7 +155,7 @@ class SimulatorCore:
         assembled once (:meth:`Chain.full_state`) for every message of the instant."""
         plant = self.plant
         ch = plant.chain
-        t_ns = _ns(self.t)
+        t_ns = to_ns(self.t)
         TY = T.TYPES
         out = [(T.CLOCK, TY[T.CLOCK], build.clock(t_ns))]
         # the handful of values per message as Python floats: the same IEEE arithmetic

@@ -11,7 +11,7 @@ import numpy as np
 
 from flexarm_ros.bag import messages as msg
 from flexarm_ros.twin import topics as T
-from flexarm_ros.twin.cores import ControllerCore, DriverCore, SimulatorCore, _ns
+from flexarm_ros.twin.cores import ControllerCore, DriverCore, SimulatorCore, to_ns
 
 
 @dataclass
@@ -45,14 +45,14 @@ class Lockstep:
         self.period = self.sim.period
 
     def state_messages(self) -> list:
-        t_ns = _ns(self.sim.t)
+        t_ns = to_ns(self.sim.t)
         return [Message(topic, tp, t_ns, data) for topic, tp, data in self.sim.outputs()]
 
     def control_messages(self, state: list) -> list:
         """Controller and driver answering the state messages (by topic content only)."""
         by = {m.topic: m.data for m in state}
         t = self.sim.t
-        t_ns = _ns(t)
+        t_ns = to_ns(t)
         js = by[T.JOINT_STATES]
         contact = by.get(T.TOOL_CONTACT, {"data": False})["data"]
         fn = by[T.TOOL_WRENCH]["wrench"]["force"]["x"] if T.TOOL_WRENCH in by else 0.0

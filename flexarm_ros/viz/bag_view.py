@@ -3,7 +3,7 @@ the deformed arm, the wall, the tool and its contact force, the tip path and the
 traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to rerun.
 
 The bag's conventions (embedded scene, namespace, sensor batch layout and timing) are
-read by :mod:`flexarm_ros.bag.twin_bag`, as ``flexarm compare`` reads them. The model
+read by :mod:`flexarm_ros.twin.recording`, as ``flexarm compare`` reads them. The model
 comes from the bag itself: :class:`~flexarm_ros.model.chain.Chain` of the embedded scene
 (``from flexarm_ros.model import Chain``, the model's public API, imported when a scene
 is present; nothing of ``flexarm_ros.sim``) turns the full coordinate
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.bag import twin_bag
+from flexarm_ros.twin import recording
 from flexarm_ros.bag.reader import Bag, BagError, read_bag
 from flexarm_ros.twin import topics as T
 
@@ -72,8 +72,8 @@ class BagView:
 
     def __init__(self, bag, namespace: str | None = None):
         self.bag: Bag = bag if isinstance(bag, Bag) else read_bag(bag)
-        self.namespace = twin_bag.namespace(self.bag, namespace)
-        self.scene = twin_bag.embedded_scene(self.bag)
+        self.namespace = recording.namespace(self.bag, namespace)
+        self.scene = recording.embedded_scene(self.bag)
         self.chain = None
         if self.scene is not None:
             from flexarm_ros.model import Chain
@@ -101,7 +101,7 @@ class BagView:
         if found is not None and want is not None and found != want:
             raise BagError(f"{self.path}: {topic}: got message type {found}, expected {want} "
                            f"(the twin's {name} topic)")
-        return twin_bag.twin_messages(self.bag, name, self.namespace)
+        return recording.twin_messages(self.bag, name, self.namespace)
 
     @property
     def link_names(self) -> list[str]:
@@ -216,9 +216,9 @@ class BagView:
     def batch_series(self, topic: str) -> list[Trace]:
         """Per-sample traces of a batch topic, one per channel, named after the scene's
         sensors of its kind (``<kind>_<j>`` when the counts differ or the scene has none;
-        :func:`flexarm_ros.bag.twin_bag.sensor_batches`, whose notes are warned)."""
+        :func:`flexarm_ros.twin.recording.sensor_batches`, whose notes are warned)."""
         self.messages(topic)                     # the type of the topic: the twin's
-        sb = twin_bag.sensor_batches(self.bag, topic, self.scene, self.namespace)
+        sb = recording.sensor_batches(self.bag, topic, self.scene, self.namespace)
         if sb is None:
             return []
         for note in sb.notes:

@@ -527,7 +527,7 @@ def chain_terms(q, qd, model, ws):
 
 
 @_jit_raw
-def _cholesky_solve(A, b, nf, L, y, x):
+def cholesky_solve(A, b, nf, L, y, x):
     """Solve A x = b for symmetric positive-definite A (nf × nf); False if A is not SPD."""
     for j in range(nf):
         d = A[j, j]
@@ -555,7 +555,7 @@ def _cholesky_solve(A, b, nf, L, y, x):
 
 
 @_jit_inline
-def _forces(t, q, qd, z, model, ws):
+def fill_forces(t, q, qd, z, model, ws):
     """Fill ws' M and f = Q_input + Q_coupling + Q_grav − h − K q − D q̇ − M[:, p] q̈_p at
     (t, q, q̇, z), with the prescribed coordinates of q, q̇ set from their programs at time t,
     and the actuator state rates ż into ws.zd."""
@@ -632,12 +632,12 @@ def rhs_into(t, x, out, model, ws):
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    _forces(t, q, qd, x[2 * nf:], model, ws)
+    fill_forces(t, q, qd, x[2 * nf:], model, ws)
     for a in range(nf):
         ff[a] = f[free[a]]
         for b in range(nf):
             Mff[a, b] = M[free[a], free[b]]
-    if not _cholesky_solve(Mff, ff, nf, L, y, acc):
+    if not cholesky_solve(Mff, ff, nf, L, y, acc):
         for a in range(nf):
             acc[a] = np.nan
     for a in range(nf):
@@ -650,10 +650,10 @@ def rhs_into(t, x, out, model, ws):
 
 @_jit
 def forces(t, q, qd, z, model_args, ws_args):
-    """:func:`_forces` for Python callers (the model and workspace as plain tuples, see
+    """:func:`fill_forces` for Python callers (the model and workspace as plain tuples, see
     :mod:`layout`): the workspace then holds M, f, ż and the frames at (t, q, q̇, z)."""
     model, ws = named(model_args, ws_args)
-    _forces(t, q, qd, z, model, ws)
+    fill_forces(t, q, qd, z, model, ws)
 
 
 @_jit
@@ -667,7 +667,7 @@ def rhs(t, x, model_args, ws_args):
 
 
 @_jit_raw
-def _deflection_ratio(x, model):
+def deflection_ratio(x, model):
     """max over beams of |w(L)|/L (elastic coordinates are never prescribed)."""
     nl = model.nl
     e0 = model.e0

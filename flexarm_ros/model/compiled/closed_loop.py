@@ -37,8 +37,8 @@ from flexarm_ros.model import drives
 from flexarm_ros.model.compiled import jit as _jit, jit_exact as _jit_exact
 from flexarm_ros.model.compiled.chain import OK, eval_torque_c, rhs_into
 from flexarm_ros.model.compiled.layout import named
-from flexarm_ros.model.compiled.loops import _rk4_period_raw
-from flexarm_ros.model.compiled.sensors import _readings
+from flexarm_ros.model.compiled.loops import rk4_period_raw
+from flexarm_ros.model.compiled.sensors import fill_readings
 
 #: status of a run whose encoder left the int32 range of encoder_counts (the plant's
 #: SimulationDiverged of the same name)
@@ -154,7 +154,7 @@ def run_ticks(k0, k1, J, g_ns, nsteps, max_ratio, x, model_args, ws_args, nystro
             TAU[k, i] = tau[i]
             if act_prog[i] >= 0:
                 model.prog_par[act_prog[i], 0] = tau[i]
-        status, t_reached, _, _ = _rk4_period_raw(x, k * J, g_ns, J, nsteps, max_ratio, xs,
+        status, t_reached, _, _ = rk4_period_raw(x, k * J, g_ns, J, nsteps, max_ratio, xs,
                                                   sc, model_args, ws_args, nystrom)
         if status != OK:
             for a in range(m):
@@ -176,5 +176,5 @@ def run_ticks(k0, k1, J, g_ns, nsteps, max_ratio, x, model_args, ws_args, nystro
                 rhs_into(ts, xs[j], xdot, model, ws)
                 for a in range(nf):
                     qdd[model.free[a]] = xdot[nf + a]
-                _readings(ws.q, ws.qd, qdd, model, ws, ints, flt, phi, slope, S, ACC[kg])
+                fill_readings(ws.q, ws.qd, qdd, model, ws, ints, flt, phi, slope, S, ACC[kg])
     return OK, k1, float(k1 * J * g_ns) * 1e-9

@@ -101,7 +101,7 @@ def _eval(t, x, mode, s, out, model, ws, cp, sc):
     for i in range(nf):
         q[free[i]] = x[i]
         qd[free[i]] = x[nf + i]
-    kchain._forces(t, q, qd, x[2 * nf:], model, ws)
+    kchain.fill_forces(t, q, qd, x[2 * nf:], model, ws)
     M = ws.M
     f = ws.f
     Mff = ws.Mff
@@ -150,14 +150,14 @@ def _eval(t, x, mode, s, out, model, ws, cp, sc):
     res[R_VY] = vy
     cn = nx * ccx + ny * ccy
     ct = tx * ccx + ty * ccy
-    ok = kchain._cholesky_solve(Mff, ff, nf, L, yy, y1)
+    ok = kchain.cholesky_solve(Mff, ff, nf, L, yy, y1)
     ln = 0.0
     lt = 0.0
     if ok and mode == SLIDING:
         mu = cp[CP_MU]
         for a in range(nf):
             w[a] = jn[a] - mu * s * jt[a]
-        kchain._cholesky_solve(Mff, w, nf, L, yy, y2)
+        kchain.cholesky_solve(Mff, w, nf, L, yy, y2)
         den = 0.0
         num = -cn
         nj = 0.0
@@ -175,8 +175,8 @@ def _eval(t, x, mode, s, out, model, ws, cp, sc):
             for a in range(nf):
                 acc[a] = y1[a] + ln * y2[a]
     elif ok and mode == STICKING:
-        kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)
-        kchain._cholesky_solve(Mff, jt, nf, L, yy, y3)
+        kchain.cholesky_solve(Mff, jn, nf, L, yy, y2)
+        kchain.cholesky_solve(Mff, jt, nf, L, yy, y3)
         gnn = 0.0
         gnt = 0.0
         gtt = 0.0
@@ -260,7 +260,7 @@ def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out, acc,
         presc = model.presc
         for j in range(presc.shape[0]):
             qdd[presc[j]] = ws.pdd[j]
-        ksensors._readings(ws.q, ws.qd, qdd, model, ws, acc[0], acc[1], acc[2], acc[3],
+        ksensors.fill_readings(ws.q, ws.qd, qdd, model, ws, acc[0], acc[1], acc[2], acc[3],
                            acc[4], ACC[k])
 
 
@@ -383,7 +383,7 @@ def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp,
             Mff = ws.Mff
             L = ws.L
             yy = ws.y
-            kchain._cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
+            kchain.cholesky_solve(Mff, jn, nf, L, yy, y2)      # M⁻¹ j_n
             gnn = 0.0
             vn = 0.0
             for a in range(nf):
@@ -396,7 +396,7 @@ def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp,
                 for a in range(nf):
                     x1[nf + a] -= y2[a] * (vn / gnn)
             else:
-                kchain._cholesky_solve(Mff, jt, nf, L, yy, y3)  # M⁻¹ j_t
+                kchain.cholesky_solve(Mff, jt, nf, L, yy, y3)  # M⁻¹ j_t
                 gnt = 0.0
                 gtt = 0.0
                 vt = 0.0
@@ -417,7 +417,7 @@ def _span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp,
         else:
             ind0[0] = ind1[0]           # free flight: the end state is the next start
             have_ind0 = True
-        if kchain._deflection_ratio(x1, model) > max_ratio:
+        if kchain.deflection_ratio(x1, model) > max_ratio:
             return kchain.DEFLECTION, t, impulse, steps, calls, drift_max, True, k
         t1 = t + dt
         dimp = (dt / 6.0) * (l1 + 2.0 * l2 + 2.0 * l3 + l4)

@@ -10,7 +10,7 @@ import numpy as np
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
 from flexarm_ros.model.compiled.layout import Model
 from flexarm_ros.model.compiled.chain import (
-    DEFLECTION, NEWTON, NON_FINITE, OK, STAGE_EPS, _deflection_ratio, _forces, eval_torque_c,
+    DEFLECTION, NEWTON, NON_FINITE, OK, STAGE_EPS, deflection_ratio, fill_forces, eval_torque_c,
     named, rhs, rhs_into, workspace)
 
 
@@ -78,7 +78,7 @@ def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4, ny
         t = t0 + j * h
         if not _rk4_step(t, h, x, xn, tmp, k1, k2, k3, k4, model, ws, False, nystrom):
             return NON_FINITE, j + 1, t + h
-        if _deflection_ratio(xn, model) > max_ratio:
+        if deflection_ratio(xn, model) > max_ratio:
             return DEFLECTION, j + 1, t + h
         for i in range(m):
             x[i] = xn[i]
@@ -208,7 +208,7 @@ def _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, 
         steps += 1
         calls += 3 if have_f1 else 4
         have_f1 = False
-        if _deflection_ratio(xn, model) > max_ratio:
+        if deflection_ratio(xn, model) > max_ratio:
             return DEFLECTION, t + hh, steps, calls, k
         t1 = t + hh
         if k <= n_out and k * out_dt < t1 - eps:
@@ -266,7 +266,7 @@ def _rk4_period(x, k0, g_ns, J, nsteps, max_ratio, model, ws, xs, sc, nystrom):
         if not _rk4_step(t, hh, x, xn, tmp, k1, k2, k3, k4, model, ws, False, nystrom):
             return NON_FINITE, t1, s + 1, calls + 4
         calls += 4
-        if _deflection_ratio(xn, model) > max_ratio:
+        if deflection_ratio(xn, model) > max_ratio:
             return DEFLECTION, t1, s + 1, calls
         tj = float((k0 + j) * g_ns) * 1e-9
         if j <= J and tj < t1 - eps:
@@ -297,13 +297,13 @@ def rk4_period(x0, k0, g_ns, J, nsteps, max_ratio, xs, model_args, ws_args, nyst
     m = x0.shape[0]
     x = x0.copy()
     sc = np.empty((9, m))
-    status, t, steps, calls = _rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc,
+    status, t, steps, calls = rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc,
                                               model_args, ws_args, nystrom)
     return status, t, steps, calls, x, (x if status == OK else sc[0].copy())
 
 
 @_jit_raw
-def _rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc, model_args, ws_args,
+def rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc, model_args, ws_args,
                     nystrom):
     """:func:`rk4_period` without reference counting."""
     model, ws = named(model_args, ws_args)
@@ -380,7 +380,7 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args
                     v1[i] = vf[i] + 0.5 * h * (a0[i] + a1[i])
                     q[free[i]] = q1[i]
                     qd[free[i]] = v1[i]
-                _forces(t + (1.0 - STAGE_EPS) * h, q, qd, x[:0], model, ws)
+                fill_forces(t + (1.0 - STAGE_EPS) * h, q, qd, x[:0], model, ws)
                 for i in range(nf):
                     ma = 0.0
                     for jj in range(nf):
@@ -422,7 +422,7 @@ def trapezoid_loop(x, acc0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args
                 a0[i] = a1[i]
                 xk[i] = q1[i]
                 xk[nf + i] = v1[i]
-            if _deflection_ratio(xk, model) > max_ratio:
+            if deflection_ratio(xk, model) > max_ratio:
                 return DEFLECTION, k, steps, iters, xk, a0
         for i in range(nf):
             xs[k + 1, i] = qf[i]

@@ -79,7 +79,7 @@ def readings(q, qd, qdd, model_args, ws_args, ints, flt, phi, slope, S, out):
     the workspace (filled by a kernel evaluation at this (q, q̇)) and q̈ of every
     coordinate (model and workspace as plain tuples, see :mod:`layout`)."""
     model, ws = named(model_args, ws_args)
-    _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out)
+    fill_readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out)
 
 
 @_jit
@@ -106,7 +106,7 @@ def _table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out
             qdd[free[a]] = QDD[k, a] if given else xdot[nf + a]
         for j in range(presc.shape[0]):
             qdd[presc[j]] = ws.pdd[j]
-        _readings(ws.q, ws.qd, qdd, model, ws, ints, flt, phi, slope, S, out[k])
+        fill_readings(ws.q, ws.qd, qdd, model, ws, ints, flt, phi, slope, S, out[k])
 
 
 @_jit_inline
@@ -157,7 +157,7 @@ def _rod_point(q, qd, qdd, e0, ne, k, model, phi, slope, S, r, rh, c, s):
 
 
 @_jit_inline
-def _readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
+def fill_readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out):
     """:func:`readings` on the named model and workspace."""
     n = model.n
     ne_all = model.ne

@@ -25,9 +25,9 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from flexarm_ros.nodes import environment
+import flexarm_ros.nodes.environment as environment
 from flexarm_ros.nodes.parameters import COMMON, FIDELITY, MODES, fidelity_overrides
-from flexarm_ros.twin.cores import _ns, control_period
+from flexarm_ros.twin.cores import to_ns, control_period
 
 DEPTH = 1000
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
@@ -167,16 +167,16 @@ class SimTime:
     def __call__(self, t_ns: int) -> float:
         if self.grid:
             return t_ns * 1e-9
-        while _ns(self._t) < t_ns:
+        while to_ns(self._t) < t_ns:
             self._t += self.period
-        return self._t if _ns(self._t) == t_ns else t_ns * 1e-9
+        return self._t if to_ns(self._t) == t_ns else t_ns * 1e-9
 
     def tick_ns(self, n: int) -> int:
         if self.grid:
             return n * self.per_tick * self.grid
         while len(self._ticks) <= n:
             self._tick_t += self.period
-            self._ticks.append(_ns(self._tick_t))
+            self._ticks.append(to_ns(self._tick_t))
         return self._ticks[n]
 
 

@@ -380,7 +380,7 @@ def posterior_check(scene, auto, columns, run_step, T) -> PosteriorCheck:
     """The check of an auto run of ``scene`` (the chosen model) over ``T`` s: ``columns``
     are its output columns (tip_x, tip_y every fidelity.output_dt), ``run_step`` its step."""
     import time
-    from flexarm_ros.errors import InputError, SimulationDiverged
+    from flexarm_ros.errors import SimulationDiverged
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.contact import build_contact
     from flexarm_ros.model.statics import initial_x

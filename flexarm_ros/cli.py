@@ -53,8 +53,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _fail(text):
-    from flexarm_ros.errors import SceneError
-    raise SceneError(text)
+    from flexarm_ros.errors import InputError
+    raise InputError(text)
 
 
 def check_duration(value, allow_inf=False):
@@ -124,7 +124,7 @@ def _overrides(args) -> dict:
 
 
 def _sets(args) -> dict:
-    """The ``--set KEY=VALUE`` options → ``{key: value}`` (SceneError: one line)."""
+    """The ``--set KEY=VALUE`` options → ``{key: value}`` (InputError: one line)."""
     from flexarm_ros.scene.overrides import parse_sets
     return parse_sets(getattr(args, "set", None))
 
@@ -426,7 +426,7 @@ def _check_pacing_flags(args) -> None:
     """The pacing flags (--late-bound, --ground-truth-rate, --thread-priority,
     --start-timeout) checked before the graph starts, with the
     flags' names (the simulator node checks the same values as its parameters)."""
-    from flexarm_ros.errors import SceneError
+    from flexarm_ros.errors import InputError
     from flexarm_ros.scene import load_scene
     from flexarm_ros.twin.pacing import THREAD_PRIORITY, check_settings
     from flexarm_ros.scene.overrides import apply_sets
@@ -439,8 +439,8 @@ def _check_pacing_flags(args) -> None:
                        THREAD_PRIORITY if args.thread_priority is None else
                        args.thread_priority,
                        0.0 if args.start_timeout is None else args.start_timeout)
-    except SceneError as exc:
-        raise SceneError(str(exc).replace("parameter late_bound", "--late-bound").replace(
+    except InputError as exc:
+        raise InputError(str(exc).replace("parameter late_bound", "--late-bound").replace(
             "parameter ground_truth_rate_hz", "--ground-truth-rate").replace(
             "parameter thread_priority", "--thread-priority").replace(
             "parameter start_timeout_s", "--start-timeout")) from None
@@ -453,8 +453,8 @@ def cmd_run(args):
     check_duration(args.duration, allow_inf=True)
     sets = _sets(args)
     if args.tolerance is not None:
-        from flexarm_ros.errors import SceneError
-        raise SceneError(f"--tolerance: got {args.tolerance:g} m, expected it with flexarm "
+        from flexarm_ros.errors import InputError
+        raise InputError(f"--tolerance: got {args.tolerance:g} m, expected it with flexarm "
                          f"simulate (the twin's plant steps within its control tick with "
                          f"the held efforts, which the step-halving pilots cannot "
                          f"replay; set --dt)")
@@ -472,15 +472,15 @@ def cmd_run(args):
     try:
         nodes = select_nodes(_names(args.nodes), _names(args.without))
     except ValueError as exc:
-        from flexarm_ros.errors import SceneError
-        raise SceneError(f"{'--nodes' if args.nodes else '--without'}: {exc}") from None
+        from flexarm_ros.errors import InputError
+        raise InputError(f"{'--nodes' if args.nodes else '--without'}: {exc}") from None
     if "recorder" not in nodes:
         record = None
     if set(nodes) != set(select_nodes()) and not args.quiet:
         _say_domain()                 # the user's own nodes must join this domain
     if args.processes and args.layout not in (None, "processes"):
-        from flexarm_ros.errors import SceneError
-        raise SceneError(f"--processes and --layout {args.layout}: choose one layout")
+        from flexarm_ros.errors import InputError
+        raise InputError(f"--processes and --layout {args.layout}: choose one layout")
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes, pin=args.pin,
               layout="processes" if args.processes else args.layout,
               nodes=tuple(n for n in nodes if n != "recorder"),
@@ -799,7 +799,7 @@ def main(argv=None) -> int:
     """Exit 0 done, 1 failed (see the module doc), 2 bad input (one line: the key, the
     value, the expectation), 3 diverged, 130 interrupted."""
     environment.use_loopback()
-    from flexarm_ros.errors import SceneError, SimulationDiverged
+    from flexarm_ros.errors import InputError, SimulationDiverged
     args = build_parser().parse_args(argv)
     batch = argv is None and args.func in _BATCH_COMMANDS
     if batch:
@@ -809,7 +809,7 @@ def main(argv=None) -> int:
         # one line (exit 3), not as numpy RuntimeWarnings on the way there
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return args.func(args)
-    except SceneError as exc:
+    except InputError as exc:
         print(f"flexarm: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except SimulationDiverged as exc:

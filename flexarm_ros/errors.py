@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 
-class SceneError(ValueError):
-    """A scene file or option is invalid; the message names key path, value and expectation."""
+class InputError(ValueError):
+    """Bad input of any kind — a command-line option, a file or path, a calibration or
+    ensemble spec, pacing settings, a bag that cannot be read — refused before anything is
+    run or written. The message names the key (or option), the value and what was expected;
+    the CLI prints it on one line and exits 2."""
+
+
+class SceneError(InputError):
+    """A scene is invalid — a scene file, a key set with ``--set`` or an override: the
+    message names the key path, the value and the expectation (exit 2, as every InputError)."""
 
 
 class SimulationDiverged(RuntimeError):

@@ -244,14 +244,14 @@ def command(args) -> int:
                     "0 as fast as possible)")
     if not (args.delay >= 0 and math.isfinite(args.delay)):
         return fail(f"--delay: got {args.delay}, expected a finite number >= 0 s")
-    from flexarm_ros.errors import SceneError
+    from flexarm_ros.errors import InputError
     from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.nodes.names import check_namespace
     try:
         args.namespace = check_namespace("--namespace", args.namespace)
         if args.rerun is not None:
             check_output_file("--rerun", args.rerun, (".rrd",))
-    except SceneError as exc:
+    except InputError as exc:
         return fail(exc)
     options = None
     if args.rerun is not None:

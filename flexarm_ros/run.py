@@ -710,7 +710,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     if layout not in LAYOUTS:
         raise ValueError(f"layout: got {layout!r}, expected one of {LAYOUTS}")
     processes = layout == "processes"
-    # fails early on a bad scene, set or override (SceneError, exit 2)
+    # fails early on a bad scene, set or override (SceneError, an InputError: exit 2)
     from flexarm_ros.scene.overrides import apply_sets
     sets = dict(sets or {})
     loaded = apply_sets(load_scene(scene), sets).with_fidelity(**(fidelity or {}))

@@ -23,7 +23,7 @@ from flexarm_ros.calibration.observables import Case, SeriesTarget
 from flexarm_ros.calibration.parameters import make_param, parse_param
 from flexarm_ros.cli import main
 from flexarm_ros.ensemble.keys import set_keys
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.io.experiment import write_experiment_csv
 from flexarm_ros.scene import load_scene
 from flexarm_ros.sim.simulate import simulate
@@ -160,7 +160,7 @@ def test_a_refused_sample_inside_the_bounds_is_penalized_with_a_warning(base, tr
     ("links[0].name=1:2", "holding one number"),
 ])
 def test_bad_parameters_are_refused_with_the_key_and_the_expectation(base, arg, expect):
-    with pytest.raises(SceneError, match=expect):
+    with pytest.raises(InputError, match=expect):
         parse_param(arg, base)
 
 

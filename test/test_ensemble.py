@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.ensemble import keys as K
 from flexarm_ros.ensemble.designs import make_design, parse_param
 from flexarm_ros.ensemble.metrics import evaluate, parse_metric, resolve_metrics
@@ -68,7 +68,7 @@ def test_set_keys_grows_a_left_out_section():
                           "links[0].joint.backlash.width": 0.01})
     assert got.links[0].joint.backlash.width == 0.01
     assert got.links[0].joint.backlash.stiffness == 2e3
-    with pytest.raises(SceneError, match=r"links\[0\]\.joint\.backlash\.stiffness: missing"):
+    with pytest.raises(InputError, match=r"links\[0\]\.joint\.backlash\.stiffness: missing"):
         K.set_keys(sc, {"links[0].joint.backlash.width": 0.01})
 
 
@@ -82,7 +82,7 @@ def test_set_keys_applies_fidelity_as_the_command_line_does():
     got = K.set_keys(sc, {"fidelity.rung": "cubic", "fidelity.dt": 0.005}).fidelity
     assert (got.rung, got.dt) == ("cubic", 0.005)
     assert K.set_keys(sc, {"fidelity.rung": "fem"}) == sc.with_fidelity(rung="fem")
-    with pytest.raises(SceneError, match=r"fidelity\.refine: got -1"):
+    with pytest.raises(InputError, match=r"fidelity\.refine: got -1"):
         K.set_keys(sc, {"fidelity.refine": -1})
 
 
@@ -96,7 +96,7 @@ def test_set_keys_applies_fidelity_as_the_command_line_does():
     ({"links[0]..beam": 1.0}, r"expected a scene key path"),
 ])
 def test_set_keys_refuses_with_key_value_expectation(assignment, pattern):
-    with pytest.raises(SceneError, match=pattern):
+    with pytest.raises(InputError, match=pattern):
         K.set_keys(load_scene("two_link_case1"), assignment)
 
 
@@ -106,7 +106,7 @@ def test_key_field_bounds():
     assert not kf.admits(0.0) and kf.admits(1e-9)
     assert K.key_field("tool.position[1]").type is float
     assert K.key_field("fidelity.rung").choices
-    with pytest.raises(SceneError, match="unknown key"):
+    with pytest.raises(InputError, match="unknown key"):
         K.key_field("links[0].joint.drive.nope")
 
 
@@ -130,7 +130,7 @@ def test_lhs_has_one_point_per_stratum_and_is_seeded(scene):
     assert make_design(ps, "lhs", 20, seed=4) != a
     r = make_design(ps, "random", 8, seed=1)
     assert all(0.1 <= x["links[0].tip.mass"] <= 0.5 for x in r)
-    with pytest.raises(SceneError, match="power of two"):
+    with pytest.raises(InputError, match="power of two"):
         make_design(ps, "sobol", 12)
     assert len(make_design(ps, "sobol", 16)) == 16
 
@@ -144,7 +144,7 @@ def test_lhs_has_one_point_per_stratum_and_is_seeded(scene):
     ("tool.position=0:1", r"expected a list of values"),
 ])
 def test_bad_params(scene, text, pattern):
-    with pytest.raises(SceneError, match=pattern):
+    with pytest.raises(InputError, match=pattern):
         parse_param(text, scene)
 
 
@@ -180,9 +180,9 @@ def test_frequency_metric_finds_a_known_tone():
 def test_metric_names_and_wall_scenes(scene):
     assert [m.column for m in resolve_metrics([], load_scene("two_link_case1"))][0] == \
         "impact_time_s"                                # always there with a wall
-    with pytest.raises(SceneError, match="no wall"):
+    with pytest.raises(InputError, match="no wall"):
         resolve_metrics(["bounce_height"], scene)
-    with pytest.raises(SceneError, match=r"--metric: got 'freq'"):
+    with pytest.raises(InputError, match=r"--metric: got 'freq'"):
         parse_metric("freq")
 
 

@@ -27,7 +27,7 @@ import pytest
 import yaml
 
 from flexarm_ros.cli import main
-from flexarm_ros.errors import SceneError, SimulationDiverged, WorkTooLarge
+from flexarm_ros.errors import InputError, SceneError, SimulationDiverged, WorkTooLarge
 from flexarm_ros.nodes import environment
 from flexarm_ros.scene import load_scene, load_scene_dict
 from flexarm_ros.scene.loading import config_dir
@@ -378,7 +378,7 @@ def test_output_paths_are_checked_before_the_work(tmp_path, capsys):
 def test_namespace_follows_the_ros2_rules(ns, ok):
     from flexarm_ros.nodes.names import check_namespace
     if ok is None:
-        with pytest.raises(SceneError, match=r"^--namespace: got .*expected a ROS 2 namespace"):
+        with pytest.raises(InputError, match=r"^--namespace: got .*expected a ROS 2 namespace"):
             check_namespace("--namespace", ns)
     else:
         assert check_namespace("--namespace", ns) == ok

@@ -125,10 +125,10 @@ def test_lateness_percentiles_bracket_the_exact_order_statistics(seed):
 
 
 def test_thread_priority_is_checked_with_its_name():
-    from flexarm_ros.errors import SceneError
+    from flexarm_ros.errors import InputError
     from flexarm_ros.twin.pacing import check_settings
     for bad in (-1, 100, 2.5, True, "50"):
-        with pytest.raises(SceneError, match=r"parameter thread_priority: got .*expected an "
+        with pytest.raises(InputError, match=r"parameter thread_priority: got .*expected an "
                                              r"integer SCHED_FIFO priority 1\.\.99, or 0"):
             check_settings(1e-3, thread_priority=bad)
     check_settings(1e-3, thread_priority=0)
@@ -136,10 +136,10 @@ def test_thread_priority_is_checked_with_its_name():
 
 
 def test_the_start_timeout_is_checked_with_its_name():
-    from flexarm_ros.errors import SceneError
+    from flexarm_ros.errors import InputError
     from flexarm_ros.twin.pacing import check_settings
     for bad in (-1.0, math.nan, math.inf, "5", True):
-        with pytest.raises(SceneError, match=r"parameter start_timeout_s: got .*expected a "
+        with pytest.raises(InputError, match=r"parameter start_timeout_s: got .*expected a "
                                              r"finite number >= 0"):
             check_settings(1e-3, start_timeout_s=bad)
     check_settings(1e-3, start_timeout_s=0.0)

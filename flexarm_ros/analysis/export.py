@@ -155,7 +155,7 @@ def export_bag(bag_path, out, topics=None) -> ExportReport:
     tables beside it (module docstring); ``topics``: only the channels of these topics.
 
     Raises:
-        CompareInputError: bad input (module docstring); a SceneError for ``--out``.
+        CompareInputError: bad input (module docstring); an InputError for ``--out``.
     """
     from flexarm_ros.io.paths import check_output_file
     out = check_output_file("--out", out, (".csv",))

@@ -11,7 +11,7 @@ import re
 import sys
 from pathlib import Path
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.io.arguments import OPEN_LOOP_HELP, SET_HELP, integer, number, set_option
 
 _TARGET = re.compile(r"^(.+?)=([-+0-9.eE]+)(?:\+-|±)([-+0-9.eE]+)$")
@@ -75,7 +75,7 @@ def add_parsers(sub) -> None:
 def parse_target(text: str) -> dict:
     m = _TARGET.match((text or "").replace(" ", ""))
     if not m:
-        raise SceneError(f"--target: got {text!r}, expected METRIC=VALUE+-SIGMA (e.g. "
+        raise InputError(f"--target: got {text!r}, expected METRIC=VALUE+-SIGMA (e.g. "
                          f"impact_time=2.10+-0.005)")
     return {"metric": m.group(1), "value": float(m.group(2)), "sigma": float(m.group(3))}
 
@@ -84,12 +84,12 @@ def _pairs(values, flag) -> dict:
     out = {}
     for v in values or ():
         if "=" not in v:
-            raise SceneError(f"{flag}: got {v!r}, expected CH=VALUE")
+            raise InputError(f"{flag}: got {v!r}, expected CH=VALUE")
         k, x = v.split("=", 1)
         try:
             out[k.strip()] = float(x)
         except ValueError:
-            raise SceneError(f"{flag}: got {v!r}, expected CH=number") from None
+            raise InputError(f"{flag}: got {v!r}, expected CH=number") from None
     return out
 
 
@@ -106,17 +106,17 @@ def _problem(args):
                                 ("--set", args.set))
                  if v]
         if extra:
-            raise SceneError(f"--spec: got {extra[0]} too, expected the spec alone (it "
+            raise InputError(f"--spec: got {extra[0]} too, expected the spec alone (it "
                              f"names the scenes, records, parameters and targets"
                              + ("; a case's set: changes its scene" if extra[0] == "--set"
                                 else "") + ")")
         params, cases, opts = load_spec(args.spec)
         return Problem(params, cases), opts
     if not args.scene:
-        raise SceneError("calibrate: no scene, expected SCENE RECORD --param KEY=LO:HI or "
+        raise InputError("calibrate: no scene, expected SCENE RECORD --param KEY=LO:HI or "
                          "--spec SPEC.yaml")
     if not args.param:
-        raise SceneError("--param: none given, expected at least one KEY=LO:HI")
+        raise InputError("--param: none given, expected at least one KEY=LO:HI")
     from flexarm_ros.scene.overrides import apply_sets, parse_sets
     sets = parse_sets(args.set)
     from flexarm_ros.scene.overrides import check_not_set
@@ -126,10 +126,10 @@ def _problem(args):
     check_distinct(params)
     targets = [parse_target(t) for t in args.target or ()]
     if args.record is None and not targets:
-        raise SceneError("calibrate: no record and no --target, expected a RECORD (CSV or "
+        raise InputError("calibrate: no record and no --target, expected a RECORD (CSV or "
                          "MCAP) or feature targets")
     if args.record is not None and not Path(args.record).exists():
-        raise SceneError(f"RECORD: {args.record}: no such file, expected a CSV or MCAP "
+        raise InputError(f"RECORD: {args.record}: no such file, expected a CSV or MCAP "
                          f"record")
     channels = [n.strip() for v in args.channels or () for n in v.split(",") if n.strip()]
     start = start_assignment(params)
@@ -159,7 +159,7 @@ def _check_outputs(args, spec: bool):
     if args.report is not None:
         check_output_dir("--report", args.report)
     if args.workers is not None and args.workers < 0:
-        raise SceneError(f"--workers: got {args.workers}, expected an integer >= 0")
+        raise InputError(f"--workers: got {args.workers}, expected an integer >= 0")
 
 
 def _option(args, opts, name, default, check):
@@ -167,7 +167,7 @@ def _option(args, opts, name, default, check):
     if v is None:
         v = opts.get(name, default)
     if v is not None and not check(v):
-        raise SceneError(f"--{name.replace('_', '-')}: got {v!r}, expected "
+        raise InputError(f"--{name.replace('_', '-')}: got {v!r}, expected "
                          + {"starts": "an integer >= 1", "seed": "an integer >= 0",
                             "diff_step": "a number in (0, 0.5)",
                             "max_evaluations": "an integer >= 1"}[name])

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 _VALUE = re.compile(r"^value:([^@\s]+)@([-+0-9.eE]+)$")
 _MODE = re.compile(r"^mode:(\d+)(?:@(locked|free))?$")
@@ -89,30 +89,30 @@ class Case:
 
 
 def parse_feature(text: str):
-    """A feature name → ('value', channel, time) or the ensemble Metric; SceneError else."""
+    """A feature name → ('value', channel, time) or the ensemble Metric; InputError else."""
     m = _VALUE.match(text.strip()) if isinstance(text, str) else None
     if m:
         return ("value", m.group(1), float(m.group(2)))
     m = _MODE.match(text.strip()) if isinstance(text, str) else None
     if m:
         if int(m.group(1)) < 1:
-            raise SceneError(f"targets: got {text!r}, expected mode:K with K >= 1")
+            raise InputError(f"targets: got {text!r}, expected mode:K with K >= 1")
         return ("mode", int(m.group(1)), m.group(2))
     if isinstance(text, str) and text.startswith("mode:"):
-        raise SceneError(f"targets: got {text!r}, expected mode:K[@locked|@free] (K >= 1, "
+        raise InputError(f"targets: got {text!r}, expected mode:K[@locked|@free] (K >= 1, "
                          f"the K-th natural frequency in Hz)")
     if isinstance(text, str) and text.startswith("value:"):
-        raise SceneError(f"targets: got {text!r}, expected value:CHANNEL@TIME (e.g. "
+        raise InputError(f"targets: got {text!r}, expected value:CHANNEL@TIME (e.g. "
                          f"value:link1_tip_deflection@2.0)")
     from flexarm_ros.ensemble.metrics import parse_metric
     try:
         m = parse_metric(text)
-    except SceneError:
-        raise SceneError(f"targets: got {text!r}, expected impact_time, bounce_height, "
+    except InputError:
+        raise InputError(f"targets: got {text!r}, expected impact_time, bounce_height, "
                          f"max_tip_deflection, frequency:CH[@A:B], settling_time:CH, "
                          f"energy_drift, value:CH@T or mode:K[@locked|@free]") from None
     if m.kind in ("final_error", "wall_s_per_sim_s"):
-        raise SceneError(f"targets: got {text!r}, expected a feature with a value to meet: "
+        raise InputError(f"targets: got {text!r}, expected a feature with a value to meet: "
                          f"impact_time, bounce_height, max_tip_deflection, "
                          f"frequency:CH[@A:B], settling_time:CH, energy_drift, value:CH@T")
     return m

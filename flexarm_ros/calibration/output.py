@@ -8,7 +8,7 @@ from pathlib import Path
 
 import yaml
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 
 def _source_mapping(case) -> dict:
@@ -20,7 +20,7 @@ def _source_mapping(case) -> dict:
         return scene_mapping(scene)
     try:
         return yaml.safe_load(resolve_scene_path(case.scene_file).read_text()) or {}
-    except (SceneError, OSError, yaml.YAMLError):
+    except (InputError, OSError, yaml.YAMLError):
         return scene_mapping(scene)
 
 
@@ -51,7 +51,7 @@ def calibrated_mapping(case, out: dict, records: str) -> dict:
     try:
         put_keys(data, values)
         load_scene_dict(data)                   # the file's form still valid
-    except SceneError:
+    except InputError:
         data = put_keys(scene_mapping(case.scene), values)
     notes = list(data.get("assumptions") or [])
     fitted = {k for p in out["parameters"] for k in p["keys"]}

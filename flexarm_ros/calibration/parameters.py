@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 LOG_RATIO = 10.0      # hi / lo at or above which a positive range is taken on a log scale
 
@@ -87,20 +87,20 @@ def make_param(keys, low, high, start=None, scene=None, where: str = "--param") 
     name = keys[0]
     for x, what in ((low, "low"), (high, "high")):
         if not (isinstance(x, (int, float)) and math.isfinite(x)):
-            raise SceneError(f"{where} {name}: {what} bound got {x!r}, expected a finite "
+            raise InputError(f"{where} {name}: {what} bound got {x!r}, expected a finite "
                              f"number")
     if not low < high:
-        raise SceneError(f"{where} {name}: got bounds {low:g}:{high:g}, expected low < high")
+        raise InputError(f"{where} {name}: got bounds {low:g}:{high:g}, expected low < high")
     unit, current = _check_keys(keys, scene)
     for k in keys:
         kf = key_field(k)
         for x in (low, high):
             if not kf.admits(x):
-                raise SceneError(f"{where} {k}: got bound {x:g}, expected bounds "
+                raise InputError(f"{where} {k}: got bound {x:g}, expected bounds "
                                  f"{kf.bounds_text()} (the schema's range of the key)")
     if start is None:
         if current is None:
-            raise SceneError(f"{where} {name}: the scene has no value there, expected a "
+            raise InputError(f"{where} {name}: the scene has no value there, expected a "
                              f"start value: {name}={low:g}:{high:g}@START")
         start = current
         origin = "the scene's value"
@@ -109,7 +109,7 @@ def make_param(keys, low, high, start=None, scene=None, where: str = "--param") 
     if not low <= start <= high:
         hint = (f" (or give one: {name}={low:g}:{high:g}@START)" if origin != "the start"
                 else "")
-        raise SceneError(f"{where} {name}: {origin} {start:g} lies outside the bounds "
+        raise InputError(f"{where} {name}: {origin} {start:g} lies outside the bounds "
                          f"{low:g}:{high:g}, expected bounds that contain the start{hint}")
     log = low > 0 and high / low >= LOG_RATIO
     return CalParam(name, keys, float(low), float(high), float(start), unit, log)
@@ -121,22 +121,22 @@ def make_scale(name: str, keys, low, high, start, scene, where: str) -> CalParam
     from flexarm_ros.ensemble.keys import check_numeric, get_key
     keys = tuple(keys)
     if not name or not isinstance(name, str):
-        raise SceneError(f"{where}: a scale parameter needs a name, expected name: TEXT")
+        raise InputError(f"{where}: a scale parameter needs a name, expected name: TEXT")
     for x, what in ((low, "low"), (high, "high")):
         if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
-            raise SceneError(f"{where} {name}: {what} got {x!r}, expected a factor > 0")
+            raise InputError(f"{where} {name}: {what} got {x!r}, expected a factor > 0")
     if not low < high:
-        raise SceneError(f"{where} {name}: got bounds {low:g}:{high:g}, expected low < high")
+        raise InputError(f"{where} {name}: got bounds {low:g}:{high:g}, expected low < high")
     start = 1.0 if start is None else start
     if not low <= start <= high:
-        raise SceneError(f"{where} {name}: start {start:g} lies outside the bounds "
+        raise InputError(f"{where} {name}: start {start:g} lies outside the bounds "
                          f"{low:g}:{high:g}, expected bounds that contain it")
     factors = []
     for k in keys:
         check_numeric(k)
         v = get_key(scene, k)
         if v is None:
-            raise SceneError(f"{where} {name}: {k} has no value in the scene, expected a "
+            raise InputError(f"{where} {name}: {k} has no value in the scene, expected a "
                              f"key with a value to scale")
         factors.append(float(v))
     return CalParam(name, keys, float(low), float(high), float(start), "1",
@@ -144,11 +144,11 @@ def make_scale(name: str, keys, low, high, start, scene, where: str) -> CalParam
 
 
 def parse_param(text: str, scene=None) -> CalParam:
-    """``KEY=LO:HI`` or ``KEY=LO:HI@START`` → :class:`CalParam` (SceneError naming the
+    """``KEY=LO:HI`` or ``KEY=LO:HI@START`` → :class:`CalParam` (InputError naming the
     argument and the expected form)."""
     m = _PARAM.match(text or "")
     if not m:
-        raise SceneError(f"--param: got {text!r}, expected KEY=LO:HI or KEY=LO:HI@START "
+        raise InputError(f"--param: got {text!r}, expected KEY=LO:HI or KEY=LO:HI@START "
                          f"(e.g. links[0].joint.drive.resistance=0.8:1.6)")
     key, lo, hi, start = m.groups()
     return make_param([key], float(lo), float(hi),
@@ -168,5 +168,5 @@ def check_distinct(params, where: str = "--param") -> None:
     for p in params:
         for k in p.keys:
             if k in seen:
-                raise SceneError(f"{where} {k}: given twice, expected each key once")
+                raise InputError(f"{where} {k}: given twice, expected each key once")
             seen[k] = p

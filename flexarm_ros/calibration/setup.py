@@ -50,7 +50,7 @@ import yaml
 from flexarm_ros.calibration.observables import Case, FeatureTarget, SeriesTarget, parse_feature
 from flexarm_ros.calibration.parameters import (check_distinct, make_param, make_scale,
                                                 start_assignment)
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 SKIP = {"contact", "contact_phase"}      # flags: not a residual a gradient can follow
 MAX_SHIFT_S = 0.1                        # --offset auto: the cross-correlation's search
@@ -86,7 +86,7 @@ def parse_offset(value):
     except (TypeError, ValueError):
         v = math.nan
     if not math.isfinite(v):
-        raise SceneError(f"offset: got {value!r}, expected none, auto or seconds")
+        raise InputError(f"offset: got {value!r}, expected none, auto or seconds")
     return v
 
 
@@ -100,16 +100,16 @@ def parse_window(value, where="window"):
     try:
         a, b = (float(x) for x in parts)
     except (TypeError, ValueError):
-        raise SceneError(f"{where}: got {value!r}, expected A:B in s with A < B") from None
+        raise InputError(f"{where}: got {value!r}, expected A:B in s with A < B") from None
     if not (math.isfinite(a) and math.isfinite(b) and a < b):
-        raise SceneError(f"{where}: got {value!r}, expected A:B in s with A < B")
+        raise InputError(f"{where}: got {value!r}, expected A:B in s with A < B")
     return a, b
 
 
 def check_targets(name, scene, duration, feats) -> None:
     """Each feature can be evaluated on this scene before anything runs: a wall for the
     impact and the bounce, the channel of a frequency, settling time or value in the run,
-    the time of a value inside it, the mode number among the model's; SceneError else."""
+    the time of a value inside it, the mode number among the model's; InputError else."""
     from flexarm_ros.calibration.observables import mode_frequency
     channels = []
     for i, f in enumerate(feats):
@@ -117,17 +117,17 @@ def check_targets(name, scene, duration, feats) -> None:
         pf = parse_feature(f.metric)
         if isinstance(pf, tuple) and pf[0] == "mode":
             if not math.isfinite(mode_frequency(scene, pf[1], pf[2])):
-                raise SceneError(f"{where}: the model has fewer than {pf[1]} natural "
+                raise InputError(f"{where}: the model has fewer than {pf[1]} natural "
                                  f"frequencies (flexarm modes lists them), expected K within")
             continue
         if isinstance(pf, tuple):
             if not 0.0 <= pf[2] <= duration:
-                raise SceneError(f"{where}: time {pf[2]:g} s, expected one inside the run "
+                raise InputError(f"{where}: time {pf[2]:g} s, expected one inside the run "
                                  f"0..{duration:g} s")
             channels.append((pf[1], where))
             continue
         if pf.kind in ("impact_time", "bounce_height") and not scene.walls:
-            raise SceneError(f"{where}: the scene has no wall, expected a scene with walls "
+            raise InputError(f"{where}: the scene has no wall, expected a scene with walls "
                              f"for {pf.kind}")
         if pf.channel:
             channels.append((pf.channel, where))
@@ -137,8 +137,8 @@ def check_targets(name, scene, duration, feats) -> None:
         for ch, where in channels:
             try:
                 check_channels(scene, [Metric(ch, "frequency", ch)], duration=duration)
-            except SceneError as exc:
-                raise SceneError(f"{where}: {str(exc).split(': ', 1)[1]}") from None
+            except InputError as exc:
+                raise InputError(f"{where}: {str(exc).split(': ', 1)[1]}") from None
 
 
 def system_of_record(scene, record=None, open_loop: bool = False):
@@ -187,18 +187,18 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
     from flexarm_ros.twin.batch import run_scene
     duration = float(duration if duration is not None else scene.duration)
     if not (math.isfinite(duration) and duration > 0):
-        raise SceneError(f"{name}: duration got {duration}, expected a finite number > 0 s")
+        raise InputError(f"{name}: duration got {duration}, expected a finite number > 0 s")
     feats = []
     for i, t in enumerate(targets or ()):
         where = f"{name}: targets[{i}]"
         if not isinstance(t, dict) or "metric" not in t or "value" not in t:
-            raise SceneError(f"{where}: got {t!r}, expected a mapping with metric, value "
+            raise InputError(f"{where}: got {t!r}, expected a mapping with metric, value "
                              f"and sigma")
         parse_feature(t["metric"])
         v, s, w = t.get("value"), t.get("sigma"), t.get("weight", 1.0)
         for x, what, pos in ((v, "value", False), (s, "sigma", True), (w, "weight", True)):
             if not isinstance(x, (int, float)) or not math.isfinite(x) or (pos and x <= 0):
-                raise SceneError(f"{where}.{what}: got {x!r}, expected a finite number"
+                raise InputError(f"{where}.{what}: got {x!r}, expected a finite number"
                                  f"{' > 0' if pos else ''}")
         feats.append(FeatureTarget(str(t["metric"]), float(v), float(s), float(w)))
     check_targets(name, scene, duration, feats)
@@ -206,10 +206,10 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
     off = parse_offset(offset)
     if record is None:
         if channels:
-            raise SceneError(f"{name}: channels given without a record, expected a record "
+            raise InputError(f"{name}: channels given without a record, expected a record "
                              f"(CSV or MCAP) to take them from")
         if not feats:
-            raise SceneError(f"{name}: nothing to fit, expected a record or targets")
+            raise InputError(f"{name}: nothing to fit, expected a record or targets")
         return Case(name, scene, duration, [], feats, 0.0, None, open_loop=open_loop)
     from flexarm_ros.analysis.channels import load_channels, same_unit
     from flexarm_ros.io.experiment import load_channel_map
@@ -223,10 +223,10 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
         want = list(channels)
         for c in want:
             if c not in cs:
-                raise SceneError(f"--channels: got {c!r}, not in the record {record}; "
+                raise InputError(f"--channels: got {c!r}, not in the record {record}; "
                                  f"expected one of {', '.join(cs.names)}")
             if c not in twin:
-                raise SceneError(f"--channels: got {c!r}, a channel the twin does not "
+                raise InputError(f"--channels: got {c!r}, a channel the twin does not "
                                  f"produce for this scene; expected one of "
                                  f"{', '.join(sorted(twin))}")
     else:
@@ -237,7 +237,7 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
             print(f"calibrate: {name}: record channels the twin does not produce, not "
                   f"fitted: {', '.join(ignored)}", file=sys.stderr)
         if not want:
-            raise SceneError(f"{record}: no channel the twin also produces (record: "
+            raise InputError(f"{record}: no channel the twin also produces (record: "
                              f"{', '.join(cs.names) or 'none'}; twin: "
                              f"{', '.join(sorted(twin))}), expected matching names or a "
                              f"channel map (--map)")
@@ -247,10 +247,10 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
     for d, what in ((sigma, "sigma"), (weights, "weights")):
         for c, v in d.items():
             if c not in want:
-                raise SceneError(f"{name}: {what} for {c!r}, a channel not fitted (fitted: "
+                raise InputError(f"{name}: {what} for {c!r}, a channel not fitted (fitted: "
                                  f"{', '.join(want)})")
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise SceneError(f"{name}: {what}.{c}: got {v!r}, expected a finite "
+                raise InputError(f"{name}: {what}.{c}: got {v!r}, expected a finite "
                                  f"number > 0")
     if off == "auto":
         from flexarm_ros.analysis.metrics import estimate_offset
@@ -269,13 +269,13 @@ def make_case(name, scene, record=None, channel_map=None, channels=None, sigma=N
         ch = cs[c]
         u_tw = twin.get(c, "")
         if ch.unit and u_tw and not same_unit(ch.unit, u_tw):
-            raise SceneError(f"{record}: channel {c!r} in {ch.unit}, the twin's in {u_tw}; "
+            raise InputError(f"{record}: channel {c!r} in {ch.unit}, the twin's in {u_tw}; "
                              f"expected the same unit (a channel map can scale it)")
         a, b = win if win is not None else (ch.t[0], ch.t[-1])
         lo, hi = max(a, probe.run.t[0] - off), min(b, duration - off)
         sel = (ch.t >= lo) & (ch.t <= hi)
         if np.count_nonzero(sel) < 2:
-            raise SceneError(f"{record}: channel {c!r} has no samples in the fitted window "
+            raise InputError(f"{record}: channel {c!r} has no samples in the fitted window "
                              f"{lo:g}..{hi:g} s (record {ch.t[0]:g}..{ch.t[-1]:g} s, run "
                              f"0..{duration:g} s, offset {off:g} s), expected an overlap")
         t, y = ch.t[sel], ch.y[sel]
@@ -293,7 +293,7 @@ def _mapping(data, where):
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise SceneError(f"{where}: got {data!r}, expected a mapping")
+        raise InputError(f"{where}: got {data!r}, expected a mapping")
     return data
 
 
@@ -302,45 +302,45 @@ def load_spec(path):
     from flexarm_ros.ensemble.keys import set_keys
     p = Path(path)
     if not p.exists():
-        raise SceneError(f"spec: {p}: no such file, expected a calibration spec (YAML)")
+        raise InputError(f"spec: {p}: no such file, expected a calibration spec (YAML)")
     try:
         data = yaml.safe_load(p.read_text())
     except yaml.YAMLError as exc:
         hint = ("; a key path with [i] inside [ ] is not flow YAML: write a block list "
                 "(- links[0]...) or quote it" if "flow sequence" in str(exc) else "")
-        raise SceneError(f"spec: {p}: not YAML ({' '.join(str(exc).split())}){hint}") from None
+        raise InputError(f"spec: {p}: not YAML ({' '.join(str(exc).split())}){hint}") from None
     data = _mapping(data, f"spec {p}")
     unknown = set(data) - {"parameters", "cases", "starts", "seed", "diff_step",
                            "max_evaluations"}
     if unknown:
-        raise SceneError(f"spec: unknown key {sorted(unknown)[0]!r}, expected parameters, "
+        raise InputError(f"spec: unknown key {sorted(unknown)[0]!r}, expected parameters, "
                          f"cases, starts, seed, diff_step, max_evaluations")
     cases_raw = data.get("cases")
     if not isinstance(cases_raw, list) or not cases_raw:
-        raise SceneError(f"spec: cases: got {cases_raw!r}, expected a list of cases")
+        raise InputError(f"spec: cases: got {cases_raw!r}, expected a list of cases")
     scenes, files = [], []
     for i, c in enumerate(cases_raw):
         c = _mapping(c, f"cases[{i}]")
         if "scene" not in c:
-            raise SceneError(f"cases[{i}]: no scene, expected a scene name or path")
+            raise InputError(f"cases[{i}]: no scene, expected a scene name or path")
         from flexarm_ros.scene import load_scene
         try:
             files.append(_scene_file(c["scene"], p.parent))
             sc = load_scene(files[-1])
-        except SceneError as exc:
-            raise SceneError(f"cases[{i}].scene: {exc}") from None
+        except InputError as exc:
+            raise InputError(f"cases[{i}].scene: {exc}") from None
         fixed = _mapping(c.get("set"), f"cases[{i}].set")
         scenes.append(set_keys(sc, fixed) if fixed else sc)
     praw = data.get("parameters")
     if not isinstance(praw, list) or not praw:
-        raise SceneError(f"spec: parameters: got {praw!r}, expected a list of "
+        raise InputError(f"spec: parameters: got {praw!r}, expected a list of "
                          f"{{key, low, high}}")
     params = []
     for i, e in enumerate(praw):
         e = _mapping(e, f"parameters[{i}]")
         extra = set(e) - {"key", "keys", "scale", "name", "low", "high", "start"}
         if extra:
-            raise SceneError(f"parameters[{i}]: unknown key {sorted(extra)[0]!r}, expected "
+            raise InputError(f"parameters[{i}]: unknown key {sorted(extra)[0]!r}, expected "
                              f"key (or keys, or name + scale), low, high, start")
         if "scale" in e:
             keys = e["scale"] if isinstance(e["scale"], list) else [e["scale"]]
@@ -349,7 +349,7 @@ def load_spec(path):
             continue
         keys = e.get("keys") or ([e["key"]] if "key" in e else None)
         if not keys:
-            raise SceneError(f"parameters[{i}]: got {e!r}, expected key:, keys: or scale:")
+            raise InputError(f"parameters[{i}]: got {e!r}, expected key:, keys: or scale:")
         params.append(make_param(keys, e.get("low"), e.get("high"), e.get("start"),
                                  scenes[0], where=f"parameters[{i}]"))
     check_distinct(params, "parameters:")
@@ -365,12 +365,12 @@ def load_spec(path):
         extra = set(c) - {"name", "scene", "record", "map", "channels", "sigma", "weights",
                           "window", "offset", "duration", "set", "targets", "open_loop"}
         if extra:
-            raise SceneError(f"cases[{i}]: unknown key {sorted(extra)[0]!r}, expected name, "
+            raise InputError(f"cases[{i}]: unknown key {sorted(extra)[0]!r}, expected name, "
                              f"scene, record, map, channels, sigma, weights, window, offset, "
                              f"duration, set, targets, open_loop")
         open_loop = c.get("open_loop", False)
         if not isinstance(open_loop, bool):
-            raise SceneError(f"cases[{i}].open_loop: got {open_loop!r}, expected true or "
+            raise InputError(f"cases[{i}].open_loop: got {open_loop!r}, expected true or "
                              f"false")
         sc = system_of_record(sc, rec, open_loop)
         probe = None
@@ -388,7 +388,7 @@ def load_spec(path):
     names = [c.name for c in cases]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise SceneError(f"cases: name {dup[0]!r} given twice, expected one name per case "
+        raise InputError(f"cases: name {dup[0]!r} given twice, expected one name per case "
                          f"(each names its calibrated scene)")
     opts = {"starts": data.get("starts", 1), "seed": data.get("seed", 0),
             "diff_step": data.get("diff_step", 1e-3),

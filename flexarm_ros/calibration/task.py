@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
+from flexarm_ros.errors import InputError, SimulationDiverged, StepTooLarge
 
 PENALTY = 1.0e3      # residual (in σ) given to every entry of a failed sample or NaN feature
 
@@ -38,7 +38,7 @@ class CaseTask:
         try:
             with np.errstate(all="ignore"):
                 run_scene(c.scene, probe_duration(c.scene, c.open_loop), open_loop=c.open_loop)
-        except (SceneError, SimulationDiverged):
+        except (InputError, SimulationDiverged):
             pass
 
     def simulate(self, item):
@@ -68,7 +68,7 @@ class CaseTask:
             return {"status": "refused", "message": _one_line(exc), **fail}
         except SimulationDiverged as exc:
             return {"status": "diverged", "message": _one_line(exc), **fail}
-        except SceneError as exc:
+        except InputError as exc:
             return {"status": "refused", "message": _one_line(exc), **fail}
         except (ArithmeticError, ValueError, KeyError, np.linalg.LinAlgError) as exc:
             return {"status": "error", "message": f"{type(exc).__name__}: {_one_line(exc)}",

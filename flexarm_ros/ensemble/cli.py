@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.io.arguments import OPEN_LOOP_HELP, integer, number, set_option
 
 SCENE_HELP = "scene YAML path or shipped scene name (default two_link_case1)"
@@ -21,7 +21,7 @@ SCENE_HELP = "scene YAML path or shipped scene name (default two_link_case1)"
 
 def _check_duration(value):
     if value is not None and not (math.isfinite(value) and value > 0):
-        raise SceneError(f"--duration: got {value}, expected a finite number > 0 s")
+        raise InputError(f"--duration: got {value}, expected a finite number > 0 s")
     return value
 
 
@@ -127,22 +127,22 @@ def _check_out(args):
     if args.out:
         check_output_file("--out", args.out, (".csv", ".parquet"))
     if getattr(args, "series", None) and not args.out:
-        raise SceneError("--series: got channels without --out, expected --out TABLE (the "
+        raise InputError("--series: got channels without --out, expected --out TABLE (the "
                          "series are written next to it)")
     if args.png:
         check_output_dir("--png", args.png)
     if getattr(args, "markdown", None):
         check_output_file("--markdown", args.markdown, (".md",))
     if args.workers is not None and args.workers < 0:
-        raise SceneError(f"--workers: got {args.workers}, expected an integer >= 0 (0: in "
+        raise InputError(f"--workers: got {args.workers}, expected an integer >= 0 (0: in "
                          f"this process)")
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
-        raise SceneError(f"--timeout: got {args.timeout}, expected a finite number > 0 s")
+        raise InputError(f"--timeout: got {args.timeout}, expected a finite number > 0 s")
 
 
 def check_channels(scene, metrics, series=(), duration=None, open_loop=False) -> None:
     """Every channel a metric or --series names exists in a run of the scene (a probe of
-    a few output samples, run as the samples run), else SceneError listing the channels."""
+    a few output samples, run as the samples run), else InputError listing the channels."""
     from flexarm_ros.ensemble.metrics import channel
     from flexarm_ros.twin.batch import probe_duration, run_scene
     wanted = [m.channel for m in metrics if m.channel] + list(series) + [
@@ -156,7 +156,7 @@ def check_channels(scene, metrics, series=(), duration=None, open_loop=False) ->
             channel(res, name)
         except KeyError as exc:
             flag = "--series" if name in series else "--metric"
-            raise SceneError(f"{flag}: {exc.args[0]}") from None
+            raise InputError(f"{flag}: {exc.args[0]}") from None
 
 
 def _executor(args, model):
@@ -243,13 +243,13 @@ def cmd_sweep(args):
     sets = parse_sets(args.set)
     scene = apply_sets(_load_scene(args.scene), sets)
     if not args.param:
-        raise SceneError("--param: missing, expected at least one KEY=LO:HI or KEY=v1,v2,...")
+        raise InputError("--param: missing, expected at least one KEY=LO:HI or KEY=v1,v2,...")
     params = [parse_param(p, scene) for p in args.param]
     keys = [p.key for p in params]
     from flexarm_ros.scene.overrides import check_not_set
     check_not_set(keys, sets, "sweeps")
     if len(set(keys)) != len(keys):
-        raise SceneError(f"--param: got {keys}, expected each key once")
+        raise InputError(f"--param: got {keys}, expected each key once")
     assignments = make_design(params, args.design, args.samples, args.seed)
     metrics = resolve_metrics(_names(args.metric), scene, args.open_loop)
     series = _names(args.series)

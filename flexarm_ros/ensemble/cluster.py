@@ -19,7 +19,7 @@ import uuid
 from distributed import Client, LocalCluster, as_completed
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 
 def _one_line(exc) -> str:
@@ -65,7 +65,7 @@ class DaskExecutor:
         else:
             n = int(workers or os.cpu_count() or 1)
             if n < 1:
-                raise SceneError(f"--workers: got {n}, expected an integer >= 0 (0: in this "
+                raise InputError(f"--workers: got {n}, expected an integer >= 0 (0: in this "
                                  f"process)")
             self.cluster = LocalCluster(
                 n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -85,20 +85,20 @@ class DaskExecutor:
         try:
             self.client = Client(address, timeout=timeout_s, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            raise SceneError(f"--scheduler: got {address!r}, cannot connect within "
+            raise InputError(f"--scheduler: got {address!r}, cannot connect within "
                              f"{timeout_s:g} s ({_one_line(exc)}); {expect}") from None
         try:
             self.client.wait_for_workers(1, timeout=timeout_s)
         except (OSError, TimeoutError) as exc:
             self.client.close()
-            raise SceneError(f"--scheduler: got {address!r}, a scheduler without workers "
+            raise InputError(f"--scheduler: got {address!r}, a scheduler without workers "
                              f"after {timeout_s:g} s ({_one_line(exc)}), expected at least "
                              f"one `dask worker {address}`") from None
         try:
             self.client.run(_probe)
         except Exception as exc:  # a worker without flexarm_ros: bad setup, say so
             self.client.close()
-            raise SceneError(f"--scheduler: got {address!r}, whose workers cannot import "
+            raise InputError(f"--scheduler: got {address!r}, whose workers cannot import "
                              f"flexarm_ros ({_one_line(exc)}), expected flexarm_ros "
                              f"installed on every worker (pip install flexarm_ros[ensemble])"
                              ) from None

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.ensemble.keys import key_field
 
 DESIGNS = ("grid", "lhs", "sobol", "random")
@@ -78,46 +78,46 @@ def _number(text: str):
 def parse_param(text: str, scene=None) -> Param:
     """``'links[0].joint.drive.resistance=1.0:1.2'`` or ``'fidelity.rung=rigid,cubic'``
     → Param; checks the key against the schema and the values against its bounds
-    (SceneError naming key, value and expectation)."""
+    (InputError naming key, value and expectation)."""
     key, sep, spec = str(text).partition("=")
     key, spec = key.strip(), spec.strip()
     if not sep or not key or not spec:
-        raise SceneError(f"--param: got {text!r}, expected KEY=LO:HI or KEY=v1,v2,... (e.g. "
+        raise InputError(f"--param: got {text!r}, expected KEY=LO:HI or KEY=v1,v2,... (e.g. "
                          f"links[0].joint.drive.resistance=1.0:1.2)")
     kf = key_field(key)
     if ":" in spec and "," not in spec:
         lo_t, _, hi_t = spec.partition(":")
         lo, hi = _number(lo_t), _number(hi_t)
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (lo, hi)):
-            raise SceneError(f"--param {key}: got {spec!r}, expected LO:HI with two finite "
+            raise InputError(f"--param {key}: got {spec!r}, expected LO:HI with two finite "
                              f"numbers")
         if kf.type not in (int, float):
-            raise SceneError(f"--param {key}: got a range {spec!r} on a "
+            raise InputError(f"--param {key}: got a range {spec!r} on a "
                              f"{getattr(kf.type, '__name__', kf.type)} key, expected a list "
                              f"of values v1,v2,...")
         if lo > hi:
-            raise SceneError(f"--param {key}: got LO = {lo:g} > HI = {hi:g}, expected "
+            raise InputError(f"--param {key}: got LO = {lo:g} > HI = {hi:g}, expected "
                              f"LO <= HI")
         for name, v in (("LO", lo), ("HI", hi)):
             if not kf.admits(float(v)):
-                raise SceneError(f"--param {key}: got {name} = {v:g}, expected "
+                raise InputError(f"--param {key}: got {name} = {v:g}, expected "
                                  f"{kf.bounds_text()} (the schema's bounds of {key})")
         p = Param(key, float(lo), float(hi), integer=kf.type is int)
     else:
         vals = tuple(_number(v) for v in spec.split(",") if v.strip())
         if not vals:
-            raise SceneError(f"--param {key}: got {spec!r}, expected v1,v2,...")
+            raise InputError(f"--param {key}: got {spec!r}, expected v1,v2,...")
         for v in vals:
             if kf.type in (int, float):
                 if not isinstance(v, (int, float)) or (kf.type is int and not isinstance(v, int)):
-                    raise SceneError(f"--param {key}: got {v!r}, expected "
+                    raise InputError(f"--param {key}: got {v!r}, expected "
                                      f"{'an integer' if kf.type is int else 'a number'} "
                                      f"{kf.bounds_text()}")
                 if not kf.admits(float(v)):
-                    raise SceneError(f"--param {key}: got {v:g}, expected {kf.bounds_text()} "
+                    raise InputError(f"--param {key}: got {v:g}, expected {kf.bounds_text()} "
                                      f"(the schema's bounds of {key})")
             elif kf.choices and v not in kf.choices:
-                raise SceneError(f"--param {key}: got {v!r}, expected one of "
+                raise InputError(f"--param {key}: got {v!r}, expected one of "
                                  f"{', '.join(kf.choices)}")
         if kf.type is float:
             vals = tuple(float(v) for v in vals)
@@ -135,10 +135,10 @@ def _check_on_scene(p: Param, scene) -> None:
     v = p.levels(2)[0]
     try:
         set_keys(scene, {p.key: v})
-    except SceneError as exc:
+    except InputError as exc:
         msg = " ".join(str(exc).split())
         if "missing required field" in msg or "unknown key" in msg:
-            raise SceneError(f"--param {p.key}: {msg}") from None
+            raise InputError(f"--param {p.key}: {msg}") from None
 
 
 def unit_points(design: str, d: int, n: int, seed: int) -> np.ndarray:
@@ -152,20 +152,20 @@ def unit_points(design: str, d: int, n: int, seed: int) -> np.ndarray:
         m = int(round(math.log2(n))) if n > 0 else -1
         if n < 1 or 2 ** m != n:
             lo = 2 ** max(0, math.floor(math.log2(max(n, 1))))
-            raise SceneError(f"--samples: got {n} with --design sobol, expected a power of "
+            raise InputError(f"--samples: got {n} with --design sobol, expected a power of "
                              f"two (e.g. {lo} or {2 * lo}) for a balanced Sobol' sequence")
         return qmc.Sobol(d, scramble=True, rng=np.random.default_rng(seed)).random_base2(m)
-    raise SceneError(f"--design: got {design!r}, expected one of {', '.join(DESIGNS)}")
+    raise InputError(f"--design: got {design!r}, expected one of {', '.join(DESIGNS)}")
 
 
 def make_design(params: list[Param], design: str = "grid", samples: int | None = None,
                 seed: int = 0) -> list[dict]:
     """The assignments ``[{key: value}, ...]`` of a design (see module doc)."""
     if design not in DESIGNS:
-        raise SceneError(f"--design: got {design!r}, expected one of {', '.join(DESIGNS)}")
+        raise InputError(f"--design: got {design!r}, expected one of {', '.join(DESIGNS)}")
     n = DEFAULT_SAMPLES[design] if samples is None else int(samples)
     if n < 1:
-        raise SceneError(f"--samples: got {n}, expected an integer >= 1")
+        raise InputError(f"--samples: got {n}, expected an integer >= 1")
     if not params:
         return [{}]
     if design == "grid":

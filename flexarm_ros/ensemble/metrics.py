@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flexarm_ros.analysis.run_metrics import energy_drift, first_touch
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 BOUNCE_WINDOW_S = 0.2
 POST_IMPACT_DELAY_S = 0.02
@@ -88,17 +88,17 @@ def _safe(name: str) -> str:
 
 
 def parse_metric(text: str) -> Metric:
-    """``'frequency:acc_A_true@2.2:end'`` → Metric; SceneError for an unknown name."""
+    """``'frequency:acc_A_true@2.2:end'`` → Metric; InputError for an unknown name."""
     t = str(text).strip()
     kind, _, rest = t.partition(":")
     expect = (f"expected one of {', '.join(SIMPLE)}, frequency:CHANNEL[@A:B], "
               f"settling_time:CHANNEL, final_error:CHANNEL=TARGET")
     if kind in SIMPLE:
         if rest:
-            raise SceneError(f"--metric: got {t!r}, {kind} takes no argument; {expect}")
+            raise InputError(f"--metric: got {t!r}, {kind} takes no argument; {expect}")
         return Metric(t, kind)
     if kind not in PARAMETRIC:
-        raise SceneError(f"--metric: got {t!r}, {expect}")
+        raise InputError(f"--metric: got {t!r}, {expect}")
     if kind == "frequency":
         ch, _, win = rest.partition("@")
         window = None
@@ -109,15 +109,15 @@ def parse_metric(text: str) -> Metric:
             except ValueError:
                 window = None
             if not sep or window is None or not window[0] < window[1] or window[0] < 0:
-                raise SceneError(f"--metric: got {t!r}, expected the window as @A:B seconds "
+                raise InputError(f"--metric: got {t!r}, expected the window as @A:B seconds "
                                  f"with 0 <= A < B (B may be 'end')")
         if not ch:
-            raise SceneError(f"--metric: got {t!r}, expected frequency:CHANNEL (e.g. "
+            raise InputError(f"--metric: got {t!r}, expected frequency:CHANNEL (e.g. "
                              f"frequency:acc_A_true or frequency:link1_tip_deflection)")
         return Metric(t, kind, ch, window)
     if kind == "settling_time":
         if not rest:
-            raise SceneError(f"--metric: got {t!r}, expected settling_time:CHANNEL")
+            raise InputError(f"--metric: got {t!r}, expected settling_time:CHANNEL")
         return Metric(t, kind, rest)
     ch, sep, target = rest.partition("=")
     if ch and not sep:                 # the controller's own target: <channel>_target
@@ -127,7 +127,7 @@ def parse_metric(text: str) -> Metric:
     except ValueError:
         value = math.nan
     if not ch or not math.isfinite(value):
-        raise SceneError(f"--metric: got {t!r}, expected final_error:CHANNEL=TARGET with a "
+        raise InputError(f"--metric: got {t!r}, expected final_error:CHANNEL=TARGET with a "
                          f"finite TARGET in the channel's unit, or final_error:CHANNEL "
                          f"for the controller's own target")
     return Metric(t, kind, ch, target=value)
@@ -177,11 +177,11 @@ def resolve_metrics(names, scene, open_loop: bool = False) -> list[Metric]:
     if not scene.walls:
         for m in out:
             if m.kind in ("impact_time", "bounce_height"):
-                raise SceneError(f"--metric: got {m.name!r} on scene {scene.name!r}, which has "
+                raise InputError(f"--metric: got {m.name!r} on scene {scene.name!r}, which has "
                                  f"no wall (walls: []), expected a scene with a wall")
     for m in out:
         if m.kind == "settling_time" and not command_steps(scene, open_loop):
-            raise SceneError(f"--metric: got {m.name!r} on scene {scene.name!r}, whose "
+            raise InputError(f"--metric: got {m.name!r} on scene {scene.name!r}, whose "
                              f"command has no step or ramp (no input program changes, no "
                              f"controller target), expected a scene with a step in its "
                              f"command (a step/pulse/square/piecewise program, or "

@@ -50,7 +50,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError, SimulationDiverged, StepTooLarge
+from flexarm_ros.errors import InputError, SimulationDiverged, StepTooLarge
 
 STATUSES = ("ok", "diverged", "refused", "error")
 
@@ -86,7 +86,7 @@ class SceneModel:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 run_scene(self.base, probe_duration(self.base, self.open_loop),
                           open_loop=self.open_loop)
-        except (SceneError, SimulationDiverged):
+        except (InputError, SimulationDiverged):
             pass
 
     def __call__(self, assignment: dict) -> dict:
@@ -96,7 +96,7 @@ class SceneModel:
         nan = {c: math.nan for c in self.columns}
         try:
             scene = set_keys(self.base, assignment)
-        except SceneError as exc:
+        except InputError as exc:
             return {"status": "refused", "message": _one_line(exc), "metrics": nan}
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -115,7 +115,7 @@ class SceneModel:
             return {"status": "refused", "message": _one_line(exc), "metrics": nan}
         except SimulationDiverged as exc:
             return {"status": "diverged", "message": _one_line(exc), "metrics": nan}
-        except SceneError as exc:
+        except InputError as exc:
             return {"status": "refused", "message": _one_line(exc), "metrics": nan}
         except (ArithmeticError, ValueError, KeyError, np.linalg.LinAlgError) as exc:
             return {"status": "error", "message": f"{type(exc).__name__}: {_one_line(exc)}",
@@ -197,7 +197,7 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
     try:
         from flexarm_ros.ensemble.cluster import DaskExecutor
     except ImportError as exc:
-        raise SceneError(f"--workers: got {workers}, the Dask runner needs dask and "
+        raise InputError(f"--workers: got {workers}, the Dask runner needs dask and "
                          f"distributed ({exc}), expected pip install -e .[ensemble], or "
                          f"--workers 0 (in this process)") from None
     return DaskExecutor(workers=workers, scheduler=scheduler, warm_up=warm_up,
@@ -263,7 +263,7 @@ class EnsembleTable:
         elif suffix == ".parquet":
             self._write_parquet(path)
         else:
-            raise SceneError(f"--out: got {str(path)!r}, expected a .csv or .parquet file")
+            raise InputError(f"--out: got {str(path)!r}, expected a .csv or .parquet file")
         meta_path = path.with_name(path.name + ".meta.json")
         meta_path.write_text(json.dumps(self.public_meta, indent=2, default=_json_default)
                              + "\n")
@@ -285,7 +285,7 @@ class EnsembleTable:
             import pyarrow as pa
             import pyarrow.parquet as pq
         except ImportError:
-            raise SceneError(f"--out: got {str(path)!r}, a .parquet table needs pyarrow "
+            raise InputError(f"--out: got {str(path)!r}, a .parquet table needs pyarrow "
                              f"(pip install -e .[ensemble]), expected it installed or a "
                              f".csv") from None
         data = {c: [r.get(c) for r in self.rows] for c in self.columns}

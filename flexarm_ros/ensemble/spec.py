@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.ensemble.keys import check_numeric
 
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
@@ -142,7 +142,7 @@ class Spec:
         return {u.name: assignment[u.keys[0]] for u in self.unknowns}
 
     def base_scene(self):
-        """The scene with ``set`` applied (SceneError naming the key)."""
+        """The scene with ``set`` applied (InputError naming the key)."""
         from flexarm_ros.ensemble.keys import set_keys
         from flexarm_ros.scene import load_scene
         name = self.scene
@@ -151,8 +151,8 @@ class Spec:
         scene = load_scene(name)
         try:
             return set_keys(scene, self.set)
-        except SceneError as exc:
-            raise SceneError(f"{self._where('set')}: {' '.join(str(exc).split())}") from None
+        except InputError as exc:
+            raise InputError(f"{self._where('set')}: {' '.join(str(exc).split())}") from None
 
     def _where(self, key) -> str:
         return f"{self.path.name if self.path else 'spec'}: {key}"
@@ -160,42 +160,42 @@ class Spec:
 
 def _num(where, key, v):
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise SceneError(f"{where}.{key}: got {v!r}, expected a finite number")
+        raise InputError(f"{where}.{key}: got {v!r}, expected a finite number")
     return float(v)
 
 
 def _unknown(k: int, raw, where: str, check_keys: bool) -> Unknown:
     w = f"{where}unknowns[{k}]"
     if not isinstance(raw, dict):
-        raise SceneError(f"{w}: got {raw!r}, expected a mapping with key (or keys), dist and "
+        raise InputError(f"{w}: got {raw!r}, expected a mapping with key (or keys), dist and "
                          f"its parameters")
     allowed = {"name", "key", "keys", "dist"}
     keys = raw.get("keys", [raw["key"]] if "key" in raw else None)
     if not keys or not isinstance(keys, list) or not all(isinstance(x, str) for x in keys):
-        raise SceneError(f"{w}: got {raw!r}, expected key: PATH or keys: [PATH, ...]")
+        raise InputError(f"{w}: got {raw!r}, expected key: PATH or keys: [PATH, ...]")
     dist = raw.get("dist")
     if dist not in DISTRIBUTIONS:
-        raise SceneError(f"{w}.dist: got {dist!r}, expected one of {', '.join(DISTRIBUTIONS)}")
+        raise InputError(f"{w}.dist: got {dist!r}, expected one of {', '.join(DISTRIBUTIONS)}")
     extra = set(raw) - allowed - _FIELDS[dist]
     if extra:
-        raise SceneError(f"{w}.{sorted(extra)[0]}: unknown key for dist {dist}; expected "
+        raise InputError(f"{w}.{sorted(extra)[0]}: unknown key for dist {dist}; expected "
                          f"{', '.join(sorted(_FIELDS[dist]))}")
     missing = _REQUIRED[dist] - set(raw)
     if missing:
-        raise SceneError(f"{w}: missing {', '.join(sorted(missing))}, expected them for dist "
+        raise InputError(f"{w}: missing {', '.join(sorted(missing))}, expected them for dist "
                          f"{dist}")
     par = {f: _num(w, f, raw[f]) for f in ("low", "high", "mean", "std", "median", "sigma")
            if f in raw and raw[f] is not None}
     for f in ("std", "sigma", "median"):
         if f in par and not par[f] > 0:
-            raise SceneError(f"{w}.{f}: got {par[f]:g}, expected a number > 0")
+            raise InputError(f"{w}.{f}: got {par[f]:g}, expected a number > 0")
     name = str(raw.get("name") or keys[0])
     unk = Unknown(name, tuple(keys), dist, par)
     if unk.low >= unk.high:
-        raise SceneError(f"{w}: got low = {unk.low:g} >= high = {unk.high:g}, expected "
+        raise InputError(f"{w}: got low = {unk.low:g} >= high = {unk.high:g}, expected "
                          f"low < high")
     if dist == "lognormal" and "low" in par and not par["low"] > 0:
-        raise SceneError(f"{w}.low: got {par['low']:g}, expected a number > 0 (log-normal)")
+        raise InputError(f"{w}.low: got {par['low']:g}, expected a number > 0 (log-normal)")
     if check_keys:
         for key in keys:
             kf = check_numeric(key)
@@ -204,7 +204,7 @@ def _unknown(k: int, raw, where: str, check_keys: bool) -> Unknown:
             if dist == "lognormal" and "low" not in par:       # support (0, inf)
                 lo_ok = kf.lower()[0] is None or kf.lower()[0] <= 0.0
             if not (lo_ok and hi_ok):
-                raise SceneError(f"{w} ({key}): got {unk.describe()} with support "
+                raise InputError(f"{w} ({key}): got {unk.describe()} with support "
                                  f"[{unk.low:g}, {unk.high:g}], expected a distribution inside "
                                  f"the schema's bounds {kf.bounds_text()} (give low/high "
                                  f"inside them)")
@@ -212,42 +212,42 @@ def _unknown(k: int, raw, where: str, check_keys: bool) -> Unknown:
 
 
 def parse_spec(data, path: Path | None = None, check_keys: bool = True) -> Spec:
-    """A spec mapping → Spec (SceneError naming the entry, the value and the
+    """A spec mapping → Spec (InputError naming the entry, the value and the
     expectation). ``check_keys=False`` for specs of analytic models (no scene)."""
     where = f"{path.name}: " if path else ""
     if not isinstance(data, dict):
-        raise SceneError(f"{where}spec: got {data!r}, expected a mapping with scene and "
+        raise InputError(f"{where}spec: got {data!r}, expected a mapping with scene and "
                          f"unknowns")
     allowed = {"scene", "unknowns", "metrics", "duration", "set", "channel", "samples", "seed"}
     extra = set(data) - allowed
     if extra:
-        raise SceneError(f"{where}{sorted(extra)[0]}: unknown key; expected one of "
+        raise InputError(f"{where}{sorted(extra)[0]}: unknown key; expected one of "
                          f"{', '.join(sorted(allowed))}")
     unk_raw = data.get("unknowns")
     if not isinstance(unk_raw, list) or not unk_raw:
-        raise SceneError(f"{where}unknowns: got {unk_raw!r}, expected a list of at least one "
+        raise InputError(f"{where}unknowns: got {unk_raw!r}, expected a list of at least one "
                          f"unknown")
     unknowns = [_unknown(k, u, where, check_keys) for k, u in enumerate(unk_raw)]
     names = [u.name for u in unknowns]
     if len(set(names)) != len(names):
-        raise SceneError(f"{where}unknowns: got names {names}, expected unique names")
+        raise InputError(f"{where}unknowns: got names {names}, expected unique names")
     dur = data.get("duration")
     if dur is not None:
         dur = _num(f"{where}spec", "duration", dur)
         if not dur > 0:
-            raise SceneError(f"{where}duration: got {dur:g}, expected a number > 0 s")
+            raise InputError(f"{where}duration: got {dur:g}, expected a number > 0 s")
     samples = data.get("samples", 256)
     seed = data.get("seed", 0)
     for k, v in (("samples", samples), ("seed", seed)):
         if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k == "samples" else 0):
-            raise SceneError(f"{where}{k}: got {v!r}, expected an integer >= "
+            raise InputError(f"{where}{k}: got {v!r}, expected an integer >= "
                              f"{1 if k == 'samples' else 0}")
     metrics = data.get("metrics") or []
     if not isinstance(metrics, list):
-        raise SceneError(f"{where}metrics: got {metrics!r}, expected a list of metric names")
+        raise InputError(f"{where}metrics: got {metrics!r}, expected a list of metric names")
     fixed = data.get("set") or {}
     if not isinstance(fixed, dict):
-        raise SceneError(f"{where}set: got {fixed!r}, expected a mapping of key path: value")
+        raise InputError(f"{where}set: got {fixed!r}, expected a mapping of key path: value")
     return Spec(scene=str(data.get("scene") or "two_link_case1"), unknowns=unknowns,
                 metrics=[str(m) for m in metrics], duration=dur, set=dict(fixed),
                 channel=data.get("channel"), samples=samples, seed=seed, path=path)
@@ -258,8 +258,8 @@ def load_spec(path) -> Spec:
     try:
         data = yaml.safe_load(p.read_text(encoding="utf-8"))
     except OSError as exc:
-        raise SceneError(f"{p}: cannot read the spec ({exc.strerror or exc}), expected a "
+        raise InputError(f"{p}: cannot read the spec ({exc.strerror or exc}), expected a "
                          f"readable YAML file") from None
     except yaml.YAMLError as exc:
-        raise SceneError(f"{p}: not valid YAML: {' '.join(str(exc).split())}") from None
+        raise InputError(f"{p}: not valid YAML: {' '.join(str(exc).split())}") from None
     return parse_spec(data, p)

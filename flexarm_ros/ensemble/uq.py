@@ -33,7 +33,7 @@ import warnings
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.ensemble.runner import run_ensemble
 
 PERCENTILES = (5, 25, 50, 75, 95)
@@ -96,7 +96,7 @@ def run_uncertainty(spec, samples=None, seed=None, design="random", channel=None
     n = spec.samples if samples is None else int(samples)
     seed = spec.seed if seed is None else int(seed)
     if design not in ("random", "lhs"):
-        raise SceneError(f"--design: got {design!r}, expected random or lhs")
+        raise InputError(f"--design: got {design!r}, expected random or lhs")
     base = spec.base_scene() if model is None else None
     channel = channel or spec.channel
     model = model or _model(spec, base, (channel,) if channel else ())
@@ -117,7 +117,7 @@ def _describe(spec) -> list[dict]:
 def _problem(spec) -> dict:
     for k, u in enumerate(spec.unknowns):
         if not u.bounded:
-            raise SceneError(f"unknowns[{k}] ({u.name}): got {u.describe()} without "
+            raise InputError(f"unknowns[{k}] ({u.name}): got {u.describe()} without "
                              f"low/high, expected a bounded distribution for sensitivity "
                              f"analysis (the designs reach the ends of the quantile range)")
     return {"num_vars": len(spec.unknowns), "names": spec.names,
@@ -134,12 +134,12 @@ def sensitivity_design(spec, method: str, n: int, seed: int) -> np.ndarray:
     if method == "sobol":
         if n < 2 or n & (n - 1):
             lo = 2 ** max(1, math.floor(math.log2(max(n, 2))))
-            raise SceneError(f"--samples: got {n} with --method sobol, expected a power of "
+            raise InputError(f"--samples: got {n} with --method sobol, expected a power of "
                              f"two (e.g. {lo} or {2 * lo}): the base sample of the Saltelli "
                              f"scheme on a Sobol' sequence")
         from SALib.sample import sobol
         return sobol.sample(problem, n, calc_second_order=False, seed=seed)
-    raise SceneError(f"--method: got {method!r}, expected morris or sobol")
+    raise InputError(f"--method: got {method!r}, expected morris or sobol")
 
 
 def analyse(spec, method: str, unit: np.ndarray, table, seed: int) -> dict:

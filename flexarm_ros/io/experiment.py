@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.io.units import TEXT as TEXT_UNIT
 
 __all__ = [
@@ -71,10 +71,10 @@ TIME_HEADER = "t [s]"
 _HEADER = re.compile(r"^\s*(?P<name>[^\[\]]*?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
 
 
-class CompareInputError(SceneError):
+class CompareInputError(InputError):
     """An input of ``flexarm compare`` (bag, CSV, map, option) is unusable; the message
     names the file, the column / channel / key, the value and the expectation. A
-    :class:`~flexarm_ros.errors.SceneError`, so the CLI exits with status 2."""
+    :class:`~flexarm_ros.errors.InputError`, so the CLI exits with status 2."""
 
 
 # ------------------------------------------------------------------------------ CSV

@@ -1,6 +1,6 @@
 """Output paths checked before the work: a run that takes minutes must not fail at the end
 because its ``--out``, ``--record``, ``--png``, ``--report`` or ``--rerun`` cannot be
-written. Each check raises :class:`~flexarm_ros.errors.SceneError` (exit 2) naming the
+written. Each check raises :class:`~flexarm_ros.errors.InputError` (exit 2) naming the
 option, the path and what is expected; nothing is created or changed by a check (the
 writability probe is a temporary file, removed at once).
 """
@@ -11,15 +11,15 @@ import os
 import tempfile
 from pathlib import Path
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 
 def _probe_directory(flag: str, given, directory: Path) -> None:
-    """SceneError unless a file can be created in ``directory`` (an existing directory)."""
+    """InputError unless a file can be created in ``directory`` (an existing directory)."""
     try:
         fd, probe = tempfile.mkstemp(prefix=".flexarm_probe_", dir=directory)
     except OSError as exc:
-        raise SceneError(f"{flag}: got {str(given)!r}, expected a path in a writable "
+        raise InputError(f"{flag}: got {str(given)!r}, expected a path in a writable "
                          f"directory (cannot create a file in {directory}: "
                          f"{exc.strerror or exc})") from None
     os.close(fd)
@@ -32,24 +32,24 @@ def check_output_file(flag: str, path, suffixes: tuple[str, ...] | None = None) 
     when given. Returns the path."""
     p = Path(path)
     if str(path) == "" or p.name in ("", ".", ".."):
-        raise SceneError(f"{flag}: got {str(path)!r}, expected a file name")
+        raise InputError(f"{flag}: got {str(path)!r}, expected a file name")
     if suffixes and p.suffix.lower() not in suffixes:
-        raise SceneError(f"{flag}: got {str(path)!r}, expected a "
+        raise InputError(f"{flag}: got {str(path)!r}, expected a "
                          f"{' or '.join(suffixes)} file name")
     if p.is_dir():
-        raise SceneError(f"{flag}: got {str(path)!r}, an existing directory, expected a file "
+        raise InputError(f"{flag}: got {str(path)!r}, an existing directory, expected a file "
                          f"name")
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         what = "is not a directory" if parent.exists() else "does not exist"
-        raise SceneError(f"{flag}: got {str(path)!r}, expected a path in an existing "
+        raise InputError(f"{flag}: got {str(path)!r}, expected a path in an existing "
                          f"directory ({parent} {what})")
     if p.exists():
         try:
             with open(p, "ab"):
                 pass
         except OSError as exc:
-            raise SceneError(f"{flag}: got {str(path)!r}, expected a writable file "
+            raise InputError(f"{flag}: got {str(path)!r}, expected a writable file "
                              f"({exc.strerror or exc})") from None
     _probe_directory(flag, path, parent)
     return p
@@ -60,9 +60,9 @@ def check_output_dir(flag: str, path) -> Path:
     existing file, and writable where it exists or where it would be created."""
     p = Path(path)
     if str(path) == "":
-        raise SceneError(f"{flag}: got '', expected a directory name")
+        raise InputError(f"{flag}: got '', expected a directory name")
     if p.exists() and not p.is_dir():
-        raise SceneError(f"{flag}: got {str(path)!r}, an existing file, expected a "
+        raise InputError(f"{flag}: got {str(path)!r}, an existing file, expected a "
                          f"directory")
     existing = p
     while not existing.exists():
@@ -70,7 +70,7 @@ def check_output_dir(flag: str, path) -> Path:
             break
         existing = existing.parent
     if existing.exists() and not existing.is_dir():
-        raise SceneError(f"{flag}: got {str(path)!r}, expected a directory path "
+        raise InputError(f"{flag}: got {str(path)!r}, expected a directory path "
                          f"({existing} is a file)")
     _probe_directory(flag, path, existing if existing.exists() else Path("."))
     return p

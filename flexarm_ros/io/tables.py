@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 _UNIT = re.compile(r"\s*\[[^\[\]]*\]\s*$")
 #: a number in a CSV table (ten significant digits)
@@ -37,10 +37,10 @@ def write_table(path, columns: dict, units: dict | None = None) -> Path:
                          + ", ".join(f"{k} {np.shape(columns[k])}" for k in names))
     for k in names:
         if k not in text and not np.all(np.isfinite(np.asarray(columns[k], float))):
-            raise SceneError(f"--out: column {k!r} has non-finite values; nothing written")
+            raise InputError(f"--out: column {k!r} has non-finite values; nothing written")
     suffix = path.suffix.lower()
     if suffix not in (".csv", ".npz"):
-        raise SceneError(f"--out: got {str(path)!r}, expected a .csv or .npz file name")
+        raise InputError(f"--out: got {str(path)!r}, expected a .csv or .npz file name")
     tmp = path.with_name(path.name + ".part")
     if suffix == ".csv":
         with open(tmp, "w", encoding="utf-8") as fh:

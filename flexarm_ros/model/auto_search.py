@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.model.auto_choice import (CROSS_CHECK_ELEMENTS, FINER_FACTOR, FINER_TRIES,
                                            LADDER, MAX_LINEAR_SAMPLES, MAX_RK4_STEPS,
                                            REFERENCE_MODES, RKN4_LIMIT_RATIO, SPATIAL_SHARE,
@@ -297,13 +297,13 @@ class _Analysis:
         c = Candidate(rung, n)
         try:
             chain = self._chain(rung, n)
-        except SceneError as exc:
+        except InputError as exc:
             c.verdict = f"refused: {exc}"
             return c, None
         c.coordinates = chain.n
         try:
             lin = LinearResponse(chain, self.input_memo)
-        except SceneError as exc:
+        except InputError as exc:
             c.verdict = f"refused: {exc}"
             return c, None
         c.stable_step_s = lin.stable_step
@@ -447,7 +447,7 @@ class _Analysis:
                 tries += 1
                 try:
                     lin = LinearResponse(*self._memo_chain(rung, n))
-                except SceneError:
+                except InputError:
                     break
                 y = lin.exact(self.grid, self.bps)
                 lin.y_exact = y

@@ -431,7 +431,7 @@ def _node_main(cls, args=None) -> int:
         from rclpy.exceptions import ParameterException
         try:
             node = cls(context=ctx)
-        except (ValueError, OSError, ParameterException) as exc:    # SceneError: ValueError
+        except (ValueError, OSError, ParameterException) as exc:    # InputError: ValueError
             print(f"{cls.EXECUTABLE}: error: {exc}", file=sys.stderr)
             return 2
         exe = make_executor(ctx)

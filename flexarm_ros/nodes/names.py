@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 #: an absolute ROS 2 namespace (rmw_validate_namespace): tokens of letters, digits and
 #: underscores that do not start with a digit, separated by single slashes, no trailing
@@ -18,12 +18,12 @@ NAMESPACE_MAX_LENGTH = 200
 
 def check_namespace(flag: str, value: str | None) -> str | None:
     """``value`` as an absolute namespace (``flexarm`` → ``/flexarm``; "" is refused, the
-    root is "/"), or SceneError naming ``flag``, the value and the rule."""
+    root is "/"), or InputError naming ``flag``, the value and the rule."""
     if value is None:
         return None
     ns = value if value.startswith("/") else "/" + value
     if not value or not NAMESPACE.fullmatch(ns) or len(ns) > NAMESPACE_MAX_LENGTH:
-        raise SceneError(f"{flag}: got {value!r}, expected a ROS 2 namespace: '/' or "
+        raise InputError(f"{flag}: got {value!r}, expected a ROS 2 namespace: '/' or "
                          f"/-separated names of letters, digits and underscores that do not "
                          f"start with a digit, no empty or trailing parts, at most "
                          f"{NAMESPACE_MAX_LENGTH} characters (e.g. /flexarm or /lab/arm2)")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import yaml
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.scene.schema import from_mapping
 from flexarm_ros.scene.sections import Scene
 
@@ -41,7 +41,7 @@ def load_scene(path) -> Scene:
         raise SceneError(f"{p}: not valid YAML{at}: {what}") from None
     try:
         return load_scene_dict(data)
-    except SceneError as exc:
+    except InputError as exc:
         raise SceneError(f"{p.name}: {exc}") from None
 
 

@@ -27,7 +27,7 @@ import re
 
 import yaml
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.scene.keys import parse_path, set_keys
 
 OPTION = "--set"
@@ -80,7 +80,7 @@ def parse_set(text) -> tuple[str, object]:
         raise SceneError(f"{OPTION}: got {text!r}, {EXPECTED}")
     try:
         parse_path(key)
-    except SceneError:
+    except InputError:
         raise SceneError(f"{OPTION}: got {text!r}, expected KEY=VALUE with KEY a scene key "
                          f"path of names joined by '.' and [index] (e.g. links[0].beam.EI, "
                          f"tool.position[1])") from None
@@ -147,7 +147,7 @@ def check_not_set(keys, sets: dict, verb: str = "fits") -> None:
     def path(k):
         try:
             return tuple(parse_path(k))
-        except SceneError:           # a malformed --param: its own message, later
+        except InputError:           # a malformed --param: its own message, later
             return None
     fixed = {path(k): k for k in sets}
     for k in keys:

@@ -20,7 +20,7 @@ import types
 import typing
 from typing import Any, Mapping
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError, SceneError
 
 _MISSING = dataclasses.MISSING
 
@@ -78,7 +78,7 @@ def _convert(path: str, value: Any, tp, meta: Mapping) -> Any:
         for alt in non_none:
             try:
                 return _convert(path, value, alt, meta)
-            except SceneError as exc:
+            except InputError as exc:
                 errors.append(str(exc))
         raise SceneError(errors[0] if len(errors) == 1 else
                          f"{path}: got {_fmt(value)}, expected one of: "

@@ -59,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.model.explicit import explicit_integrator
 from flexarm_ros.model.linear import ABOVE_STABLE_SHARE, search_above_stable
 
@@ -406,7 +406,7 @@ def posterior_check(scene, auto, columns, run_step, T) -> PosteriorCheck:
             from flexarm_ros.sim.contact_run import integrate_with_contact
             run, _ = integrate_with_contact(chain, contact, x0, window, fid.output_dt)
         tip = chain.energies(run.t, run.q, run.qd, run.z)[1]
-    except (SceneError, SimulationDiverged) as exc:
+    except (InputError, SimulationDiverged) as exc:
         return PosteriorCheck(label, window, h, math.nan, auto.growth, math.nan,
                               time.perf_counter() - t0,
                               "not run: " + " ".join(str(exc).split()))

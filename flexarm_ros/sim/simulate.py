@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import trapezoid_step_by_error
@@ -138,7 +138,7 @@ def _escalate(scene, T, progress, first: SimResult) -> SimResult:
         sc = scene.with_fidelity(rung="rod", refine=terms, dt=0.0, tolerance=0.0)
         try:
             res = _simulate(sc, T, progress, None)
-        except SceneError:
+        except InputError:
             continue
         res.truth = truth.top_check(scene, res.columns, T, tol, _simulate)
         if not res.truth.ok:
@@ -243,7 +243,7 @@ def _trapezoid_automatic_step(chain, T, out_dt):
     from flexarm_ros.sim.accuracy import trapezoid_step_for_tolerance
     try:
         choice = trapezoid_step_for_tolerance(chain, T, DEFAULT_TOLERANCE_M, out_dt)
-    except SceneError:
+    except InputError:
         return None
     return dataclasses.replace(choice, source="default")
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.errors import InputError, SceneError, SimulationDiverged
 
 #: (curvature terms of the reference rod, of the rod that bounds its error), tried in turn
 #: until the bound is at most BOUND_SHARE of the tolerance (the last pair otherwise)
@@ -196,7 +196,7 @@ def top_check(scene, columns, T: float, tolerance_m: float, simulate) -> TopChec
         return TopCheck("rod", None, None, 0.0, "not run: the scene is not hashable")
     try:
         label, cols, links, own = reference(scene, float(T), tolerance_m, simulate)
-    except (SceneError, SimulationDiverged) as exc:
+    except (InputError, SimulationDiverged) as exc:
         return TopCheck(f"rod {REFERENCES[0][0]}", None, None, time.perf_counter() - t0,
                         "not run: " + " ".join(str(exc).split()))
     return TopCheck(label, measures(columns, cols, links), own, time.perf_counter() - t0)

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from flexarm_ros.analysis.run_metrics import first_touch
-from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.errors import InputError, SceneError, SimulationDiverged
 from flexarm_ros.twin.batch import run_scene
 from flexarm_ros.ensemble.runner import run_tasks
 
@@ -88,7 +88,7 @@ class ContactRow:
                 normal_impulse_error=(abs(m["normal_impulse_ns"] - m_ref["normal_impulse_ns"])
                                       / max(abs(m_ref["normal_impulse_ns"]), 1e-12)),
                 tip_rms_error_m=float(np.sqrt(np.mean(tip ** 2))))
-        except (SimulationDiverged, SceneError) as exc:
+        except (SimulationDiverged, InputError) as exc:
             row.update(status=str(exc))
         return row
 

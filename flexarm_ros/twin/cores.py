@@ -24,7 +24,7 @@ from flexarm_ros.control.sanding import SandingTask
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.limits import joint_limits
-from flexarm_ros.errors import SceneError, SimulationDiverged
+from flexarm_ros.errors import InputError, SceneError, SimulationDiverged
 from flexarm_ros.sim.plant import Plant
 from flexarm_ros.model.programs import encode, eval_torque
 from flexarm_ros.model.statics import initial_state
@@ -110,7 +110,7 @@ class SimulatorCore:
             shadow.step(np.zeros(len(self.names)))
             shadow.outputs()
             shadow.plant.load_event_kernels()     # what only an impact calls
-        except (SceneError, SimulationDiverged):    # the real first tick will say it
+        except (InputError, SimulationDiverged):    # the real first tick will say it
             pass
 
     @property

@@ -52,7 +52,7 @@ from typing import Callable
 
 import numpy as np
 
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 
 LATE_POLICIES = ("skip", "slow")
 #: the pacing thread's SCHED_FIFO priority by default: 0, normal scheduling (see above)
@@ -123,29 +123,29 @@ def check_settings(period: float, late_policy: str = "slow", late_bound: float =
                    ground_truth_rate_hz: float = 0.0,
                    thread_priority: int = THREAD_PRIORITY,
                    start_timeout_s: float = 0.0) -> None:
-    """The simulator's pacing parameters, or a SceneError naming the one that is wrong."""
+    """The simulator's pacing parameters, or an InputError naming the one that is wrong."""
     if isinstance(start_timeout_s, bool) or not (
             isinstance(start_timeout_s, (int, float)) and math.isfinite(start_timeout_s)
             and start_timeout_s >= 0):
-        raise SceneError(f"parameter start_timeout_s: got {start_timeout_s:g} s, expected a "
+        raise InputError(f"parameter start_timeout_s: got {start_timeout_s:g} s, expected a "
                          f"finite number >= 0 (0: wait for ever)"
                          if isinstance(start_timeout_s, (int, float)) else
                          f"parameter start_timeout_s: got {start_timeout_s!r}, expected a "
                          f"finite number >= 0 (0: wait for ever)")
     if isinstance(thread_priority, bool) or not isinstance(thread_priority, int) or not (
             0 <= thread_priority <= 99):
-        raise SceneError(f"parameter thread_priority: got {thread_priority!r}, expected an "
+        raise InputError(f"parameter thread_priority: got {thread_priority!r}, expected an "
                          f"integer SCHED_FIFO priority 1..99, or 0 for normal scheduling")
     if late_policy not in LATE_POLICIES:
-        raise SceneError(f"parameter late_policy: got {late_policy!r}, expected one of "
+        raise InputError(f"parameter late_policy: got {late_policy!r}, expected one of "
                          f"{LATE_POLICIES}")
     if not (isinstance(late_bound, (int, float)) and math.isfinite(late_bound)
             and late_bound >= period):
-        raise SceneError(f"parameter late_bound: got {late_bound!r} s, expected a finite "
+        raise InputError(f"parameter late_bound: got {late_bound!r} s, expected a finite "
                          f"bound of at least one control period ({period:g} s)")
     rate = ground_truth_rate(ground_truth_rate_hz, "lockstep")
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
-        raise SceneError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 (every "
+        raise InputError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 (every "
                          f"tick), -1 (the mode's default) or a positive rate in Hz")
 
 

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from flexarm_ros import cli
-from flexarm_ros.errors import SceneError
+from flexarm_ros.errors import InputError
 from flexarm_ros.io.tables import read_table, write_table
 
 #: modules a plain rk4 simulate never needs (scipy.linalg comes with numba's BLAS check)
@@ -163,7 +163,7 @@ def test_csv_long_table_in_chunks(tmp_path, monkeypatch):
 
 
 def test_write_table_refusals(tmp_path):
-    with pytest.raises(SceneError, match="column 'y' has non-finite"):
+    with pytest.raises(InputError, match="column 'y' has non-finite"):
         write_table(tmp_path / "a.csv", {"t": [0.0, 1.0], "y": [1.0, np.inf]})
     with pytest.raises(ValueError, match="different lengths"):
         write_table(tmp_path / "a.csv", {"t": [0.0, 1.0], "y": [1.0]})

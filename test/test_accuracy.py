@@ -136,6 +136,7 @@ def test_above_the_stable_step_only_a_measured_step_is_taken(monkeypatch, law, e
     assert measured <= acc.SAFETY * tol and got.step_s > h_top
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name", ["two_link_case1", "two_link_case2"])
 def test_the_tolerance_with_a_wall_is_met_through_the_impacts(name):
     """The contact stepper's step for a tolerance (pilots over the whole run, assumed order

@@ -75,6 +75,7 @@ def test_auto_meets_its_tolerance_against_the_physics(name, duration, tol):
     assert s["step_s"] == res.run.dt
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,tol", [("link_tipmass", 1e-5), ("two_link_free", 1e-6)])
 def test_auto_takes_rkn4_where_it_steps_further(monkeypatch, name, tol):
     """Rung auto's a-priori choice steps its model by rkn4 (same cost per step as RK4)
@@ -260,6 +261,7 @@ def test_the_block_recurrence_equals_the_step_by_step_one():
 
 
 # ------------------------------------------ fidelity.estimate: a named rung's error
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,over,T", [
     # the scene's modal 3 on the two-link arm: 4e-4 m from the exact beam (the second-
     # order shortening), which its own class's finer models cannot show

@@ -133,6 +133,7 @@ def golden():
 
 # -------------------------------------------------------------------- corrupt chunks
 
+@pytest.mark.heavy
 def test_flipped_byte_in_the_middle_chunk_loses_that_chunk_only(golden, tmp_path):
     """One flipped byte in the middle chunk's compressed data of the golden bag: every
     message outside that chunk is read (count = total − that chunk's count, the same
@@ -472,6 +473,7 @@ def _fuzz(n: int, seed: int, tmp_path: Path, limit_s: float) -> dict:
     return outcomes
 
 
+@pytest.mark.heavy
 def test_bag_fuzz_small(tmp_path):
     """50 seeded damaged variants (truncations, flipped bytes, inserted/deleted bytes,
     zeroed and garbage ranges) of a zstd and an uncompressed bag."""

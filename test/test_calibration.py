@@ -117,6 +117,7 @@ def test_95_percent_intervals_cover_the_truth_about_95_percent_of_the_time(base,
     assert np.all(hits <= 20)
 
 
+@pytest.mark.heavy
 def test_a_product_of_two_parameters_is_reported_not_separately_identifiable(base):
     run = simulate(base, DURATION)             # K_t = 0.05, R = 1.2: K_t / R = 0.041667
     t = run.columns["t"]
@@ -138,6 +139,7 @@ def test_a_product_of_two_parameters_is_reported_not_separately_identifiable(bas
     assert ratio == pytest.approx(0.05 / 1.2, rel=2e-3)    # what the data do fix
 
 
+@pytest.mark.heavy
 def test_a_refused_sample_inside_the_bounds_is_penalized_with_a_warning(base, truth_run):
     # a fixed RK4 step of 0.5 ms: EI above ~8000 N·m² needs a smaller one (refused)
     fixed = set_keys(base, {"fidelity.dt": 5e-4})
@@ -191,6 +193,7 @@ def _cli(capsys, *argv):
     return code, cap.out, cap.err
 
 
+@pytest.mark.heavy
 def test_cli_fits_writes_the_calibrated_scene_and_the_report(capsys, record):
     d, scene, path = record
     out_scene, report = d / "calibrated.yaml", d / "report"
@@ -263,6 +266,7 @@ def test_the_dask_runner_gives_the_same_fit(base, truth_run):
     assert abs(dask["evaluations"] - serial["evaluations"]) <= 3
 
 
+@pytest.mark.heavy
 def test_spec_form_shares_parameters_between_cases(capsys, record, truth_run):
     """Two cases of one rig: the record (joint and tip), and a heavier drive's joint angle
     at 0.4 s as a feature target with its σ; R and EI shared; one scene out per case."""
@@ -523,6 +527,7 @@ def test_the_cli_fits_a_twin_bag_with_the_twins_loop(capsys, twin_bag):
     assert abs(p["value"] - 2000.0) < 1e-3
 
 
+@pytest.mark.heavy
 def test_a_loop_gain_is_recovered_from_a_closed_loop_record():
     """two_link_position, 1 s closed loop with kp = (6, 8): the joint angles with 1e-4 rad
     noise give back control.kp[0] from a start of 4 within its 95 % interval."""

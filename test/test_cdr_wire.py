@@ -200,6 +200,7 @@ def test_the_fixed_shape_builder_gives_the_encoders_bytes(case):
     assert getattr(b, fn)(*args) == want
 
 
+@pytest.mark.heavy
 def test_the_simulators_wire_bytes_equal_the_encoded_dicts_through_an_impact():
     """The simulator core's outputs built as CDR bytes (what the node publishes) against
     the same outputs built as dicts and encoded by encode_cdr (itself checked against

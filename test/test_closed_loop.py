@@ -44,6 +44,7 @@ SCENES = [("two_link_position", 0.3, None), ("two_link_sanding", 0.2, None),
           ("hydraulic_2kg", 0.3, None)]                  # past the valve step (0.1 s)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name,duration,control", SCENES)
 def test_the_batch_run_is_the_lockstep_twins_ground_truth(name, duration, control):
     """Every coordinate at every tick within 1e-9 (rad, m) of the twin's ground truth —
@@ -133,6 +134,7 @@ def test_simulate_moves_the_tool_to_its_target():
     assert res.summary()["control_ticks"] == 7000
 
 
+@pytest.mark.heavy
 def test_sanding_regulates_the_force_in_batch():
     """two_link_sanding in batch reaches the wall and presses: contact phases and a normal
     force near the set point by the end of the press (the task's own tolerance)."""

@@ -60,6 +60,7 @@ def _cli(capsys, *args):
 
 # ------------------------------------------------------------------ golden bag numbers
 
+@pytest.mark.heavy
 def test_golden_bag_channels(golden):
     """The bag expands the 4 kHz accelerometer batches to per-sample times and carries the
     ground truth, contact and the derived wall gap."""
@@ -387,6 +388,7 @@ def _write_foreign_bag(golden, path):
     return path
 
 
+@pytest.mark.heavy
 def test_foreign_bag_through_example_map(golden, tmp_path):
     bag = _write_foreign_bag(golden, tmp_path / "foreign")
     cmap = load_channel_map(EXAMPLE_MAP)
@@ -437,6 +439,7 @@ def test_csv_convention_round_trip(tmp_path):
     assert cs["tip_x"].unit == "m" and np.allclose(cs["tip_x"].y, [0.01, 0.03])
 
 
+@pytest.mark.heavy
 def test_synthetic_csv_is_reproducible(tmp_path):
     """tools/make_golden_bags.py rebuilds the shipped CSV byte for byte from the bag."""
     sys.path.insert(0, str(ROOT / "tools"))

@@ -161,6 +161,7 @@ def test_control_run_passes_within_the_tolerances(tmp_path, capsys):
     assert tip["control"]["target_channel"]["reference"] == "tip_target_x"
 
 
+@pytest.mark.heavy
 def test_control_run_fails_a_slow_overshooting_or_reversed_response(tmp_path, capsys):
     hold = np.zeros_like(T)
     ref = _table(tmp_path / "ref.csv", first_order(0.05), hold)

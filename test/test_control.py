@@ -490,6 +490,7 @@ def test_sanding_strokes_and_failures():
         _sanding_task(speed=0.0)
 
 
+@pytest.mark.heavy
 def test_sanding_closed_loop_on_the_rigid_arm():
     """Whole chain on the rigid arm: SandingTask → Newton–Raphson IK → Eq. 5.16/5.17 at
     200 Hz → quasi-static motors → arm against a penalty wall x = −25 mm (k = 2e4 N/m,

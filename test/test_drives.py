@@ -242,6 +242,7 @@ def test_dc_current_limit_with_inductance():
     assert err < 3e-4
 
 
+@pytest.mark.heavy
 def test_dc_current_limit_adaptive_integrator_is_exact():
     V, i_lim = 24.0, 10.0
     res = simulate(_dc_scene(V, _dc(current_limit=i_lim),
@@ -513,6 +514,7 @@ def _backlash_free_run(c, T, integrator, **kw):
     return E, engagements
 
 
+@pytest.mark.heavy
 def test_backlash_impacts_conserve_energy_without_damping():
     # kinetic + engaged mesh energy is invariant through the contacts (dop853, rtol 1e-12).
     # Measured over 13 engagements: max increase 2.8e-14, max decrease 1.9e-11 (relative).

@@ -454,6 +454,7 @@ def test_sweep_bad_input_exits_2(argv, pattern, capsys):
     assert __import__("re").search(pattern, err), err
 
 
+@pytest.mark.heavy
 def test_unreachable_scheduler_exits_2(capsys):
     pytest.importorskip("distributed")
     addr = f"tcp://127.0.0.1:{_free_port()}"           # nothing listens there
@@ -537,6 +538,7 @@ def test_contact_study_rows_are_runner_tasks_with_the_same_results_on_dask():
     assert len(lines) == 1 + len(serial)        # the reference, then one line per row
 
 
+@pytest.mark.heavy
 def test_uncertainty_and_sensitivity_commands_on_a_scene_file(tmp_path, capsys):
     import yaml
     (tmp_path / "probe.yaml").write_text(yaml.safe_dump(small_data()))

@@ -143,6 +143,7 @@ def test_fine_fem_mesh_with_too_large_explicit_step_is_refused_up_front():
     assert _suggested_dt(str(err)) < 1e-4
 
 
+@pytest.mark.heavy
 def test_fine_fem_mesh_runs_at_the_suggested_step():
     scene = _link(rung="fem", refine=32, dt=1e-4, output_dt=1e-4)
     with pytest.raises(StepTooLarge) as info:

@@ -133,6 +133,7 @@ def test_rigid_rung_frequency_is_its_own_closed_form():
     assert f[0] < CF[0]                    # 3 < 1.8751², the rung is softer than the beam
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("rung, refine, tip", [
     ("fem", 48, None),
     ("fem", 100, None),

@@ -438,6 +438,8 @@ def _cheap(case) -> bool:
     return not (argv[0] in ("study", "run", "replay", "compare") and value in ("1e300",))
 
 
+@pytest.mark.heavy
+@pytest.mark.subprocess
 def test_fuzz_command_lines(worker, tmp_path):
     cases = [c for c in cli_cases(tmp_path) if _cheap(c)]
     sample = random.Random(SEED).sample(cases, min(FAST_CLI_CASES, len(cases)))

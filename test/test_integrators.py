@@ -31,6 +31,7 @@ def reference():
     return simulate(_scene(integrator="dop853", rtol=1e-12, atol=1e-14))
 
 
+@pytest.mark.heavy
 def test_rk4_converges_at_fourth_order(reference):
     errs = [np.abs(_tip(simulate(_scene(integrator="rk4", dt=dt))) - _tip(reference)).max()
             for dt in (2e-4, 1e-4)]

@@ -14,6 +14,7 @@ module's ``_private`` name (make it public or move it where it is used).
 """
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -47,12 +48,24 @@ def _module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+@functools.lru_cache(maxsize=None)
+def _parsed(path: Path, stamp: tuple[int, int]) -> ast.Module:
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
+def _parse(path: Path) -> ast.Module:
+    """A file's syntax tree, parsed once per version of the file (the checks below walk
+    every source several times)."""
+    st = path.stat()
+    return _parsed(path, (st.st_mtime_ns, st.st_size))
+
+
 def _imports(path: Path, module: str | None = None) -> set[str]:
     """Absolute names of the project modules a file imports (relative imports resolved;
     ``module`` is the file's module name, by default from its place in the package)."""
     me = module or _module_name(path)
     found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(_parse(path)):
         if isinstance(node, ast.Import):
             found |= {a.name for a in node.names if a.name.split(".")[0] == "flexarm_ros"}
         elif isinstance(node, ast.ImportFrom):
@@ -148,7 +161,7 @@ def _private_imports(sources) -> list[str]:
     ``module reads other._name`` where ``other`` is a project module it imported."""
     bad = []
     for m, p in sources.items():
-        tree = ast.parse(p.read_text(encoding="utf-8"))
+        tree = _parse(p)
         bound = {}                   # local name -> the project module it is bound to
         for node in ast.walk(tree):
             if isinstance(node, ast.Import):

@@ -256,6 +256,7 @@ def test_environment_sets_defaults_and_keeps_what_the_user_set():
         environment.domain_id({"ROS_DOMAIN_ID": "seven"})
 
 
+@pytest.mark.heavy
 def test_nothing_imports_the_cli():
     """The command line is the top: no module of the package, tool or benchmark imports
     it (the console script ``flexarm`` runs it, tests may import it)."""

@@ -1,6 +1,7 @@
 """The progress line (flexarm_ros/io/progress.py): redrawn in place on a terminal, one
 plain line per update (throttled) in a log file."""
 
+import pytest
 import io
 
 from flexarm_ros.io import progress as P
@@ -37,6 +38,7 @@ def test_in_a_log_file_each_update_is_a_line_of_its_own_at_most_once_per_period(
     assert "\r" not in out.getvalue()
 
 
+@pytest.mark.heavy
 def test_a_compile_notice_comes_once_and_only_from_inside_numbas_compiler(tmp_path):
     """The notice looks at the entering thread's stack: a frame of numba's compiler.py
     (here a stand-in compiled with that file name) makes it speak once; the same wait

@@ -106,6 +106,7 @@ def rrd(tmp_path_factory, bag_path):
     return read_rrd(path)
 
 
+@pytest.mark.heavy
 def test_entity_paths(rrd):
     want = {"world", "world/wall", "world/arm/link1", "world/arm/link2", "world/tool",
             "world/tip_path", "world/contact_force", "plots/contact/in_contact",

@@ -64,6 +64,7 @@ def test_rkn4_carries_an_actuator_state_at_fourth_order():
     assert 10 < ratio < 25, err
 
 
+@pytest.mark.heavy
 def test_compiled_and_numpy_rkn4_agree():
     """The compiled loop (``loops._rk4_step`` with ``nystrom``) and the numpy step
     (``step.rk4_step`` with ``nq``) are the same method: dense path (a step above the output

@@ -100,6 +100,7 @@ def _two_rods():
         "fidelity": {"rung": "rod", "refine": 4}})
 
 
+@pytest.mark.heavy
 def test_energy_is_conserved_without_input():
     """Two rod links (one extensible, tip bodies with CG offsets), released spinning: the
     total energy over 1 s with DOP853 at rtol 1e-11 stays within 1e-9 of its start — the
@@ -143,6 +144,7 @@ def test_the_compiled_kernel_equals_the_numpy_reference():
     assert np.max(np.abs(out - ref)) < 1e-12
 
 
+@pytest.mark.heavy
 def test_the_spin_up_converges_below_the_second_order_floor():
     """Kane et al.'s spin-up (20 s): the rod with 5 terms and its stretch lies within
     2e-6 m of 8 terms over the whole run, and within 2e-6 m of it in the tip deflection;

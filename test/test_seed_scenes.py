@@ -147,6 +147,7 @@ def test_case3_backlash_flats_grow_with_the_width():
 
 
 # ------------------------------------------------------------------ seed 002
+@pytest.mark.heavy
 def test_hydraulic_2kg_rests_before_the_step_and_rises_after_it():
     scene = load_scene("hydraulic_2kg")
     step = scene.inputs[0].current.start

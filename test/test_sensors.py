@@ -105,6 +105,7 @@ def test_encoder_counts_are_exact_integers_of_the_shaft_angle():
     np.testing.assert_array_equal(tab["pot"], theta)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("x_gauge", [0.25, 0.4993, 0.8])
 def test_strain_of_statically_loaded_cantilever_matches_beam_theory(x_gauge):
     L, EI, rho_a, tip, t = 0.9985, 200e9 * 4.065e-10, 7861.05 * 6.17795e-4, 2.115, 3.175e-3

@@ -308,6 +308,7 @@ def test_energy_rk4_auto_step_finer(rung, refine):
     _rk4_energy(rung, refine)
 
 
+@pytest.mark.heavy
 def test_energy_rk4_numpy_backend():
     scene = _two_link("cubic", integrator="rk4")
     res = simulate(scene, 2.0, chain=Chain(scene, backend="numpy"))

@@ -47,6 +47,7 @@ def _row(rows, rung, refine, integrator="rk4"):
     return r
 
 
+@pytest.mark.heavy
 def test_rows_have_the_keys_and_are_json(quick):
     rows, lines = quick
     assert len(rows) == len(study.default_ladder(quick=True))
@@ -136,6 +137,7 @@ def test_pareto_flags_are_the_non_dominated_rows(quick):
     assert study.pareto_front([(1, 1.0), (2, 0.995)]) == [True, True]
 
 
+@pytest.mark.heavy
 def test_plot_and_table(quick, tmp_path):
     rows, _ = quick
     png = tmp_path / "pareto.png"

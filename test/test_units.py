@@ -31,6 +31,7 @@ def _with_rung(scene, rung):
     return scene.with_fidelity(rung=rung, refine=0)
 
 
+@pytest.mark.heavy
 def test_every_simulate_column_of_every_shipped_scene_has_a_unit():
     scenes = [load_scene(n) for n in shipped_scenes()]
     free = load_scene("two_link_free")

@@ -3,8 +3,9 @@
 
 The module needs only numpy, PyYAML, ``mcap`` and ``mcap-ros2-support`` (no rclpy).
 See :mod:`.writer` for what "rosbag2-compatible" means and what a killed writer loses,
-:mod:`.reader` for how damaged files are read, :mod:`.msgdefs` for the message types,
-:mod:`.twin_bag` for what the twin's recordings hold (scene, namespace, sensor batches).
+:mod:`.reader` for how damaged files are read (:mod:`.salvage`: the scanner that finds
+their intact records), :mod:`.msgdefs` for the message types, :mod:`.twin_bag` for what
+the twin's recordings hold (scene, namespace, sensor batches).
 """
 
 from flexarm_ros.bag import messages, msgdefs, twin_bag

@@ -4,7 +4,7 @@ A bag whose writer was killed has no summary section and no footer; one with dam
 inside has chunks that fail their CRC.  :func:`flexarm_ros.bag.reader.read_bag` reads
 such files, but tools that seek through the summary (``mcap``'s indexed reader,
 ``ros2 bag info``, rosbags) refuse them.  :func:`repair` reads every intact record with
-the project's damage-tolerant scanner (:mod:`.reader`) and writes a new, complete file:
+the project's damage-tolerant scanner (:mod:`.salvage`) and writes a new, complete file:
 
 * the same header profile and library, the same schemas (name, encoding, text) and
   channels (topic, message encoding, schema, channel metadata such as the offered QoS),
@@ -38,7 +38,8 @@ from mcap.writer import IndexType
 from mcap.writer import Writer as _McapWriter
 
 from flexarm_ros import __version__
-from flexarm_ros.bag.reader import (BagError, Damage, _Decoders, _Undecodable, scan, seconds)
+from flexarm_ros.bag.reader import Decoders, Undecodable
+from flexarm_ros.bag.salvage import BagError, Damage, scan, seconds
 from flexarm_ros.bag.writer import (INFO_METADATA_NAME, ROSBAG2_METADATA_NAME,
                                     _default_compression, _dump_yaml, rosbag2_bag_metadata)
 
@@ -172,7 +173,7 @@ def repair(source: str | os.PathLike, output: str | os.PathLike | None = None, *
 
 
 def _rewrite(scanner, f, report: RepairReport, out_name: str, chunk_size: int) -> None:
-    decode = _Decoders(scanner.name)
+    decode = Decoders(scanner.name)
     writer: _McapWriter | None = None
     schema_ids: dict[int, int] = {}       # old id -> new id
     channel_ids: dict[int, int] = {}
@@ -218,7 +219,7 @@ def _rewrite(scanner, f, report: RepairReport, out_name: str, chunk_size: int) -
             if not verified:
                 try:
                     decode(message, channel, schema, where, False)
-                except _Undecodable:
+                except Undecodable:
                     report.undecodable += 1
                     return
             cid = channel_id(channel, schema)

@@ -11,7 +11,7 @@ model, the output columns and writing the table. This bench times
    per phase (the phases of one run need not add up to the best process):
 
    * ``interpreter``: process launch to the child's first statement;
-   * ``imports``: ``flexarm_ros.cli`` and the modules ``cmd_simulate`` imports;
+   * ``imports``: ``flexarm_ros.cli`` and the modules ``flexarm simulate`` imports;
    * ``scene``: reading the scene YAML, fidelity overrides applied;
    * ``model build``: :class:`~flexarm_ros.model.chain.Chain` (beam shapes, mass points);
    * ``compiled load``: numba loading the compiled functions a run calls from the cache
@@ -53,6 +53,7 @@ CHILD = r"""
 import time; _T0 = time.time()
 import json, os, sys
 import flexarm_ros.cli as cli
+import flexarm_ros.commands.simulate as simulate_command
 import flexarm_ros.io.paths, flexarm_ros.io.tables, flexarm_ros.io.units
 import flexarm_ros.sim.simulate
 _T1 = time.time()
@@ -74,7 +75,7 @@ def timed(owner, attr, key):
     setattr(owner, attr, wrapper)
 
 S, tables = flexarm_ros.sim.simulate, flexarm_ros.io.tables
-timed(cli, "_load", "scene")
+timed(simulate_command, "load", "scene")
 timed(S, "Chain", "model build")
 timed(S, "integrate", "integration")
 timed(S, "integrate_with_contact", "integration")

@@ -229,7 +229,7 @@ def replay(plan: ReplayPlan, rate: float = 1.0, loop: bool = False,
 
 
 def command(args) -> int:
-    """``flexarm replay`` (arguments from :func:`flexarm_ros.cli.build_parser`): exit 0
+    """``flexarm replay`` (arguments from :mod:`flexarm_ros.commands.replay`): exit 0
     done or interrupted, 1 no subscriber in time, 2 bad bag/arguments or rerun missing."""
     import json
     import math

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from flexarm_ros.bag import BagWriter, iter_messages, messages, read_bag, to_dict
-from flexarm_ros.cli import main, sensor_table_path as cli_sensor_table_path
+from flexarm_ros.cli import main
+from flexarm_ros.commands.simulate import sensor_table_path as cli_sensor_table_path
 from flexarm_ros.io.experiment import read_experiment_csv
 from flexarm_ros.io.tables import sensor_table_path
 from flexarm_ros.scene import resolve_scene_path

@@ -146,7 +146,7 @@ def test_the_progress_line_is_cleared_only_when_drawn(capsys):
     import io
     import sys
 
-    from flexarm_ros.cli import _Progress
+    from flexarm_ros.commands.common import Progress
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -154,7 +154,7 @@ def test_the_progress_line_is_cleared_only_when_drawn(capsys):
 
     real, sys.stderr = sys.stderr, Tty()
     try:                                          # on a terminal: redrawn, then blanked
-        p = _Progress(2.0, quiet=False)
+        p = Progress(2.0, quiet=False)
         p.clear()
         assert sys.stderr.getvalue() == ""
         p(0.5)
@@ -162,12 +162,12 @@ def test_the_progress_line_is_cleared_only_when_drawn(capsys):
         err = sys.stderr.getvalue()
     finally:
         sys.stderr = real
-    assert err.startswith("\r  t = 1 / 2 s") and err.endswith(" " * _Progress.WIDTH + "\r")
-    p = _Progress(2.0, quiet=False)               # in a log (capsys): plain lines only
+    assert err.startswith("\r  t = 1 / 2 s") and err.endswith(" " * Progress.WIDTH + "\r")
+    p = Progress(2.0, quiet=False)                # in a log (capsys): plain lines only
     p(0.5)
     p.clear()
     assert capsys.readouterr().err == "t = 1 / 2 s ( 50.0 %)\n"
-    q = _Progress(2.0, quiet=True)
+    q = Progress(2.0, quiet=True)
     assert q.callback is None
     q.clear()
     assert capsys.readouterr().err == ""

@@ -226,12 +226,12 @@ def test_a_run_for_your_own_nodes_says_which_ros_domain_to_join(monkeypatch, cap
     one it chose (a user's node in another terminal must join it) or the user's."""
     import os
 
-    from flexarm_ros.cli import _say_domain
+    from flexarm_ros.commands.run import say_domain
     mine = os.environ["ROS_DOMAIN_ID"]
-    _say_domain()
+    say_domain()
     assert capsys.readouterr().err == f"flexarm run: ROS domain {mine} (from ROS_DOMAIN_ID)\n"
     monkeypatch.delenv("ROS_DOMAIN_ID")          # restored after the test
-    _say_domain()
+    say_domain()
     err = capsys.readouterr().err
     chosen = os.environ["ROS_DOMAIN_ID"]
     assert f"ROS domain {chosen} (chosen for this run; start your own nodes with " \

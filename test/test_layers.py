@@ -34,7 +34,7 @@ ALLOWED = {
 #: package's own ``__init__``, the version)
 ORDER = ("errors", "", "testing", "child_process", "scene", "io", "model", "sim", "control",
          "bag", "twin", "analysis", "viz", "ensemble", "studies", "calibration", "nodes",
-         "replay", "run", "cli")
+         "replay", "run", "commands", "cli")
 
 #: (importing module, imported module, name): imports of a ``_private`` name allowed, each
 #: with its reason (none today)

@@ -1,7 +1,7 @@
 """The ``flexarm compare`` command: runs :func:`flexarm_ros.analysis.compare.compare_files`
 on the parsed options, prints the summary table or the JSON document and writes the
 report (:func:`flexarm_ros.analysis.report.write_report`). Options are parsed in
-:mod:`flexarm_ros.cli`; docs/compare.md describes them.
+:mod:`flexarm_ros.commands.compare`; docs/compare.md describes them.
 """
 
 from __future__ import annotations
@@ -80,9 +80,9 @@ def summary(cmp: Comparison) -> str:
 
 
 def run_cli(args) -> int:
-    """``flexarm compare`` (options parsed in :mod:`flexarm_ros.cli`): prints the summary
-    or the JSON, writes the report; returns 0 = pass, 1 = fail. Bad input raises
-    :class:`~flexarm_ros.io.experiment.CompareInputError` (exit status 2)."""
+    """``flexarm compare`` (options parsed in :mod:`flexarm_ros.commands.compare`): prints
+    the summary or the JSON, writes the report; returns 0 = pass, 1 = fail. Bad input
+    raises :class:`~flexarm_ros.io.experiment.CompareInputError` (exit status 2)."""
     if args.report:                      # checked before the comparison, not after it
         from flexarm_ros.io.paths import check_output_dir
         check_output_dir("--report", args.report)

@@ -240,8 +240,9 @@ def export_bag(bag_path, out, topics=None) -> ExportReport:
 
 
 def cli(args) -> int:
-    """``flexarm bag export`` (options parsed in :mod:`flexarm_ros.cli`): 0 written; bad
-    input raises :class:`~flexarm_ros.io.experiment.CompareInputError` (exit status 2)."""
+    """``flexarm bag export`` (options parsed in :mod:`flexarm_ros.commands.bag`): 0
+    written; bad input raises :class:`~flexarm_ros.io.experiment.CompareInputError` (exit
+    status 2)."""
     topics = None
     if args.topics:
         topics = [t.strip() for item in args.topics for t in item.split(",") if t.strip()]

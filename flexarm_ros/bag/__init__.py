@@ -3,9 +3,9 @@
 
 The module needs only numpy, PyYAML, ``mcap`` and ``mcap-ros2-support`` (no rclpy).
 See :mod:`.writer` for what "rosbag2-compatible" means and what a killed writer loses,
-:mod:`.reader` for how damaged files are read, :mod:`.msgdefs` for the message types;
-what the twin's recordings hold (scene, namespace, sensor batches) is read by
-:mod:`flexarm_ros.twin.recording`.
+:mod:`.reader` for how damaged files are read (:mod:`.salvage`: the scanner that finds
+their intact records), :mod:`.msgdefs` for the message types; what the twin's recordings
+hold (scene, namespace, sensor batches) is read by :mod:`flexarm_ros.twin.recording`.
 """
 
 from flexarm_ros.bag import messages, msgdefs

@@ -4,7 +4,7 @@ A bag whose writer was killed has no summary section and no footer; one with dam
 inside has chunks that fail their CRC.  :func:`flexarm_ros.bag.reader.read_bag` reads
 such files, but tools that seek through the summary (``mcap``'s indexed reader,
 ``ros2 bag info``, rosbags) refuse them.  :func:`repair` reads every intact record with
-the project's damage-tolerant scanner (:mod:`.reader`) and writes a new, complete file:
+the project's damage-tolerant scanner (:mod:`.salvage`) and writes a new, complete file:
 
 * the same header profile and library, the same schemas (name, encoding, text) and
   channels (topic, message encoding, schema, channel metadata such as the offered QoS),
@@ -38,7 +38,8 @@ from mcap.writer import IndexType
 from mcap.writer import Writer as _McapWriter
 
 from flexarm_ros import __version__
-from flexarm_ros.bag.reader import (BagError, Damage, Decoders, Undecodable, scan, seconds)
+from flexarm_ros.bag.reader import Decoders, Undecodable
+from flexarm_ros.bag.salvage import BagError, Damage, scan, seconds
 from flexarm_ros.bag.writer import (INFO_METADATA_NAME, ROSBAG2_METADATA_NAME,
                                     default_compression, dump_yaml, rosbag2_bag_metadata)
 

@@ -1,0 +1,59 @@
+"""``flexarm study``: the speed–accuracy table (and Pareto plot) of the fidelity ladder."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from flexarm_ros.commands.common import check_duration, fail, load, open_loop_arg, scene_arg
+from flexarm_ros.io.arguments import integer, number
+
+
+def add_parser(sub) -> None:
+    st = sub.add_parser("study", help="speed–accuracy table of the fidelity ladder")
+    scene_arg(st)
+    st.add_argument("--duration", type=number, help="simulated seconds per run")
+    st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
+    st.add_argument("--json", action="store_true")
+    st.add_argument("--png", type=Path, help="write the Pareto plot here (.png, .pdf or "
+                                             ".svg)")
+    st.add_argument("--quiet", action="store_true",
+                    help="no progress on stderr (the table is still printed)")
+    # rung, refinement, integrator and tolerances are what the ladder varies: not options
+    st.add_argument("--no-foreshortening", action="store_true",
+                    help="drop the geometric-stiffening terms in every rung")
+    open_loop_arg(st)
+    st.add_argument("--workers", type=integer, metavar="N",
+                    help="run the ladder rows on N local Dask worker processes (default 0: "
+                         "in this process, one at a time, so that each row's wall time is "
+                         "measured alone)")
+    st.add_argument("--scheduler", metavar="ADDRESS",
+                    help="run the ladder rows on an existing Dask cluster (docs/ensembles.md)")
+    st.set_defaults(func=main)
+
+
+def main(args):
+    from flexarm_ros.io.paths import check_output_file
+    from flexarm_ros.studies.ladder import run_study, plot_pareto
+    check_duration(args.duration)
+    if args.png:
+        check_output_file("--png", args.png, (".png", ".pdf", ".svg"))
+    scene = load(args)
+    quiet = args.quiet or args.json
+    from flexarm_ros.ensemble.runner import open_executor
+    if args.workers is not None and args.workers < 0:
+        fail(f"--workers: got {args.workers}, expected an integer >= 0 (0: in this process)")
+    with open_executor(args.workers or 0, args.scheduler) as ex:   # rows as runner tasks
+        rows = run_study(scene, duration=args.duration, quick=args.quick, executor=ex,
+                         open_loop=args.open_loop,
+                         progress=None if quiet else
+                         (lambda text: print(f"  {text}", file=sys.stderr, flush=True)))
+    if args.png:
+        plot_pareto(rows, args.png, title=scene.name)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        from flexarm_ros.studies.ladder import format_table
+        print(format_table(rows))
+    return 0

@@ -712,10 +712,24 @@ class RungChain:
         kin = self.kinematics(q, qd, frames_only=True)
         out = []
         for k, lm in enumerate(self.links):
-            xs = np.linspace(0.0, lm.beam.length, samples)
-            out.append(np.array([self.point_kinematics(q, qd, k, "beam", (x, 0.0), kin=kin)[0]
-                                 for x in xs]))
+            xs, bases = self._centerline_basis(k, samples)
+            out.append(np.array([self.point_kinematics(q, qd, k, "beam", (x, 0.0), kin=kin,
+                                                       basis=basis)[0]
+                                 for x, basis in zip(xs, bases)]))
         return out
+
+    def _centerline_basis(self, link: int, samples: int) -> tuple:
+        """(abscissae, the beam's ``point(x)`` at each, None for a rod) of
+        :meth:`centerlines`, computed once per link and sample count (a live view
+        draws the arm many times)."""
+        cache = self.__dict__.setdefault("_centerline_bases", {})
+        got = cache.get((link, samples))
+        if got is None:
+            b = self.links[link].beam
+            xs = np.linspace(0.0, b.length, samples)
+            got = cache[(link, samples)] = (xs, [None if b.rod is not None else b.point(x)
+                                                 for x in xs])
+        return got
 
     def tip_deflections(self, q) -> np.ndarray:
         """Transverse tip deflection w(L) of every beam in its hub frame (m; rigid rung:

@@ -3,8 +3,9 @@
 Publishes (node-relative, reliable keep_last 1000): ``/clock``, ``joint_states``,
 ``encoders/counts``, ``accelerometers/batch`` / ``strain/batch`` /
 ``potentiometer/batch`` (scenes with such sensors), ``tool/contact`` and ``tool/wrench``
-(scenes with a wall), ``ground_truth/joint_states``, ``ground_truth/tip`` — the state of
-one control tick, in that order. Subscribes: ``effort_controller/commands`` (N·m per
+(scenes with a wall), ``ground_truth/joint_states``, ``ground_truth/tip``, ``ground_truth/coordinates`` — the state of
+one control tick, in that order — and ``arm_markers`` (the deformed arm for RViz2 and
+Foxglove, :mod:`flexarm_ros.nodes.markers`) at ``marker_rate_hz`` of simulation time. Subscribes: ``effort_controller/commands`` (N·m per
 joint — for a hydraulic joint the servovalve current, A above the null bias, to the
 actuator the plant integrates — held over the next control period).
 
@@ -72,7 +73,7 @@ import numpy as np
 from rclpy.node import Node
 
 from flexarm_ros.bag.cdr_fixed import CdrBuilder
-from flexarm_ros.errors import SimulationDiverged
+from flexarm_ros.errors import InputError, SimulationDiverged
 from flexarm_ros.io.progress import ProgressLine
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
@@ -80,6 +81,7 @@ from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, che
                                      ground_truth_rate, name_thread, realtime_scheduling)
 from flexarm_ros.twin.validation import FOREIGN
 import flexarm_ros.nodes.common as C
+from flexarm_ros.nodes.markers import ArmMarkers
 from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
@@ -121,7 +123,14 @@ class SimulatorNode(Node):
                                   "what the twin waits for"),
               "ground_truth_rate_hz": (-1.0, "rate of ground_truth/tip and "
                                        "ground_truth/coordinates (0: every tick; -1: "
-                                       f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)")}
+                                       f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)"),
+              "marker_rate_hz": (30.0, "rate of arm_markers (visualization_msgs/"
+                                 "MarkerArray of the deformed arm for RViz2 and Foxglove) "
+                                 "in simulation time: the first tick at or after each "
+                                 "1/rate (0: none)"),
+              "marker_force_scale": (0.0, "arm_markers: contact force arrow length in m "
+                                     "per N (0: the largest force so far draws 0.25 of "
+                                     "the arm's reach)")}
 
     def __init__(self, **kwargs):
         super().__init__("simulator", **kwargs)
@@ -142,6 +151,17 @@ class SimulatorNode(Node):
         pubs = {}                                   # outputs() at k = 0 changes nothing
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
+        rate = self.p["marker_rate_hz"]
+        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
+            raise InputError(f"parameter marker_rate_hz: got {rate!r}, expected a finite "
+                             f"rate ≥ 0 Hz (0: no arm_markers)")
+        self.marker_rate = float(rate)
+        self.markers = None                     # the arm for RViz2 / Foxglove
+        self._marker_slot = -1                  # the last 1/rate slot drawn
+        if self.marker_rate > 0:
+            self.markers = ArmMarkers(scene, plant.chain,
+                                      force_scale=float(self.p["marker_force_scale"]))
+            pubs[T.ARM_MARKERS] = C.publisher(self, T.TYPES[T.ARM_MARKERS], T.ARM_MARKERS)
         self.pubs = pubs
         self._cdr = CdrBuilder()
         sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort, plain=True,
@@ -231,10 +251,24 @@ class SimulatorNode(Node):
         for topic, tp, data in self.core.outputs(ground_truth=gt, build=self._cdr):
             self.pubs[topic].publish(data)
             self.published[topic] += 1
+        if self.markers is not None:
+            self._publish_markers()
         self.published_k = self.core.k
         self._progress_wall = time.monotonic()
         if self.n_end is not None and self.core.k >= self.n_end:
             self.halt()
+
+    def _publish_markers(self):
+        """``arm_markers`` at the first published tick at or after each 1/marker_rate_hz
+        of simulation time (the tick's state, its stamp)."""
+        t_ns = int(round(self.core.t * 1e9))
+        slot = math.floor(t_ns * self.marker_rate / 1e9 + 1e-6)
+        if slot <= self._marker_slot:
+            return
+        self._marker_slot = slot
+        t_ns, q, contact, fn, ft = self.core.view_state()
+        self.pubs[T.ARM_MARKERS].publish(self.markers.cdr(t_ns, q, contact, fn, ft))
+        self.published[T.ARM_MARKERS] += 1
 
     def halt(self):
         """Stop stepping (end of the run, or Ctrl-C): no more states are published."""

@@ -202,3 +202,20 @@ def test_wall_line_is_on_the_scene_wall():
                 if m["ns"] == "wall")
     xs = [p["x"] for p in wall["points"]]
     assert wall["type"] == LINE_LIST and xs == [-0.025, -0.025]
+
+
+@pytest.mark.parametrize("rung", ["rigid", "modal", "fem"])
+def test_vectorized_centerlines_are_the_point_kinematics(rung):
+    """Chain.centerlines (all points of a link at once, the bases cached) gives the
+    positions of point_kinematics, the model's material-point kinematics."""
+    scene = load_scene(SCENE).with_fidelity(rung=rung)
+    chain = Chain(scene, backend="numpy")
+    q = np.random.default_rng(5).normal(size=chain.n) * 0.05
+    qd = np.zeros(chain.n)
+    lines = chain.centerlines(q, 9)
+    for k, lm in enumerate(chain.links):
+        ref = [chain.point_kinematics(q, qd, k, "beam", (x, 0.0))[0]
+               for x in np.linspace(0.0, lm.beam.length, 9)]
+        assert np.abs(lines[k] - np.array(ref)).max() < 1e-14
+    assert np.abs(lines[-1][-1] - chain.tip_position(q)).max() < 1e-14
+    assert chain.centerlines(q, 9)[0] is not lines[0]          # a new array every call

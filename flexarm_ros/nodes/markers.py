@@ -98,15 +98,13 @@ class ArmMarkers:
         tool's contact (``normal``, ``friction``: the forces of ``tool/wrench``, N)."""
         g, fr, w = self.geometry, self.frame, self.width
         q = np.asarray(q, float)
-        lines = g.centerlines(q, self.samples)
-        hubs = g.chain.kinematics(q, np.zeros(g.chain.n), frames_only=True).hub_frames
+        lines, hubs, tool = g.shape(q, self.samples)
         out = [marker(t_ns, fr, "links", k, LINE_STRIP, line, (2 * w, 0, 0))
                for k, line in enumerate(lines)]
-        out += [marker(t_ns, fr, "hubs", k, SPHERE, (), (4 * w,) * 3, position=h.o)
+        out += [marker(t_ns, fr, "hubs", k, SPHERE, (), (4 * w,) * 3, position=h)
                 for k, h in enumerate(hubs)]
         if self.wall is not None:
             out.append(marker(t_ns, fr, "wall", 0, LINE_LIST, self.wall, (w, 0, 0)))
-        tool = g.tool_position(q)
         out.append(marker(t_ns, fr, "tool", 0, SPHERE, (), (3 * w,) * 3, position=tool))
         force = g.contact_force(normal, friction) if contact else None
         if force is not None:

@@ -40,10 +40,23 @@ class ArmGeometry:
         """One (samples, 2) world-frame centerline per link, beam root to tip (m)."""
         return self.chain.centerlines(np.asarray(q, float), samples)
 
-    def tool_position(self, q) -> np.ndarray:
-        """Tool point (m): the last tip frame o + A(ψ)·tool.position."""
-        fr = self.chain.kinematics(np.asarray(q, float), np.zeros(self.chain.n),
-                                   frames_only=True).tip_frames[-1]
+    def frames(self, q):
+        """The chain's hub and tip frames at ``q`` (``Chain.kinematics``, frames only)."""
+        return self.chain.kinematics(np.asarray(q, float), np.zeros(self.chain.n),
+                                     frames_only=True)
+
+    def shape(self, q, samples: int = 21) -> tuple:
+        """(centerlines, hub origins (links, 2), tool point) at ``q``, from one
+        evaluation of the frames."""
+        kin = self.frames(q)
+        return (self.chain.centerlines(np.asarray(q, float), samples, kin=kin),
+                np.array([np.asarray(h.o, float) for h in kin.hub_frames]),
+                self.tool_position(q, kin))
+
+    def tool_position(self, q, kin=None) -> np.ndarray:
+        """Tool point (m): the last tip frame o + A(ψ)·tool.position (``kin``: the frames
+        at ``q``, when at hand)."""
+        fr = (kin or self.frames(q)).tip_frames[-1]
         c, s = np.cos(fr.psi), np.sin(fr.psi)
         p = np.asarray(self.scene.tool.position, float)
         return np.asarray(fr.o, float) + np.array([c * p[0] - s * p[1], s * p[0] + c * p[1]])

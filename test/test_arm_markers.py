@@ -147,6 +147,29 @@ def test_the_bag_schema_decodes_with_mcap_ros2(runs):
     assert len(strip.points) == 11 and strip.color.a == 1.0
 
 
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
+def test_realtime_markers_are_logged_at_their_tick(tmp_path):
+    """Realtime: the marker thread builds the arrays after the tick they show; the
+    recorder logs each at its stamp, and the tip is the ground truth's at that tick."""
+    from flexarm_ros.run import run
+    path = tmp_path / "rt.mcap"
+    res = run(SCENE, 1.0, "realtime", record=path, namespace=NS, progress=False)
+    assert res.ticks == 1000 and res.recorded[MARKERS] == 31       # 0, 34, ..., 1000 ms
+    bag = _rosbags(path)
+    tips = {t: (m.point.x, m.point.y) for t, m in bag[f"{NS}/{T.GT_TIP}"]}  # 100 Hz
+    matched = 0
+    for t, ma in bag[MARKERS]:
+        stamp = ma.markers[0].header.stamp
+        assert stamp.sec * 1_000_000_000 + stamp.nanosec == t
+        if t in tips:
+            tip = [m for m in ma.markers if m.ns == "links"][-1].points[-1]
+            assert math.dist((tip.x, tip.y), tips[t]) < 1e-9
+            matched += 1
+    assert matched == 11                                          # every 100 ms
+
+
 # ------------------------------------------------------------- the builder, no ROS
 def test_marker_bytes_are_what_ros_reads():
     """The builder's bytes: rclpy deserializes them to the same values, and rosbags

@@ -103,6 +103,22 @@ def _stamp_ns(raw: bytes) -> int:
     return sec * 1_000_000_000 + nsec
 
 
+_MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+
+def _header_ns(tp: str, raw: bytes) -> int | None:
+    """The header stamp of a stamped message (None for the others): the first
+    ``header.stamp`` of a stamped type, the first marker's of a MarkerArray (after the
+    sequence count; the simulator stamps every marker of an array alike, and builds it
+    in realtime after the tick it shows)."""
+    if tp in _STAMPED:
+        return _stamp_ns(raw)
+    if tp == _MARKER_ARRAY and len(raw) >= 16 and struct.unpack_from("<I", raw, 4)[0]:
+        sec, nsec = struct.unpack_from("<iI", raw, 8)
+        return sec * 1_000_000_000 + nsec
+    return None
+
+
 def _decode(tp: str, raw: bytes):
     """The rclpy message of ``raw``, or None when the bytes are not one of ``tp`` (checked
     first with :mod:`flexarm_ros.bag.cdr_read` where it reads ``tp``: rmw prints a line to
@@ -217,7 +233,7 @@ class RecorderNode(Node):
             if topic == T.CLOCK:
                 self._on_clock(ts, raw, _stamp_ns(raw))
             else:
-                self.sink.emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
+                self.sink.emit(ts, topic, tp, raw, _header_ns(tp, raw))
             return
         v = self.validators.get(topic)
         m = None
@@ -250,7 +266,7 @@ class RecorderNode(Node):
         if topic == T.CLOCK:
             self._on_clock(ts, raw, _stamp_ns(raw))
         else:
-            self.sink.emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
+            self.sink.emit(ts, topic, tp, raw, _header_ns(tp, raw))
 
     def _name(self, info) -> str:
         gid = gid_of(info)

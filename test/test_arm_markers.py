@@ -227,7 +227,7 @@ def test_wall_line_is_on_the_scene_wall():
     assert wall["type"] == LINE_LIST and xs == [-0.025, -0.025]
 
 
-@pytest.mark.parametrize("rung", ["rigid", "modal", "fem"])
+@pytest.mark.parametrize("rung", ["rigid", "modal", "fem", "rod"])
 def test_vectorized_centerlines_are_the_point_kinematics(rung):
     """Chain.centerlines (all points of a link at once, the bases cached) gives the
     positions of point_kinematics, the model's material-point kinematics."""

@@ -68,6 +68,7 @@ import math
 import sys
 import threading
 import time
+from collections import deque
 
 import numpy as np
 from rclpy.node import Node
@@ -159,7 +160,8 @@ class SimulatorNode(Node):
         self.markers = None                     # the arm for RViz2 / Foxglove
         self._marker_slot = -1                  # the last 1/rate slot drawn
         self._marker_cv = threading.Condition()     # realtime: to the marker thread
-        self._marker_state = self._marker_thread = None
+        self._marker_states = deque(maxlen=self.MARKER_QUEUE)
+        self._marker_thread = None
         if self.marker_rate > 0:
             self.markers = ArmMarkers(scene, plant.chain,
                                       force_scale=float(self.p["marker_force_scale"]))
@@ -278,7 +280,7 @@ class SimulatorNode(Node):
             self._send_markers(state)
             return
         with self._marker_cv:
-            self._marker_state = state                  # the newest wins
+            self._marker_states.append(state)   # beyond MARKER_QUEUE: the oldest dropped
             if self._marker_thread is None:
                 self._marker_thread = threading.Thread(target=self._marker_loop,
                                                        name="arm-markers", daemon=True)
@@ -296,11 +298,10 @@ class SimulatorNode(Node):
         try:
             while True:
                 with self._marker_cv:
-                    self._marker_cv.wait_for(lambda: self._marker_state is not None
-                                             or self.finished)
-                    state, self._marker_state = self._marker_state, None
-                if state is None:
-                    return
+                    self._marker_cv.wait_for(lambda: self._marker_states or self.finished)
+                    if not self._marker_states:
+                        return
+                    state = self._marker_states.popleft()
                 self._send_markers(state)
         except BaseException as exc:            # never die silently in a thread
             self.get_logger().error(f"arm_markers thread stopped: {exc!r}")
@@ -341,6 +342,7 @@ class SimulatorNode(Node):
         self.report()
 
     STALL_WARN_S = 3.0
+    MARKER_QUEUE = 30        # realtime: arrays waiting for the marker thread (1 s at 30 Hz)
 
     def _start_timeout(self):
         """Not started: past ``start_timeout_s`` (> 0) the run ends as stalled, naming what

@@ -7,6 +7,7 @@ asserted here (shared machines)."""
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 from mcap.reader import make_reader
@@ -46,6 +47,9 @@ def _check_summary(s: dict, ticks: int, gt_every: int = 10):
         assert pub[T.resolve(NS, topic)] == want and rec[T.resolve(NS, topic)] == want, topic
     for topic in (T.COMMANDS, T.EFFORTS, T.MOTOR_STATES):
         assert rec[T.resolve(NS, topic)] in (ticks, ticks + 1), topic
+    # arm_markers (built by the marker thread): the first tick at or after each 1/30 s
+    markers = math.floor(ticks * 1e-3 * 30 + 1e-6) + 1
+    assert pub[T.resolve(NS, T.ARM_MARKERS)] == rec[T.resolve(NS, T.ARM_MARKERS)] == markers
     assert s["rejected_commands"] == 0
     assert s["scheduling"] == "SCHED_OTHER (thread_priority 0)"      # the default
     # the CPU budget over the ticking: every process of the graph costs something, and

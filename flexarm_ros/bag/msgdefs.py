@@ -1,8 +1,9 @@
 """ROS 2 message definitions (``ros2msg`` text) for the types the twin records.
 
 The texts are the ROS 2 Humble/Jazzy ``.msg`` files with comments stripped (field
-names, types, array bounds and default values are unchanged; Humble and Jazzy agree on
-every type here).  :func:`full_text` concatenates a type with all its dependencies
+names, types, array bounds, default values and constants are unchanged; Humble and Jazzy
+agree on every field here, and on every constant but Marker's ``ARROW_STRIP``, Jazzy's).
+:func:`full_text` concatenates a type with all its dependencies
 exactly the way rosbag2's MCAP storage plugin does (``message_definition_cache.cpp``):
 
 * the top-level text first, then for each dependency not seen before, in a depth-first
@@ -69,6 +70,43 @@ DEFINITIONS: dict[str, str] = {
     "geometry_msgs/msg/Wrench": "Vector3  force\nVector3  torque\n",
     "geometry_msgs/msg/WrenchStamped": "std_msgs/Header header\nWrench wrench\n",
     "geometry_msgs/msg/PointStamped": "std_msgs/Header header\nPoint point\n",
+    "geometry_msgs/msg/Pose": "Point position\nQuaternion orientation\n",
+    "std_msgs/msg/ColorRGBA": "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n",
+    "sensor_msgs/msg/CompressedImage": (
+        "std_msgs/Header header\n"
+        "string format\n"
+        "uint8[] data\n"
+    ),
+    "visualization_msgs/msg/UVCoordinate": "float32 u\nfloat32 v\n",
+    "visualization_msgs/msg/MeshFile": "string filename\nuint8[] data\n",
+    # Jazzy's text (Humble's lacks the constant ARROW_STRIP; the fields are the same)
+    "visualization_msgs/msg/Marker": (
+        "int32 ARROW=0\nint32 CUBE=1\nint32 SPHERE=2\nint32 CYLINDER=3\n"
+        "int32 LINE_STRIP=4\nint32 LINE_LIST=5\nint32 CUBE_LIST=6\nint32 SPHERE_LIST=7\n"
+        "int32 POINTS=8\nint32 TEXT_VIEW_FACING=9\nint32 MESH_RESOURCE=10\n"
+        "int32 TRIANGLE_LIST=11\nint32 ARROW_STRIP=12\n\n"
+        "int32 ADD=0\nint32 MODIFY=0\nint32 DELETE=2\nint32 DELETEALL=3\n\n"
+        "std_msgs/Header header\n"
+        "string ns\n"
+        "int32 id\n"
+        "int32 type\n"
+        "int32 action\n"
+        "geometry_msgs/Pose pose\n"
+        "geometry_msgs/Vector3 scale\n"
+        "std_msgs/ColorRGBA color\n"
+        "builtin_interfaces/Duration lifetime\n"
+        "bool frame_locked\n\n"
+        "geometry_msgs/Point[] points\n"
+        "std_msgs/ColorRGBA[] colors\n\n"
+        "string texture_resource\n"
+        "sensor_msgs/CompressedImage texture\n"
+        "UVCoordinate[] uv_coordinates\n\n"
+        "string text\n\n"
+        "string mesh_resource\n"
+        "MeshFile mesh_file\n"
+        "bool mesh_use_embedded_materials\n"
+    ),
+    "visualization_msgs/msg/MarkerArray": "Marker[] markers\n",
 }
 
 KNOWN_TYPES: tuple[str, ...] = tuple(sorted(DEFINITIONS))
@@ -111,6 +149,20 @@ TYPE_HASHES: dict[str, str] = {
         "RIHS01_4c66e6f78e740ac103a94cf63259f968e48c617e7699e829b63c21a5cb50dac6",
     "std_msgs/msg/String":
         "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+    "geometry_msgs/msg/Pose":
+        "RIHS01_d501954e9476cea2996984e812054b68026ae0bfae789d9a10b23daf35cc90fa",
+    "std_msgs/msg/ColorRGBA":
+        "RIHS01_77a7a5b9ae477306097665106e0413ba74440245b1f3d0c6d6405fe5c7813fe8",
+    "sensor_msgs/msg/CompressedImage":
+        "RIHS01_15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a",
+    "visualization_msgs/msg/UVCoordinate":
+        "RIHS01_f27f7ed21fe360c6066944f856b801a0c0d1e94e815b6886444b42d90b196a26",
+    "visualization_msgs/msg/MeshFile":
+        "RIHS01_7710ece15a148fb7c9b546364cfb215bb06098087bd6394fe5b73a493508f8c4",
+    "visualization_msgs/msg/Marker":
+        "RIHS01_45b13ccf791f225962bf74e746f9644518855d783a6f42ba0cc14fde2b4f3ce0",
+    "visualization_msgs/msg/MarkerArray":
+        "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf",
 }
 
 PRIMITIVE_TYPES = frozenset({
@@ -118,6 +170,7 @@ PRIMITIVE_TYPES = frozenset({
     "int32", "uint32", "int64", "uint64", "string",
 })
 
+_CONSTANT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_/]*\s+[A-Za-z][A-Za-z0-9_]*\s*=")
 _FIELD_RE = re.compile(
     r"^(?P<type>[A-Za-z][A-Za-z0-9_/]*)(?:\[(?P<size>[0-9]*)\])?\s+(?P<name>[A-Za-z][A-Za-z0-9_]*)"
 )
@@ -158,9 +211,10 @@ def _qualified(ref: str, package: str) -> str:
 
 
 def _field_lines(msgtype: str):
+    """The field lines of a definition (constants such as ``int32 ARROW=0`` skipped)."""
     for raw in DEFINITIONS[msgtype].splitlines():
         line = raw.split("#", 1)[0].strip()
-        if line:
+        if line and not _CONSTANT_RE.match(line):
             m = _FIELD_RE.match(line)
             if m is None:  # pragma: no cover - guards edits of DEFINITIONS
                 raise ValueError(f"cannot parse line {raw!r} of {msgtype}")

@@ -5,6 +5,7 @@ Exit 0 done, 1 a node exited with an error, 2 bad input, 3 diverged or stalled."
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -78,6 +79,10 @@ def add_parser(sub) -> None:
     r.add_argument("--ground-truth-rate", type=number, metavar="HZ",
                    help="rate of ground_truth/tip and ground_truth/coordinates (default: "
                         "every control tick; 100 Hz in realtime; 0: every tick)")
+    r.add_argument("--marker-rate", type=number, metavar="HZ",
+                   help="rate of arm_markers, the deformed arm for RViz2 and Foxglove "
+                        "(visualization_msgs/MarkerArray, in simulation time; default 30; "
+                        "0: none; see docs/viewing.md)")
     r.add_argument("--rerun", type=Path, metavar="FILE.rrd",
                    help="after the run, convert its bag to this rerun recording (needs "
                         "rerun-sdk: pip install -e .[viz]; see docs/viewing.md)")
@@ -103,6 +108,11 @@ def main(args):
     if (args.late_bound is not None or args.ground_truth_rate is not None
             or args.thread_priority is not None or args.start_timeout is not None):
         _check_pacing_flags(args)
+    if args.marker_rate is not None and not (math.isfinite(args.marker_rate)
+                                             and args.marker_rate >= 0):
+        from flexarm_ros.errors import InputError
+        raise InputError(f"--marker-rate: got {args.marker_rate:g}, expected a finite rate "
+                         f"≥ 0 Hz (0: no arm_markers)")
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record
@@ -133,7 +143,8 @@ def main(args):
               simulator={"late_policy": args.late_policy, "late_bound": args.late_bound,
                          "ground_truth_rate_hz": args.ground_truth_rate,
                          "thread_priority": args.thread_priority,
-                         "start_timeout_s": args.start_timeout})
+                         "start_timeout_s": args.start_timeout,
+                         "marker_rate_hz": args.marker_rate})
     if args.rerun or args.rerun_spawn:            # convert the run's bag afterwards
         from flexarm_ros.run import run_with_view
         from flexarm_ros.viz.rerun_view import RerunUnavailable

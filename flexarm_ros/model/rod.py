@@ -95,6 +95,24 @@ class RodBasis:
         t_raw, c_raw = _raw_rows(np.array([x]), self.length, self.terms, self.axial)
         return w, t_raw[0] @ self.transform, c_raw[0] @ self.transform
 
+    def rows_at(self, xs):
+        """(W rows (N, P), T rows (N, ne), C rows (N, ne)) at the abscissae ``xs``: the
+        rows of :meth:`point_rows` for many points at once."""
+        xs = np.clip(np.asarray(xs, float), 0.0, self.length)
+        w = _integration_rows(self.basis_x, xs, self.length)
+        t_raw, c_raw = _raw_rows(xs, self.length, self.terms, self.axial)
+        return w, t_raw @ self.transform, c_raw @ self.transform
+
+    def positions_at(self, rows, eta):
+        """Positions s (N, 2) in the hub frame at the abscissae of ``rows``
+        (:meth:`rows_at`): :meth:`local_at`'s s for every point at once."""
+        w, t_rows, c_rows = rows
+        P = len(self.basis_x)
+        s = _local(np.vstack([self.T[:P], t_rows]), np.vstack([self.C[:P], c_rows]),
+                   np.vstack([np.zeros((P, P)), w]), self.hub_radius, eta,
+                   np.zeros_like(eta))[0]
+        return s[P:]
+
     def local_at(self, x: float, eta, etad):
         """(s (2,), ∂s/∂η (2, ne), a (2,), θ) at abscissa x."""
         w, t_row, c_row = self.point_rows(x)

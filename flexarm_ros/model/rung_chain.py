@@ -701,21 +701,51 @@ class RungChain:
         """Position (x, y) of the last beam's tip (m)."""
         return self.kinematics(q, np.zeros(self.n), frames_only=True).tip_frames[-1].o.copy()
 
-    def centerlines(self, q, samples: int = 21) -> list[np.ndarray]:
+    def centerlines(self, q, samples: int = 21, kin=None) -> list[np.ndarray]:
         """Deformed beam centerlines in the world frame, one (samples, 2) array per link
-        from the beam root to its tip: r(x) = o_hub + A(ψ)·[r_h + x + u_f(x), φ(x)ᵀη], the
-        kinematics of the mass points and sensors (:meth:`point_kinematics`), for views."""
+        from the beam root to its tip: r(x) = o_hub + A(ψ)·[r_h + x − ½ηᵀS(x)η, φ(x)ᵀη]
+        (the foreshortening term where the chain has it; a rod: its exact kinematics),
+        the position of :meth:`point_kinematics` for all the points of a link at once,
+        for views. ``kin``: the frames at ``q``, when at hand."""
         if samples < 2:
             raise ValueError(f"samples: got {samples}, expected at least 2")
         q = np.asarray(q, float)
         qd = np.zeros(self.n)
-        kin = self.kinematics(q, qd, frames_only=True)
+        kin = kin or self.kinematics(q, qd, frames_only=True)
         out = []
         for k, lm in enumerate(self.links):
-            xs = np.linspace(0.0, lm.beam.length, samples)
-            out.append(np.array([self.point_kinematics(q, qd, k, "beam", (x, 0.0), kin=kin)[0]
-                                 for x in xs]))
+            xs, basis = self._centerline_basis(k, samples)
+            hub, eta = kin.hub_frames[k], q[lm.eta]
+            if lm.beam.rod is not None:             # the rod's exact kinematics
+                local = lm.beam.rod.positions_at(basis, eta)
+            else:
+                phi, S = basis
+                axial = lm.beam.hub_radius + xs
+                if self.foreshortening:
+                    axial = axial - 0.5 * ((S @ eta) @ eta)
+                local = np.stack([axial, phi @ eta], axis=1)     # (samples, 2)
+            out.append(hub.o + local @ _rot(hub.psi).T)
         return out
+
+    def _centerline_basis(self, link: int, samples: int) -> tuple:
+        """(abscissae, (φ(x) stacked (samples, ne), S(x) stacked (samples, ne, ne)), a
+        rod's :meth:`~flexarm_ros.model.rod.RodBasis.rows_at`) of :meth:`centerlines`: the
+        beam's ``point(x)``, computed once per link and sample count (a live view draws
+        the arm many times)."""
+        cache = self.__dict__.setdefault("_centerline_bases", {})
+        got = cache.get((link, samples))
+        if got is None:
+            b = self.links[link].beam
+            xs = np.linspace(0.0, b.length, samples)
+            if b.rod is not None:
+                basis = b.rod.rows_at(xs)
+            else:
+                pts = [b.point(x) for x in xs]
+                basis = (np.array([p[0] for p in pts], float).reshape(samples, -1),
+                         np.array([p[2] for p in pts], float).reshape(
+                             samples, b.n, b.n))
+            got = cache[(link, samples)] = (xs, basis)
+        return got
 
     def tip_deflections(self, q) -> np.ndarray:
         """Transverse tip deflection w(L) of every beam in its hub frame (m; rigid rung:

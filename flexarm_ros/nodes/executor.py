@@ -11,8 +11,9 @@ subscriptions whose callback takes a ``MessageInfo`` — which the source rule
 (:mod:`~flexarm_ros.nodes._wire`) and the recorder's stamps need.
 
 :class:`DrainExecutor` does only what the twin's nodes use: subscriptions (message
-objects or raw bytes, with or without ``MessageInfo``) and timers, all in the one default
-callback group, called from the spinning thread. ``spin_once`` builds one wait set of
+objects or raw bytes, with or without ``MessageInfo``), timers and services (every rclpy
+node's parameter services: ``ros2 param list/get/set/describe`` answer as from any node),
+all in the one default callback group, called from the spinning thread. ``spin_once`` builds one wait set of
 every subscription and timer, waits, then calls each ready timer and *drains* each ready
 subscription — takes and handles every message queued on it, in arrival order per
 topic — before waiting again. Per topic the order is the DDS order, as with any
@@ -28,8 +29,8 @@ not block while deliveries are queued, and runs those queued before it returns (
 ones they queue in turn wait for the next call, so a lockstep run never recurses and
 the caller's stop conditions are checked every call).
 
-Not supported (and not used by the nodes): services, clients, waitables, other guard
-conditions, coroutine callbacks, other callback groups.
+Not supported (and not used by the nodes): clients, waitables, other guard conditions,
+coroutine callbacks, other callback groups.
 """
 
 from __future__ import annotations
@@ -121,21 +122,24 @@ class DrainExecutor:
         subs = [s for n in self._nodes for s in n.subscriptions
                 if not getattr(s, "taken_elsewhere", False)]
         timers = [t for n in self._nodes for t in n.timers if not t.is_canceled()]
-        if not subs and not timers and bus is None:
+        services = [v for n in self._nodes for v in n.services]
+        if not subs and not timers and not services and bus is None:
             self._release()
             if timeout_sec:
                 time.sleep(timeout_sec)
             return
-        key = (tuple(map(id, subs)), tuple(map(id, timers)))
+        key = (tuple(map(id, subs)), tuple(map(id, timers)), tuple(map(id, services)))
         if key != self._key:
             self._release()
             stack = ExitStack()
             live_subs, live_timers = _enter(stack, subs), _enter(stack, timers)
+            live_services = _enter(stack, services)
             stack.enter_context(self.context.handle)
             ws = _rclpy.WaitSet(len(live_subs), int(bus is not None), len(live_timers),
-                                0, 0, 0, self.context.handle)
-            self._key, self._cache = key, (stack, live_subs, live_timers, ws)
-        _, live_subs, live_timers, ws = self._cache
+                                0, len(live_services), 0, self.context.handle)
+            self._key = key
+            self._cache = (stack, live_subs, live_timers, live_services, ws)
+        _, live_subs, live_timers, live_services, ws = self._cache
         timeout_ns = -1 if timeout_sec is None else int(max(timeout_sec, 0.0) * 1e9)
         if bus is not None and bus.queue:
             timeout_ns = 0
@@ -144,11 +148,14 @@ class DrainExecutor:
             ws.add_subscription(s.handle)
         for t in live_timers:
             ws.add_timer(t.handle)
+        for v in live_services:
+            ws.add_service(v.handle)
         if bus is not None:
             ws.add_guard_condition(bus.guard)
         ws.wait(timeout_ns)
         ready_subs = set(ws.get_ready_entities("subscription"))
         ready_timers = set(ws.get_ready_entities("timer"))
+        ready_services = set(ws.get_ready_entities("service"))
         # with a bus, the realtime pacing thread runs node callbacks too: one thread at a
         # time (the bus's lock), so a node's callbacks never interleave
         with (bus.lock if bus is not None else nullcontext()):
@@ -165,9 +172,31 @@ class DrainExecutor:
             for s in live_subs:
                 if s.handle.pointer in ready_subs:
                     self._drain(s)
+            for v in live_services:
+                if v.handle.pointer in ready_services:
+                    self._serve(v)
         if bus is not None:
             bus.deliver()
             bus.flush()             # what the callbacks sent the other process, if any
+
+    @staticmethod
+    def _serve(srv) -> None:
+        """Answer every request queued on ``srv`` as rclpy's executor does: take the
+        request, call the service's callback with a fresh response, send it back."""
+        while True:
+            try:
+                with srv.handle:
+                    taken = srv.handle.service_take_request(srv.srv_type.Request)
+            except InvalidHandle:                 # destroyed by an earlier callback
+                return
+            if not taken or taken[1] is None:
+                return
+            request, header = taken
+            response = srv.callback(request, srv.srv_type.Response())
+            try:
+                srv.send_response(response, header)
+            except InvalidHandle:
+                return
 
     @staticmethod
     def _drain(sub) -> None:

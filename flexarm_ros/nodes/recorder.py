@@ -3,7 +3,9 @@
 Subscribes (node-relative, reliable keep_last 1000): every topic of the contract
 (:mod:`flexarm_ros.twin.topics`) — ``/clock``, ``joint_states``, ``encoders/counts``,
 the sensor batches, ``tool/contact``, ``tool/wrench``, ``ground_truth/*``,
-``motor_driver/commands``, ``effort_controller/commands``, ``motor_driver/motor_states``.
+``motor_driver/commands``, ``effort_controller/commands``, ``motor_driver/motor_states``,
+``arm_markers`` (the viewers' MarkerArray, recorded with its ros2msg schema so Foxglove
+draws the arm from the bag).
 Publishes nothing. Writes ``output`` with :class:`~flexarm_ros.bag.BagWriter` — in this
 process, or with ``writer_process`` (set by ``flexarm run`` in one process) in a child
 process on the other core (:mod:`flexarm_ros.bag.writer_process`; the stamping below runs
@@ -22,7 +24,8 @@ the value of the latest ``/clock`` the simulator had published when the message 
 published (both moments are the DDS source timestamps of one host's clock; a message is
 held until a later ``/clock`` arrives, so delivery order does not matter). A message with a
 header keeps its stamp when that lies between 0 and that time (an answer to an earlier
-state: the driver's ``motor_states``), else it gets that time. So in ``lockstep`` every
+state: the driver's ``motor_states``; a MarkerArray, by its first marker's stamp, which
+the simulator's marker thread builds after the tick it shows), else it gets that time. So in ``lockstep`` every
 message of tick k — commands and efforts included — is logged at t_k exactly as
 ``cosimulate`` gives it, and no burst of foreign messages can log anything past the last
 ``/clock``, the run's end.
@@ -101,6 +104,22 @@ def _stamp_ns(raw: bytes) -> int:
     message's ``header.stamp`` (int32 sec, uint32 nanosec at byte 4, little-endian)."""
     sec, nsec = struct.unpack_from("<iI", raw, 4)
     return sec * 1_000_000_000 + nsec
+
+
+_MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+
+def _header_ns(tp: str, raw: bytes) -> int | None:
+    """The header stamp of a stamped message (None for the others): the first
+    ``header.stamp`` of a stamped type, the first marker's of a MarkerArray (after the
+    sequence count; the simulator stamps every marker of an array alike, and builds it
+    in realtime after the tick it shows)."""
+    if tp in _STAMPED:
+        return _stamp_ns(raw)
+    if tp == _MARKER_ARRAY and len(raw) >= 16 and struct.unpack_from("<I", raw, 4)[0]:
+        sec, nsec = struct.unpack_from("<iI", raw, 8)
+        return sec * 1_000_000_000 + nsec
+    return None
 
 
 def _decode(tp: str, raw: bytes):
@@ -217,7 +236,7 @@ class RecorderNode(Node):
             if topic == T.CLOCK:
                 self._on_clock(ts, raw, _stamp_ns(raw))
             else:
-                self.sink.emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
+                self.sink.emit(ts, topic, tp, raw, _header_ns(tp, raw))
             return
         v = self.validators.get(topic)
         m = None
@@ -250,7 +269,7 @@ class RecorderNode(Node):
         if topic == T.CLOCK:
             self._on_clock(ts, raw, _stamp_ns(raw))
         else:
-            self.sink.emit(ts, topic, tp, raw, _stamp_ns(raw) if tp in _STAMPED else None)
+            self.sink.emit(ts, topic, tp, raw, _header_ns(tp, raw))
 
     def _name(self, info) -> str:
         gid = gid_of(info)

@@ -3,8 +3,9 @@
 Publishes (node-relative, reliable keep_last 1000): ``/clock``, ``joint_states``,
 ``encoders/counts``, ``accelerometers/batch`` / ``strain/batch`` /
 ``potentiometer/batch`` (scenes with such sensors), ``tool/contact`` and ``tool/wrench``
-(scenes with a wall), ``ground_truth/joint_states``, ``ground_truth/tip`` — the state of
-one control tick, in that order. Subscribes: ``effort_controller/commands`` (N·m per
+(scenes with a wall), ``ground_truth/joint_states``, ``ground_truth/tip``, ``ground_truth/coordinates`` — the state of
+one control tick, in that order — and ``arm_markers`` (the deformed arm for RViz2 and
+Foxglove, :mod:`flexarm_ros.nodes.markers`) at ``marker_rate_hz`` of simulation time. Subscribes: ``effort_controller/commands`` (N·m per
 joint — for a hydraulic joint the servovalve current, A above the null bias, to the
 actuator the plant integrates — held over the next control period).
 
@@ -67,12 +68,13 @@ import math
 import sys
 import threading
 import time
+from collections import deque
 
 import numpy as np
 from rclpy.node import Node
 
 from flexarm_ros.bag.cdr_fixed import CdrBuilder
-from flexarm_ros.errors import SimulationDiverged
+from flexarm_ros.errors import InputError, SimulationDiverged
 from flexarm_ros.io.progress import ProgressLine
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
@@ -80,6 +82,7 @@ from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, che
                                      ground_truth_rate, name_thread, realtime_scheduling)
 from flexarm_ros.twin.validation import FOREIGN
 import flexarm_ros.nodes.common as C
+from flexarm_ros.nodes.markers import ArmMarkers
 from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
@@ -121,7 +124,14 @@ class SimulatorNode(Node):
                                   "what the twin waits for"),
               "ground_truth_rate_hz": (-1.0, "rate of ground_truth/tip and "
                                        "ground_truth/coordinates (0: every tick; -1: "
-                                       f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)")}
+                                       f"every tick, in realtime {REALTIME_GT_HZ:g} Hz)"),
+              "marker_rate_hz": (30.0, "rate of arm_markers (visualization_msgs/"
+                                 "MarkerArray of the deformed arm for RViz2 and Foxglove) "
+                                 "in simulation time: the first tick at or after each "
+                                 "1/rate (0: none)"),
+              "marker_force_scale": (0.0, "arm_markers: contact force arrow length in m "
+                                     "per N (0: the largest force so far draws 0.25 of "
+                                     "the arm's reach)")}
 
     def __init__(self, **kwargs):
         super().__init__("simulator", **kwargs)
@@ -142,6 +152,20 @@ class SimulatorNode(Node):
         pubs = {}                                   # outputs() at k = 0 changes nothing
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
+        rate = self.p["marker_rate_hz"]
+        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
+            raise InputError(f"parameter marker_rate_hz: got {rate!r}, expected a finite "
+                             f"rate ≥ 0 Hz (0: no arm_markers)")
+        self.marker_rate = float(rate)
+        self.markers = None                     # the arm for RViz2 / Foxglove
+        self._marker_slot = -1                  # the last 1/rate slot drawn
+        self._marker_cv = threading.Condition()     # realtime: to the marker thread
+        self._marker_states = deque(maxlen=self.MARKER_QUEUE)
+        self._marker_thread = None
+        if self.marker_rate > 0:
+            self.markers = ArmMarkers(scene, plant.chain,
+                                      force_scale=float(self.p["marker_force_scale"]))
+            pubs[T.ARM_MARKERS] = C.publisher(self, T.TYPES[T.ARM_MARKERS], T.ARM_MARKERS)
         self.pubs = pubs
         self._cdr = CdrBuilder()
         sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort, plain=True,
@@ -231,10 +255,56 @@ class SimulatorNode(Node):
         for topic, tp, data in self.core.outputs(ground_truth=gt, build=self._cdr):
             self.pubs[topic].publish(data)
             self.published[topic] += 1
+        if self.markers is not None:
+            self._publish_markers()
         self.published_k = self.core.k
         self._progress_wall = time.monotonic()
         if self.n_end is not None and self.core.k >= self.n_end:
             self.halt()
+
+    def _publish_markers(self):
+        """``arm_markers`` at the first published tick at or after each 1/marker_rate_hz
+        of simulation time (the tick's state, its stamp). In lockstep and fast the tick
+        builds and publishes them; in realtime the pacing thread only takes the state
+        (a copy of q) and the marker thread builds and publishes the array (~0.5 ms of
+        Python that would otherwise delay the next tick; with the GIL's switch interval
+        at a tenth of a period the pacer preempts it). The recorder logs them at their
+        stamp, the tick's time."""
+        t_ns = int(round(self.core.t * 1e9))
+        slot = math.floor(t_ns * self.marker_rate / 1e9 + 1e-6)
+        if slot <= self._marker_slot:
+            return
+        self._marker_slot = slot
+        state = self.core.view_state()
+        if self.mode != "realtime" or threading.current_thread() is not self._thread:
+            self._send_markers(state)
+            return
+        with self._marker_cv:
+            self._marker_states.append(state)   # beyond MARKER_QUEUE: the oldest dropped
+            if self._marker_thread is None:
+                self._marker_thread = threading.Thread(target=self._marker_loop,
+                                                       name="arm-markers", daemon=True)
+                self._marker_thread.start()
+            self._marker_cv.notify()
+
+    def _send_markers(self, state):
+        t_ns, q, contact, fn, ft = state
+        self.pubs[T.ARM_MARKERS].publish(self.markers.cdr(t_ns, q, contact, fn, ft))
+        self.published[T.ARM_MARKERS] += 1
+
+    def _marker_loop(self):
+        """Realtime: build and publish the arrays the pacing thread hands over, until the
+        node has halted and the last one is out."""
+        try:
+            while True:
+                with self._marker_cv:
+                    self._marker_cv.wait_for(lambda: self._marker_states or self.finished)
+                    if not self._marker_states:
+                        return
+                    state = self._marker_states.popleft()
+                self._send_markers(state)
+        except BaseException as exc:            # never die silently in a thread
+            self.get_logger().error(f"arm_markers thread stopped: {exc!r}")
 
     def halt(self):
         """Stop stepping (end of the run, or Ctrl-C): no more states are published."""
@@ -247,6 +317,10 @@ class SimulatorNode(Node):
                 self._watch.cancel()
             if self._thread is not None and self._thread is not threading.current_thread():
                 self._thread.join()
+            if self._marker_thread is not None:     # the last array out, then it ends
+                with self._marker_cv:
+                    self._marker_cv.notify()
+                self._marker_thread.join(timeout=5.0)
             self.report(final=True)
             self._write_summary()
 
@@ -268,6 +342,7 @@ class SimulatorNode(Node):
         self.report()
 
     STALL_WARN_S = 3.0
+    MARKER_QUEUE = 30        # realtime: arrays waiting for the marker thread (1 s at 30 Hz)
 
     def _start_timeout(self):
         """Not started: past ``start_timeout_s`` (> 0) the run ends as stalled, naming what

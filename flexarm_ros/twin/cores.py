@@ -143,6 +143,18 @@ class SimulatorCore:
             contact, fn = cs["phase"] != "free", cs["normal_force"]
         return ang, contact, fn, qdf[self._i_drive], plant.torques.tolist()
 
+    def view_state(self) -> tuple:
+        """What a view of the arm draws now: (t_ns, the full coordinate vector q in
+        ``Chain.names`` order, in contact, normal force N, friction force N) — the values
+        of ``ground_truth/coordinates`` and ``tool/wrench`` at this instant."""
+        plant = self.plant
+        q = plant.chain.full_state(plant.t, plant.x)[0]
+        contact, fn, ft = False, 0.0, 0.0
+        if plant.contact is not None:
+            cs = plant.contact_state()
+            contact, fn, ft = cs["phase"] != "free", cs["normal_force"], cs["friction_force"]
+        return to_ns(self.t), q, contact, fn, ft
+
     def outputs(self, ground_truth: bool = True, build=msg) -> list[tuple]:
         """(topic, type, message) of this instant, in publication order. With
         ``ground_truth=False`` the analysis-only topics ``ground_truth/tip`` and

@@ -14,6 +14,7 @@ against the twin unchanged). Standard message types only.
 | ``ground_truth/joint_states`` | sensor_msgs/JointState | sim → analysis | exact link-side joint angles ``<link>_joint`` and drive coordinates ``<link>_drive`` (rad, rad/s) |
 | ``ground_truth/tip`` | geometry_msgs/PointStamped | sim → analysis | tip position (m, ``world``) |
 | ``ground_truth/coordinates`` | sensor_msgs/JointState | sim → analysis, views | every generalized coordinate of the model by name (``Chain.names``: joint/motor angles, beam coordinates ``<link>_w1``, …; SI) and its rate, effort = the input torque acting on it (N·m, 0 where none acts) — with the scene embedded in the bag, enough to redraw the deformed arm (``Chain.centerlines``) |
+| ``arm_markers`` | visualization_msgs/MarkerArray | sim → RViz2, Foxglove, log | the deformed arm for a viewer, frame ``world``, stamped with the simulation time, at ``marker_rate_hz`` (default 30 Hz; 0: none): ``links`` LINE_STRIP per link centerline (``Chain.centerlines``), ``hubs`` SPHERE per hub, ``wall`` LINE_LIST, ``tool`` SPHERE, ``contact_force`` ARROW from the tool while in contact (DELETE otherwise); stable namespaces and ids |
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
 | ``controller/joint_targets`` | sensor_msgs/JointState | ctrl → log | position and sanding control: the commanded joint angles ``<link>_joint`` (rad), the commanded rate (0 rad/s) and the PD torque demanded (N·m, Eq. 5.16), one per command (none in open loop) |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
@@ -38,6 +39,7 @@ TOOL_WRENCH = "tool/wrench"
 GT_JOINT_STATES = "ground_truth/joint_states"
 GT_TIP = "ground_truth/tip"
 GT_COORDINATES = "ground_truth/coordinates"
+ARM_MARKERS = "arm_markers"
 COMMANDS = "motor_driver/commands"
 EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
@@ -60,6 +62,7 @@ TYPES = {
     GT_JOINT_STATES: "sensor_msgs/msg/JointState",
     GT_TIP: "geometry_msgs/msg/PointStamped",
     GT_COORDINATES: "sensor_msgs/msg/JointState",
+    ARM_MARKERS: "visualization_msgs/msg/MarkerArray",
     COMMANDS: "std_msgs/msg/Float64MultiArray",
     EFFORTS: "std_msgs/msg/Float64MultiArray",
     MOTOR_STATES: "sensor_msgs/msg/JointState",

@@ -1,6 +1,8 @@
 """What a recorded twin bag shows, as plain numpy arrays on the simulation time (ns):
 the deformed arm, the wall, the tool and its contact force, the tip path and the sensor
-traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to rerun.
+traces. No viewer here: :mod:`flexarm_ros.viz.rerun_view` logs these arrays to rerun. The
+geometry (centerlines, tool, wall, force) is :class:`~flexarm_ros.viz.arm_geometry.ArmGeometry`'s,
+which the simulator node's ``arm_markers`` draw too.
 
 The bag's conventions (embedded scene, namespace, sensor batch layout and timing) are
 read by :mod:`flexarm_ros.twin.recording`, as ``flexarm compare`` reads them. The model
@@ -23,6 +25,7 @@ import numpy as np
 from flexarm_ros.twin import recording
 from flexarm_ros.bag.reader import Bag, BagError, read_bag
 from flexarm_ros.twin import topics as T
+from flexarm_ros.viz.arm_geometry import ArmGeometry
 
 __all__ = ["BagView", "ShapeFrame", "Trace", "thin"]
 
@@ -74,10 +77,10 @@ class BagView:
         self.bag: Bag = bag if isinstance(bag, Bag) else read_bag(bag)
         self.namespace = recording.namespace(self.bag, namespace)
         self.scene = recording.embedded_scene(self.bag)
-        self.chain = None
+        self.geometry = self.chain = None
         if self.scene is not None:
-            from flexarm_ros.model import Chain
-            self.chain = Chain(self.scene, backend="numpy")
+            self.geometry = ArmGeometry(self.scene)
+            self.chain = self.geometry.chain
         self._index: dict = {}
         self._tips: dict | None = None
 
@@ -110,31 +113,20 @@ class BagView:
     @property
     def tool_at_tip(self) -> bool:
         """The scene's tool point is the last beam's tip (ground_truth/tip is the tool)."""
-        return self.scene is None or not any(self.scene.tool.position)
+        return self.geometry is None or self.geometry.tool_at_tip
 
     # ------------------------------------------------------------------ geometry
     def wall_normal_tangent(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(unit inward normal n, tangent t = E·n, E the +90° rotation) of the wall."""
-        if self.scene is None or not self.scene.walls:
-            return None
-        n = np.asarray(self.scene.walls[0].normal, float)
-        n = n / np.hypot(*n)
-        return n, np.array([-n[1], n[0]])
+        return None if self.geometry is None else self.geometry.wall_normal_tangent()
 
     def reach(self) -> float:
         """Sum of the beam lengths (m), the scale of the drawing (1 m without a scene)."""
-        if self.scene is None:
-            return 1.0
-        return float(sum(lk.beam.length + lk.beam.hub_radius for lk in self.scene.links))
+        return 1.0 if self.geometry is None else self.geometry.reach()
 
     def wall_line(self, half_length: float | None = None) -> np.ndarray | None:
         """(2, 2) end points of the wall: ``point ± half_length·t`` (default: the reach)."""
-        nt = self.wall_normal_tangent()
-        if nt is None:
-            return None
-        h = self.reach() if half_length is None else half_length
-        p = np.asarray(self.scene.walls[0].point, float)
-        return np.array([p - h * nt[1], p + h * nt[1]])
+        return None if self.geometry is None else self.geometry.wall_line(half_length)
 
     def _q_index(self, names: tuple) -> np.ndarray:
         """Message index of every ``Chain.names`` entry (by name, not position)."""
@@ -164,11 +156,7 @@ class BagView:
             tip = self.tips().get(int(t_ns))
             if tip is not None:
                 return tip
-        fr = self.chain.kinematics(np.asarray(q, float), np.zeros(self.chain.n),
-                                   frames_only=True).tip_frames[-1]
-        c, s = np.cos(fr.psi), np.sin(fr.psi)
-        p = np.asarray(self.scene.tool.position, float)
-        return np.asarray(fr.o, float) + np.array([c * p[0] - s * p[1], s * p[0] + c * p[1]])
+        return self.geometry.tool_position(q)
 
     def tips(self) -> dict:
         """{log time ns: ground_truth/tip (x, y)}."""
@@ -196,7 +184,7 @@ class BagView:
         for k in chosen:
             t, m = msgs[k]
             q = self.coordinates(m)
-            out.append(ShapeFrame(int(t), self.chain.centerlines(q, samples),
+            out.append(ShapeFrame(int(t), self.geometry.centerlines(q, samples),
                                   self.tool_position(q, t), q))
         return out
 
@@ -205,12 +193,11 @@ class BagView:
         """(t_ns (N,), force on the tool in the world frame (N, 2) = F_n·n + F_t·t,
         (F_n, F_t) (N, 2)) from ``tool/wrench`` (frame ``wall``: x normal, y tangent)."""
         msgs = self.messages(T.TOOL_WRENCH)
-        nt = self.wall_normal_tangent()
-        if not msgs or nt is None:
+        if not msgs or self.wall_normal_tangent() is None:
             return None
         t = np.array([t for t, _ in msgs], np.int64)
         f = np.array([[m.wrench.force.x, m.wrench.force.y] for _, m in msgs], float)
-        return t, f[:, :1] * nt[0] + f[:, 1:] * nt[1], f
+        return t, self.geometry.contact_force(f[:, 0], f[:, 1]), f
 
     # ------------------------------------------------------------------ traces
     def batch_series(self, topic: str) -> list[Trace]:

@@ -45,12 +45,12 @@ import math
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from flexarm_ros.calibration.observables import Case, FeatureTarget, SeriesTarget, parse_feature
 from flexarm_ros.calibration.parameters import (check_distinct, make_param, make_scale,
                                                 start_assignment)
 from flexarm_ros.errors import InputError
+from flexarm_ros.scene.yaml_input import load_yaml
 
 SKIP = {"contact", "contact_phase"}      # flags: not a residual a gradient can follow
 MAX_SHIFT_S = 0.1                        # --offset auto: the cross-correlation's search
@@ -304,11 +304,11 @@ def load_spec(path):
     if not p.exists():
         raise InputError(f"spec: {p}: no such file, expected a calibration spec (YAML)")
     try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
+        data = load_yaml(p.read_text(), f"spec: {p}")   # bounded: depth, aliases, duplicates
+    except InputError as exc:
         hint = ("; a key path with [i] inside [ ] is not flow YAML: write a block list "
                 "(- links[0]...) or quote it" if "flow sequence" in str(exc) else "")
-        raise InputError(f"spec: {p}: not YAML ({' '.join(str(exc).split())}){hint}") from None
+        raise InputError(f"{exc}{hint}") from None
     data = _mapping(data, f"spec {p}")
     unknown = set(data) - {"parameters", "cases", "starts", "seed", "diff_step",
                            "max_evaluations"}

@@ -46,10 +46,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from flexarm_ros.errors import InputError
 from flexarm_ros.ensemble.keys import check_numeric
+from flexarm_ros.scene.yaml_input import load_yaml
 
 DISTRIBUTIONS = ("uniform", "normal", "lognormal")
 _FIELDS = {"uniform": {"low", "high"}, "normal": {"mean", "std", "low", "high"},
@@ -256,10 +256,9 @@ def parse_spec(data, path: Path | None = None, check_keys: bool = True) -> Spec:
 def load_spec(path) -> Spec:
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+        text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(f"{p}: cannot read the spec ({exc.strerror or exc}), expected a "
                          f"readable YAML file") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{p}: not valid YAML: {' '.join(str(exc).split())}") from None
+    data = load_yaml(text, str(p))           # bounded: depth, alias expansion, duplicates
     return parse_spec(data, p)

@@ -50,10 +50,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from flexarm_ros.errors import InputError
 from flexarm_ros.io.units import TEXT as TEXT_UNIT
+from flexarm_ros.scene.yaml_input import load_yaml
 
 __all__ = [
     "CompareInputError",
@@ -296,9 +296,9 @@ def load_channel_map(path) -> ChannelMap:
     except (OSError, UnicodeDecodeError) as exc:
         raise CompareInputError(f"{p}: cannot read the map file ({exc})") from None
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CompareInputError(f"{p}: not valid YAML ({exc})") from None
+        data = load_yaml(text, str(p))       # bounded: depth, alias expansion, duplicates
+    except InputError as exc:
+        raise CompareInputError(str(exc)) from None
     if not isinstance(data, dict) or not isinstance(data.get("channels"), dict) \
             or not data["channels"]:
         raise CompareInputError(f"{p}: channels: missing or empty; expected a mapping "

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import yaml
-
 from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.scene.schema import from_mapping
 from flexarm_ros.scene.sections import Scene
+from flexarm_ros.scene.yaml_input import load_yaml
 
 #: the scene every command uses when none is named: seed 000 Case 1 (the wall strike)
 DEFAULT_SCENE = "two_link_case1"
@@ -33,12 +32,9 @@ def load_scene(path) -> Scene:
         raise SceneError(f"{p}: cannot read the scene ({exc.strerror or exc}), expected a "
                          f"readable YAML file") from None
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        where = getattr(exc, "problem_mark", None)
-        at = f" at line {where.line + 1}, column {where.column + 1}" if where else ""
-        what = getattr(exc, "problem", None) or " ".join(str(exc).split())
-        raise SceneError(f"{p}: not valid YAML{at}: {what}") from None
+        data = load_yaml(text, str(p))       # bounded: depth, alias expansion, duplicates
+    except InputError as exc:
+        raise SceneError(str(exc)) from None
     try:
         return load_scene_dict(data)
     except InputError as exc:

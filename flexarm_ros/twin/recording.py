@@ -31,6 +31,7 @@ import yaml
 from flexarm_ros.bag.reader import BagError
 from flexarm_ros.bag.writer import INFO_METADATA_NAME
 from flexarm_ros.twin import topics as T
+from flexarm_ros.scene.yaml_input import load_yaml
 
 __all__ = ["DEFAULT_NAMESPACE", "BatchLayout", "SensorBatches", "batch_layout",
            "batch_times_ns", "embedded_scene", "expand_batch", "expand_batches",
@@ -87,7 +88,7 @@ def embedded_scene(bag):
         return None
     from flexarm_ros.scene import load_scene_dict
     try:
-        return load_scene_dict(yaml.safe_load(text))
+        return load_scene_dict(load_yaml(text, "scene_yaml"))
     except (yaml.YAMLError, ValueError, TypeError, KeyError, AttributeError) as err:
         raise BagError(f"{bag.path}: metadata {INFO_METADATA_NAME}.scene_yaml is not a valid "
                        f"scene: {err}") from err

@@ -724,7 +724,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                                               if v is not None and k in (
                                                   "late_policy", "late_bound",
                                                   "ground_truth_rate_hz", "thread_priority",
-                                                  "start_timeout_s")})
+                                                  "start_timeout_s", "marker_rate_hz")})
     record = Path(record) if record else None
     cpus = len(os.sched_getaffinity(0))       # before a split graph pins this process
     stop = StopFlag()

@@ -146,6 +146,22 @@ def test_the_start_timeout_is_checked_with_its_name():
     check_settings(1e-3, start_timeout_s=5)
 
 
+def test_the_marker_rate_is_checked_with_its_name():
+    """One rule for marker_rate_hz, where the node, run() and `flexarm run` check it."""
+    from flexarm_ros.errors import InputError
+    from flexarm_ros.run import run
+    from flexarm_ros.twin.pacing import check_settings
+    for bad in (-1.0, math.nan, math.inf, "30"):
+        with pytest.raises(InputError, match=r"parameter marker_rate_hz: got .*expected a "
+                                             r"finite rate ≥ 0 Hz \(0: no arm_markers\)"):
+            check_settings(1e-3, marker_rate_hz=bad)
+    check_settings(1e-3, marker_rate_hz=0.0)
+    check_settings(1e-3, marker_rate_hz=30)
+    with pytest.raises(InputError, match=r"parameter marker_rate_hz: got -1"):
+        run("link", duration=0.01, record=None, progress=False,     # before any node starts
+            simulator={"marker_rate_hz": -1.0})
+
+
 def _in_a_thread(fn):
     import threading
     out = {}

@@ -190,7 +190,11 @@ def test_the_pacing_thread_runs_under_the_scheduling_the_summary_names(tmp_path,
                                        "--thread-priority: got 100, expected an integer "
                                        "SCHED_FIFO priority 1..99"),
                                       (["--ground-truth-rate", "-5"],
-                                       "--ground-truth-rate: got -5.0")])
+                                       "--ground-truth-rate: got -5.0"),
+                                      (["--marker-rate", "-1"],
+                                       "--marker-rate: got -1, expected a finite rate ≥ 0 Hz"),
+                                      (["--marker-rate", "nan"],
+                                       "--marker-rate: got nan, expected a finite rate")])
 def test_bad_pacing_settings_are_one_line(tmp_path, capsys, argv, key):
     code = main(["run", "link", "--mode", "realtime", "--duration", "0.1", "--no-record",
                  "--quiet", *argv])

@@ -5,7 +5,6 @@ Exit 0 done, 1 a node exited with an error, 2 bad input, 3 diverged or stalled."
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -106,13 +105,9 @@ def main(args):
                          f"the held efforts, which the step-halving pilots cannot "
                          f"replay; set --dt)")
     if (args.late_bound is not None or args.ground_truth_rate is not None
-            or args.thread_priority is not None or args.start_timeout is not None):
+            or args.thread_priority is not None or args.start_timeout is not None
+            or args.marker_rate is not None):
         _check_pacing_flags(args)
-    if args.marker_rate is not None and not (math.isfinite(args.marker_rate)
-                                             and args.marker_rate >= 0):
-        from flexarm_ros.errors import InputError
-        raise InputError(f"--marker-rate: got {args.marker_rate:g}, expected a finite rate "
-                         f"≥ 0 Hz (0: no arm_markers)")
     from flexarm_ros.nodes.names import check_namespace
     namespace = check_namespace("--namespace", args.namespace)
     record = None if args.no_record else args.record
@@ -199,7 +194,7 @@ def say_domain() -> None:
 
 def _check_pacing_flags(args) -> None:
     """The pacing flags (--late-bound, --ground-truth-rate, --thread-priority,
-    --start-timeout) checked before the graph starts, with the
+    --start-timeout, --marker-rate) checked before the graph starts, with the
     flags' names (the simulator node checks the same values as its parameters)."""
     from flexarm_ros.errors import InputError
     from flexarm_ros.scene import load_scene
@@ -213,9 +208,11 @@ def _check_pacing_flags(args) -> None:
                        0.0 if args.ground_truth_rate is None else args.ground_truth_rate,
                        THREAD_PRIORITY if args.thread_priority is None else
                        args.thread_priority,
-                       0.0 if args.start_timeout is None else args.start_timeout)
+                       0.0 if args.start_timeout is None else args.start_timeout,
+                       30.0 if args.marker_rate is None else args.marker_rate)
     except InputError as exc:
         raise InputError(str(exc).replace("parameter late_bound", "--late-bound").replace(
             "parameter ground_truth_rate_hz", "--ground-truth-rate").replace(
             "parameter thread_priority", "--thread-priority").replace(
-            "parameter start_timeout_s", "--start-timeout")) from None
+            "parameter start_timeout_s", "--start-timeout").replace(
+            "parameter marker_rate_hz", "--marker-rate")) from None

@@ -74,7 +74,7 @@ import numpy as np
 from rclpy.node import Node
 
 from flexarm_ros.bag.cdr_fixed import CdrBuilder
-from flexarm_ros.errors import InputError, SimulationDiverged
+from flexarm_ros.errors import SimulationDiverged
 from flexarm_ros.io.progress import ProgressLine
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
@@ -149,14 +149,14 @@ class SimulatorNode(Node):
                 + (" (the contact stepper's)" if asked == "rkn4" else "")
                 + f" at {plant.h:.3g} s")
         self.period = self.core.period
+        check_settings(self.period, self.p["late_policy"], self.p["late_bound"],
+                       ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode),
+                       self.p["thread_priority"], self.p["start_timeout_s"],
+                       self.p["marker_rate_hz"])
         pubs = {}                                   # outputs() at k = 0 changes nothing
         for topic in [o[0] for o in self.core.outputs()] + list(self.core.groups):
             pubs[topic] = C.publisher(self, T.TYPES[topic], topic)
-        rate = self.p["marker_rate_hz"]
-        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
-            raise InputError(f"parameter marker_rate_hz: got {rate!r}, expected a finite "
-                             f"rate ≥ 0 Hz (0: no arm_markers)")
-        self.marker_rate = float(rate)
+        self.marker_rate = float(self.p["marker_rate_hz"])   # checked with the pacing below
         self.markers = None                     # the arm for RViz2 / Foxglove
         self._marker_slot = -1                  # the last 1/rate slot drawn
         self._marker_cv = threading.Condition()     # realtime: to the marker thread
@@ -223,8 +223,6 @@ class SimulatorNode(Node):
         self._last_report = self._last_log = 0.0
         self._line = ProgressLine(0)
         rate = ground_truth_rate(self.p["ground_truth_rate_hz"], self.mode)
-        check_settings(self.period, self.p["late_policy"], self.p["late_bound"], rate,
-                       self.p["thread_priority"], self.p["start_timeout_s"])
         self.scheduling = None                      # realtime: what the pacing thread got
         self.pacer = Pacer(self.period, self.p["late_bound"], self.p["late_policy"])
         self.gt_every = max(1, int(round(scene.twin_control.rate_hz / rate))) if rate else 1

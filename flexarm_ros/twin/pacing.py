@@ -122,8 +122,10 @@ def ground_truth_rate(rate: float, mode: str) -> float:
 def check_settings(period: float, late_policy: str = "slow", late_bound: float = 0.1,
                    ground_truth_rate_hz: float = 0.0,
                    thread_priority: int = THREAD_PRIORITY,
-                   start_timeout_s: float = 0.0) -> None:
-    """The simulator's pacing parameters, or an InputError naming the one that is wrong."""
+                   start_timeout_s: float = 0.0, marker_rate_hz: float = 30.0) -> None:
+    """The simulator's pacing and publishing parameters, or an InputError naming the one
+    that is wrong (the node, :func:`flexarm_ros.run.run` and ``flexarm run`` check with
+    this one function)."""
     if isinstance(start_timeout_s, bool) or not (
             isinstance(start_timeout_s, (int, float)) and math.isfinite(start_timeout_s)
             and start_timeout_s >= 0):
@@ -147,6 +149,12 @@ def check_settings(period: float, late_policy: str = "slow", late_bound: float =
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate >= 0):
         raise InputError(f"parameter ground_truth_rate_hz: got {rate!r}, expected 0 (every "
                          f"tick), -1 (the mode's default) or a positive rate in Hz")
+    if not (isinstance(marker_rate_hz, (int, float)) and math.isfinite(marker_rate_hz)
+            and marker_rate_hz >= 0):
+        shown = (f"{marker_rate_hz:g}" if isinstance(marker_rate_hz, (int, float))
+                 else repr(marker_rate_hz))
+        raise InputError(f"parameter marker_rate_hz: got {shown}, expected a finite rate "
+                         f"≥ 0 Hz (0: no arm_markers)")
 
 
 def name_thread(name: str) -> None:

@@ -499,6 +499,8 @@ def test_a_twin_bag_fit_covers_the_truth(base, twin_bag):
 
 
 @pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_twin_bag_intervals_cover_the_truth_17_of_20_times(base, twin_bag):
     """Over 20 noise seeds on the twin bag (R, EI): each covered at least 17 times
     (P(≤ 16 of 20 | 95 %) = 1.6 %). Measured: R 20, EI 19 of 20."""

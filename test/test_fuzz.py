@@ -295,6 +295,7 @@ def test_fuzz_scenes_sample(worker, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.subprocess
 def test_fuzz_scenes_all(worker, tmp_path):
     cases = scene_cases()
     failures, codes = run_scene_cases(cases, worker, tmp_path)
@@ -449,6 +450,7 @@ def test_fuzz_command_lines(worker, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.subprocess
 def test_fuzz_command_lines_all(worker, tmp_path):
     cases = [c for c in cli_cases(tmp_path) if _cheap(c)]
     failures, codes = run_cli_cases(cases, worker)

@@ -111,6 +111,7 @@ print(repr(r.run.dt), r.run.rhs_evaluations, r.columns["tip_x"].tobytes().hex())
 
 
 @pytest.mark.slow
+@pytest.mark.subprocess
 def test_a_fresh_compile_and_a_cache_load_give_the_same_bits(tmp_path):
     """A process that compiles the kernel and one that loads it from numba's cache run the
     same bits (with fast-math's 'reassoc' they did not: docs/decisions/0016-the-compiled-kernel.md,
@@ -159,6 +160,8 @@ def test_a_cold_cache_is_told_from_a_warm_one(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_a_first_run_in_processes_compiles_once_and_says_so(tmp_path):
     """``flexarm run --processes`` on an empty numba cache: the parent compiles the
     kernels once, saying so, and the run's wall time with start-up covers it (a

@@ -197,6 +197,8 @@ def test_driver_watchdog_zero_volts_when_the_controller_dies(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_killed_controller_process_trips_the_watchdog(tmp_path):
     """--processes: SIGKILL the controller process; the driver (another process) goes to
     0 V within control.watchdog_s and the simulator runs to the end."""

@@ -103,6 +103,8 @@ def test_lockstep_runs_are_byte_identical(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_lockstep_in_processes_equals_the_cosimulation(tmp_path):
     path = tmp_path / "p.mcap"
     from flexarm_ros.run import run
@@ -420,6 +422,8 @@ def test_ctrl_c_finalizes_the_bag(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.subprocess
 def test_sigint_to_the_simulator_process_finalizes_the_bag(tmp_path):
     from flexarm_ros.run import ProcessGraph
     out = tmp_path / "procs.mcap"
@@ -486,6 +490,7 @@ def _colcon():
 
 
 @pytest.mark.slow
+@pytest.mark.subprocess
 def test_colcon_install_has_the_node_executables(tmp_path):
     colcon = _colcon()
     assert colcon, "colcon is part of the [dev] extra: pip install -e .[dev]"

@@ -269,6 +269,17 @@ def on_command(msg):                  # a torque amplifier: 0.05 N*m per volt
     pub.publish(Float64MultiArray(data=[0.05 * v for v in msg.data]))
 
 
+# by the topic contract: take inputs only once the answer's publisher is matched with the
+# simulator's subscription on this side too (the recorder's may match first); an answer
+# published before that is lost (volatile), and lockstep waits for it
+def simulator_matched():
+    names = {i.node_name for i in node.get_subscriptions_info_by_topic(pub.topic_name)}
+    return "simulator" in names and (pub.get_subscription_count()
+                                     >= node.count_subscribers(pub.topic_name))
+
+
+while not simulator_matched():
+    rclpy.spin_once(node, timeout_sec=0.05)
 node.create_subscription(Float64MultiArray, "motor_driver/commands", on_command, QOS)
 # a drive amplifier's input by the contract (the joint rates for back-EMF); this one
 # ignores it, but the twin starts once its driver's inputs are subscribed

@@ -287,3 +287,59 @@ def test_a_message_goes_on_dds_only_while_a_dds_reader_is_there(monkeypatch):
     clock[0] += ip.GRAPH_POLL_S
     pub.publish(b"e")
     assert sent == [b"c", b"d"]
+
+
+def test_a_subscription_counts_matched_publishers_not_the_graphs():
+    """BusSubscription.get_publisher_count means what rclpy's does: publishers matched
+    with it. A foreign publisher the graph shows is not matched before the DDS reader is
+    open (session 20: the lockstep simulator started on the graph's count and missed the
+    first answer of an amplifier in another process)."""
+    from types import SimpleNamespace
+    from flexarm_ros.nodes import intraprocess as ip
+    topic = f"{NS}/{T.EFFORTS}"
+    node = SimpleNamespace(count_publishers=lambda t: 1)          # the graph shows one
+    bus = SimpleNamespace(pubs={}, subs={}, bridge=None)
+    sub = ip.BusSubscription(bus, node, object, topic, lambda m: None, True, None, None)
+    assert sub.get_publisher_count() == 0                         # no reader yet
+    sub.dds = SimpleNamespace(get_publisher_count=lambda: 1)
+    assert sub.get_publisher_count() == 1                         # the reader matched it
+    bus.pubs[topic] = ["a local driver", "and another"]
+    assert sub.get_publisher_count() == 2                         # in-process ones count
+    bus.bridge = SimpleNamespace(remote_publishers=lambda t: 1)
+    assert sub.get_publisher_count() == 3                         # and bridged ones
+
+
+@pytest.mark.ros
+def test_lockstep_does_not_start_before_its_effort_input_is_matched():
+    """Without the twin's driver, an outside node that reads ground_truth/joint_states but
+    publishes no effort yet: the lockstep simulator does not publish its first state (it
+    could not hear the answer) and names the missing input; the outside publisher's
+    appearance starts it."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+    from flexarm_ros.nodes.common import QOS
+    g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05, record=None,
+               nodes=("simulator", "controller"))
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
+    try:
+        node = Node("outside_amplifier", namespace=NS, context=ctx)
+        node.create_subscription(JointState, T.GT_JOINT_STATES, lambda m: None, QOS)
+        node.create_subscription(Float64MultiArray, T.COMMANDS, lambda m: None, QOS)
+        sim = g["simulator"]
+        sent = lambda: sum(sim.published.values())             # noqa: E731
+        # the rest of the start condition is met: the simulator's ground truth has its
+        # subscriber; only the effort input is missing
+        assert g.spin_until(lambda: sim.pubs[T.GT_JOINT_STATES].get_subscription_count()
+                            >= 1, 30)
+        assert not g.spin_until(sent, 1.0)
+        assert sim.ready.missing == [f"{NS}/{T.EFFORTS} (0/1 publishers matched: the motor "
+                                     f"driver or an amplifier of yours)"], sim.ready.missing
+        node.create_publisher(Float64MultiArray, T.EFFORTS, QOS)
+        assert g.spin_until(sent, 30)
+    finally:
+        g.close()
+        rclpy.shutdown(context=ctx)

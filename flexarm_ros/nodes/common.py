@@ -233,11 +233,15 @@ class Barrier:
     ``recorders``, the graph shows the recorder of this namespace subscribed to it (a
     foreign subscriber must not stand in for it); then stays true. A wait longer than
     :data:`WARN_AFTER_S` is logged at WARN level (a need may be a callable of the graph), naming each topic, the subscribers it
-    has and needs, and whom it waits for; again every few seconds."""
+    has and needs, and whom it waits for; again every few seconds. ``inputs`` —
+    (subscription, who publishes there) — are subscriptions that need a matched publisher
+    too (the lockstep simulator's effort input: it must hear the answer to its first
+    state, so it does not start before its reader there is open and matched)."""
 
     WARN_AFTER_S = 3.0
 
-    def __init__(self, node, needs, recorders=0):
+    def __init__(self, node, needs, recorders=0, inputs=()):
+        self.inputs = list(inputs)
         self.node, self.ok = node, False
         self.needs = [(p, n, who) for p, n, *rest in needs if callable(n) or n > 0
                       for who in [rest[0] if rest else "subscribers"]]
@@ -268,6 +272,8 @@ class Barrier:
     def __call__(self) -> bool:
         if not self.ok:
             missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
+            missing += [f"{sub.topic_name} (0/1 publishers matched: {who})"
+                        for sub, who in self.inputs if sub.get_publisher_count() < 1]
             self.ok, self.missing = not missing, missing
             waited = missing and self._warn.due()
             if waited:

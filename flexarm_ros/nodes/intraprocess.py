@@ -282,7 +282,17 @@ class BusSubscription:
         return self.topic
 
     def get_publisher_count(self) -> int:
-        return self.node.count_publishers(self.topic)
+        """Publishers matched with this subscription, as rclpy's ``get_publisher_count``
+        (not the graph's count: a foreign publisher the graph shows is matched only once
+        the DDS reader is open and DDS matched it): the in-process and bridged ones, or
+        the DDS reader's matched count if that is larger (it also matches the local
+        publishers' DDS writers)."""
+        n = len(self.bus.pubs.get(self.topic, ()))
+        if self.bus.bridge is not None:
+            n += self.bus.bridge.remote_publishers(self.topic)
+        if self.dds is not None:
+            n = max(n, self.dds.get_publisher_count())
+        return n
 
     def receive(self, data: bytes, info) -> None:
         if self.raw:

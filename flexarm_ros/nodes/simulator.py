@@ -55,7 +55,9 @@ Publishing starts once what the twin needs is matched: the driver on
 steps on its answers, so the first state must reach it; in every mode with
 ``controllers`` = 1, as ``flexarm run`` sets it when it starts the twin's controller),
 and with ``recorders`` the
-recorder on every topic — nothing else (a user's controller need not read
+recorder on every topic; in ``lockstep`` also a publisher matched with its own
+``effort_controller/commands`` subscription (the answer to the first state must reach
+it) — nothing else (a user's controller need not read
 ``tool/contact``). A wait longer than a few seconds is logged at WARN level with what is
 missing.
 With a finite ``duration`` the node stops after the state at that time (and its process
@@ -213,7 +215,8 @@ class SimulatorNode(Node):
         self.ready = C.Barrier(self, [
             (p, (lambda f=needs[t][0]: r + f()) if callable(needs.get(t, (0,))[0]) else
              r + needs.get(t, (0,))[0], needs.get(t, (0, "the recorder"))[1])
-            for t, p in pubs.items()], r)
+            for t, p in pubs.items()], r,
+            inputs=[(sub, "the motor driver or an amplifier of yours")] if lockstep else [])
         self.published = {t: 0 for t in pubs}
         self.torque = np.zeros(len(scene.links))
         self.finished = self.started = False

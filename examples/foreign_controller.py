@@ -44,7 +44,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-# the twin's QoS: reliable, volatile, keep_last 1000 (lockstep loses no message)
+# reliable and volatile as the twin's topics; 1000 deep is plenty for a node that answers
+# each state at once (lockstep loses no message)
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 

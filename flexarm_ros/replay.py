@@ -4,7 +4,7 @@ rosbag2. ``flexarm replay`` is :func:`replay` after :func:`load_plan`.
 
 Messages are decoded with :mod:`flexarm_ros.bag.reader` and republished as rclpy
 messages of the recorded type (:func:`flexarm_ros.nodes._msgconv.to_msg`) with the twin's
-QoS (reliable, volatile, depth 1000). They go out in log-time order (file order among
+QoS (reliable, volatile, depth 10000). They go out in log-time order (file order among
 equal times). Before the first message of each new log time, ``/clock`` carries that
 time; the bag's own ``/clock`` messages are not replayed (the log times are the clock).
 ``rate`` scales the pace: 1 real time, 2 twice as fast, 0 as fast as possible (a

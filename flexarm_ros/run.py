@@ -27,6 +27,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,6 +78,12 @@ class RunResult:
     diverged: str | None = None               # the divergence message (exit status 3)
     stalled: str | None = None                # lockstep ended without answers (status 3)
     interrupted: bool = False
+    signal: str | None = None                 # what interrupted the run (SIGINT, SIGTERM)
+    ended_early: dict | None = None           # node -> how it ended before the run did
+    end_s: float | None = None                # the simulated time the run was to reach
+    missing: dict | None = None               # topic -> published, recorded: bag short
+    conflict: str | None = None               # another twin in the namespace (status 3)
+    twin_seen: str | None = None              # a newer twin appeared and stopped itself
     returncodes: dict = field(default_factory=dict)
     recovered: str | None = None            # what recover_killed_bag() did, if anything
     nodes: tuple = ()                         # the nodes that ran
@@ -129,7 +136,11 @@ class RunResult:
                 "record_kept_previous": self.kept_previous,
                 "diverged": self.diverged,
                 "stalled": self.stalled,
-                "interrupted": self.interrupted, "returncodes": self.returncodes,
+                "interrupted": self.interrupted, "signal": self.signal,
+                "end_s": self.end_s, "ended_early": self.ended_early,
+                "missing": self.missing, "conflict": self.conflict,
+                "twin_seen": self.twin_seen,
+                "returncodes": self.returncodes,
                 "recovered": self.recovered,
                 "cpus": ({n: sorted(c) for n, c in self.cpus.items()} if self.cpus
                          else None),
@@ -171,11 +182,17 @@ class RunResult:
             s += (f"; the first command came at {self.first_command_s:.3f} s (the drives "
                   f"held 0 before it)")
         if self.interrupted:
-            s += ", interrupted"
+            s += f", interrupted by {self.signal}" if self.signal else ", interrupted"
+        if self.ended_early:
+            s += "; " + "; ".join(f"{n} {how}" for n, how in self.ended_early.items())
         if self.diverged:
             s += ", diverged"
         if self.stalled:
             s += ", stalled"
+        if self.conflict:
+            s += ", stopped: another twin in its namespace and domain"
+        if self.twin_seen:
+            s += f"; {self.twin_seen}"
         if self.extra_commands:
             s += (f"; {self.extra_commands} command(s) beyond one per state (lockstep: the "
                   f"pairing shifted from the first on)")
@@ -186,6 +203,9 @@ class RunResult:
                 for t, by in sorted(self.rejected.items()))
         elif self.rejected is not None:
             s += "; no message rejected"
+        if self.missing:
+            s += "; MISSING from the bag: " + ", ".join(
+                f"{t} {v['recorded']} of {v['published']}" for t, v in self.missing.items())
         if self.record and self.kept_previous:
             s += (f"; no tick recorded: {self.record} keeps the bag that was there (the "
                   f"empty one discarded)")
@@ -310,7 +330,7 @@ class InProcessGraph:
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
                  executor="drain", fidelity=None, simulator=None, intraprocess=True,
-                 writer_process=True, remote=(), sets=None):
+                 writer_process=True, remote=(), sets=None, enclave=None):
         import rclpy
         from rclpy.context import Context
         from rclpy.logging import LoggingSeverity
@@ -318,10 +338,13 @@ class InProcessGraph:
         from rclpy.signals import SignalHandlerOptions
 
         from flexarm_ros.nodes import node_classes
-        from flexarm_ros.nodes.common import make_executor
+        from flexarm_ros.nodes.common import make_executor, new_run_enclave
         environment.private_graph()
         self.context = Context()
-        rclpy.init(context=self.context, domain_id=environment.domain_id(),
+        # the run's enclave tells its nodes from another run's (nodes/common.other_twin)
+        self.enclave = enclave or new_run_enclave()
+        rclpy.init(args=["flexarm", "--ros-args", "--enclave", self.enclave],
+                   context=self.context, domain_id=environment.domain_id(),
                    signal_handler_options=SignalHandlerOptions.NO)
         self.executor = make_executor(self.context, executor)
         self.nodes = {}
@@ -337,6 +360,7 @@ class InProcessGraph:
                     continue
                 p = _params(scene, mode, duration, record, name, progress, fidelity,
                             simulator, sets)
+                p["run_enclave"] = self.enclave
                 if name == "recorder":
                     # the bag's stamping and writing on the other core (bag/writer_process.py)
                     p["writer_process"] = bool(writer_process)
@@ -484,11 +508,20 @@ class ProcessGraph:
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
                  stderr=None, fidelity=None, simulator=None, pin=False, extra_env=None,
-                 pass_fds=(), start_recorder=True, controllers=None, sets=None):
+                 pass_fds=(), start_recorder=True, controllers=None, sets=None,
+                 enclave=None):
+        from flexarm_ros.nodes.common import new_run_enclave
+        self.enclave = enclave or new_run_enclave()
         env = {**environment.child_environment(), **(extra_env or {})}
         names = list(nodes) + (["recorder"] if record and start_recorder else [])
         self.placement = cpu_placement(names) if pin else {}
         self.procs = {}
+        # created by stop() before it signals the nodes: a node stopped by a signal while
+        # it does not exist was stopped from outside the run, and says so (exit 128 + n)
+        fd, path = tempfile.mkstemp(prefix="flexarm-stop-")
+        os.close(fd)
+        os.unlink(path)
+        self.stop_file = Path(path)
         try:
             for name in NODES:
                 if name not in names:
@@ -499,8 +532,12 @@ class ProcessGraph:
                     1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
                             progress, fidelity, sim, sets)
+                p["stop_file"] = str(self.stop_file)
+                p["run_enclave"] = self.enclave
+                if name == "recorder" and (simulator or {}).get("summary_file"):
+                    p["published_file"] = simulator["summary_file"]
                 cmd = python_module(f"flexarm_ros.nodes.{name}") + [
-                    "--ros-args", "-r", f"__ns:={namespace}"]
+                    "--ros-args", "--enclave", self.enclave, "-r", f"__ns:={namespace}"]
                 if not progress:
                     cmd += ["--log-level", "warn"]
                 for k, v in p.items():
@@ -524,6 +561,7 @@ class ProcessGraph:
     def stop(self, timeout=15.0) -> dict:
         """SIGTERM the nodes (simulator, controller, driver, then the recorder, which
         drains and finalizes), kill what does not exit; the return codes."""
+        self.stop_file.touch()
         for group in (("simulator", "controller", "motor_driver"), ("recorder",)):
             for name in group:
                 self.signal(name)
@@ -536,7 +574,25 @@ class ProcessGraph:
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     proc.wait()
+        self.stop_file.unlink(missing_ok=True)
         return {name: p.returncode for name, p in self.procs.items()}
+
+    def conflict(self) -> str | None:
+        """The first node's word that another twin shares the namespace and domain (a
+        node that found one at its start exits 3 and writes it: nodes/common.tell_the_run),
+        once read; None if none did."""
+        path = Path(str(self.stop_file) + ".conflict")
+        try:
+            lines = path.read_text().splitlines()
+        except OSError:
+            return None
+        path.unlink(missing_ok=True)
+        return lines[0] if lines else None
+
+    def ended(self) -> list:
+        """Nodes whose process has ended (before stop(): on their own or by a signal
+        from outside the run)."""
+        return [n for n, p in self.procs.items() if p.poll() is not None]
 
 
 class SplitGraph:
@@ -565,6 +621,7 @@ class SplitGraph:
                 scene, mode, duration, record, namespace, progress, nodes=("simulator",),
                 fidelity=fidelity, simulator=simulator, start_recorder=False,
                 controllers=1 if "controller" in nodes else -1, sets=sets,
+                enclave=self.graph.enclave,
                 extra_env=bridge.child_environment(theirs, members),
                 pass_fds=(theirs.fileno(),))
             self._affinity = None
@@ -747,21 +804,26 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             finally:
                 sampler.stop()
             codes = g.stop()
+            conflict = g.conflict()
             recovered = recover_killed_bag(record, codes.get("recorder")) if record else None
             res = RunResult(name, mode, True, record, time.monotonic() - t0,
-                            interrupted=stop.set, returncodes=codes, recovered=recovered,
+                            interrupted=stop.set, signal=stop.signal_name,
+                            ended_early=ended_early(codes, stop.set),
+                            returncodes=codes, recovered=recovered,
                             nodes=tuple(g.procs), cpus=g.placement or None, sets=sets)
             sim_summary = _read_summary(summary_file)
             summary_file.unlink(missing_ok=True)
             if sim_summary:
                 _take_summary(res, sim_summary, namespace)
                 _take_cpu(res, sampler, sim_summary, "simulator", cpus)
-            if codes.get("simulator") == 3 and not res.stalled:
+            res.conflict = res.conflict or conflict
+            if codes.get("simulator") == 3 and not (res.stalled or res.conflict):
                 res.diverged = res.diverged or ("the simulator reported a divergence (its "
                                                 "message above)")
             if record:
                 res.rejected = _bag_rejections(record)
                 res.recorded = _bag_counts(record)
+                res.missing = missing_messages(res.published, res.recorded)
                 res.first_command_s = _first_command_s(record)
             return res
         if layout == "split":
@@ -777,6 +839,8 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         sampler = _cpu_sampler(roles)
         try:
             sim = g["simulator"]
+            if "recorder" in g.nodes:       # its bag says what it misses, if anything
+                g["recorder"].published_counts = lambda: sim.summary()["published"]
             g.spin_until(lambda: sim.finished, stop=stop)
             sim.finish(g.executor)
             sampler.stop()
@@ -793,7 +857,8 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                             sim.rejected,
                             rejected=_node_rejections(g.nodes),
                             extra_commands=driver.extra_commands if driver else None,
-                            interrupted=stop.set, nodes=tuple(g.nodes), sets=sets)
+                            interrupted=stop.set, signal=stop.signal_name,
+                            nodes=tuple(g.nodes), sets=sets)
             sim_summary = sim.summary()
             _take_summary(res, sim_summary, namespace)
             _take_cpu(res, sampler, sim_summary, roles, cpus)
@@ -802,6 +867,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
             g.close()
         if record:
             res.recorded = _bag_counts(record)
+            res.missing = missing_messages(res.published, res.recorded)
             res.first_command_s = _first_command_s(record)
         return res
     finally:
@@ -933,8 +999,11 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
         g.graph.spin_until(lambda: sim.poll() is not None, stop=stop)
         sampler.stop()
         codes = g.procs.stop()
+        conflict = g.procs.conflict()
         sim_summary = _read_summary(summary_file) or {}
         summary_file.unlink(missing_ok=True)
+        if "recorder" in g.graph.nodes:
+            g.graph["recorder"].published_counts = lambda: sim_summary.get("published")
         if record:           # what the simulator sent is on its way: let it arrive
             g.graph.spin_until(lambda: g.recorded_all(sim_summary.get("published"),
                                                       sim_summary.get("accepted")),
@@ -950,7 +1019,8 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
                             (sim_summary.get("rejected_efforts") or {}).values()),
                         rejected=_node_rejections(g.graph.nodes),
                         extra_commands=driver.extra_commands if driver else None,
-                        interrupted=stop.set, returncodes=codes,
+                        interrupted=stop.set, signal=stop.signal_name,
+                        ended_early=ended_early(codes, stop.set), returncodes=codes,
                         nodes=tuple(n for n in NODES if n in nodes or
                                     (n == "recorder" and record)),
                         cpus=g.procs.placement or None, layout="split",
@@ -958,7 +1028,8 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
         if sim_summary:
             _take_summary(res, sim_summary, namespace)
             _take_cpu(res, sampler, sim_summary, "simulator", cpus)
-        if codes.get("simulator") == 3 and not res.stalled:
+        res.conflict = res.conflict or conflict
+        if codes.get("simulator") == 3 and not (res.stalled or res.conflict):
             res.diverged = res.diverged or ("the simulator reported a divergence (its "
                                             "message above)")
     finally:
@@ -969,8 +1040,40 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
         if sim_rej:
             res.rejected = sim_rej
         res.recorded = _bag_counts(record)
+        res.missing = missing_messages(res.published, res.recorded)
         res.first_command_s = _first_command_s(record)
     return res
+
+
+def missing_messages(published: dict | None, recorded: dict | None) -> dict | None:
+    """topic -> {"published": n, "recorded": m} where the bag holds fewer of the
+    simulator's messages than it published (absolute topic names both); None: none
+    missing or nothing to compare."""
+    if not published or recorded is None:
+        return None
+    out = {t: {"published": n, "recorded": recorded.get(t, 0)}
+           for t, n in sorted(published.items()) if recorded.get(t, 0) < n}
+    return out or None
+
+
+def ended_early(codes: dict, interrupted: bool) -> dict | None:
+    """node -> how it ended, for the nodes a signal from outside the run ended (a node
+    stopped so exits 128 + n, see ``stop_file``; one killed outright, -n): not when the
+    run itself was interrupted (a terminal's Ctrl-C reaches every node too)."""
+    out = {}
+    for name, code in codes.items():
+        if code is None or interrupted:
+            continue
+        n = code - 128 if code > 128 else -code if code < 0 else None
+        try:
+            sig = signal.Signals(n).name if n else None
+        except ValueError:
+            sig = None
+        if sig and code > 128:
+            out[name] = f"stopped by {sig} from outside the run (exit status {code})"
+        elif sig:
+            out[name] = f"killed by {sig}"
+    return out or None
 
 
 def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:
@@ -982,7 +1085,16 @@ def _take_summary(res: RunResult, sim: dict, namespace: str) -> None:
     res.real_time_factor = sim["real_time_factor"]
     res.published = {resolve(namespace, t): n for t, n in sim["published"].items()}
     res.diverged = res.diverged or sim.get("diverged")
+    res.end_s = sim.get("end_s")
+    if sim.get("stopped_by"):
+        res.ended_early = {"simulator": f"stopped by {sim['stopped_by']} from outside the run "
+                                        f"at t = {res.sim_s:.6g} s" + (
+                                            f" of {res.end_s:.6g} s" if res.end_s else ""),
+                           **{k: v for k, v in (res.ended_early or {}).items()
+                              if k != "simulator"}}
     res.stalled = res.stalled or sim.get("stalled")
+    res.conflict = res.conflict or sim.get("conflict")
+    res.twin_seen = sim.get("twin_seen")
     if sim.get("mode") == "realtime":
         res.pacing = {k: sim[k] for k in ("ticks", "late_ticks", "lateness_p50_s",
                                           "lateness_p99_s", "lateness_max_s", "late_policy",

@@ -102,11 +102,11 @@ def test_sigkill_of_the_parent_takes_the_nodes_down(tmp_path):
     assert not bag.truncated and bag.message_count == summary.statistics.message_count
 
 
-def test_ctrl_c_to_the_process_group_exits_0_with_a_finalized_bag(tmp_path):
+def test_ctrl_c_to_the_process_group_exits_130_with_a_finalized_bag(tmp_path):
     """What a terminal's Ctrl-C sends: SIGINT to the parent and to every node at once.
     Each node stops on its own, the parent's orderly SIGTERM finds them stopping (and
-    must not kill one mid-exit), the recorder finalizes: exit 0, and mcap's indexed and
-    stream readers read the bag with its summary."""
+    must not kill one mid-exit), the recorder finalizes: exit 130 with one line (issue
+    39), and mcap's indexed and stream readers read the bag with its summary."""
     out = tmp_path / "ctrl_c.mcap"
     proc, kids = _start(out)
     try:
@@ -114,9 +114,9 @@ def test_ctrl_c_to_the_process_group_exits_0_with_a_finalized_bag(tmp_path):
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         _cleanup(proc)
-    assert proc.returncode == 0, stderr
-    assert "interrupted" in stdout and "nodes exited" not in stderr
-    assert "Traceback" not in stderr
+    assert proc.returncode == 130, stderr
+    assert "interrupted by SIGINT" in stdout and "nodes exited" not in stderr
+    assert "Traceback" not in stderr and "ended early" not in stderr
     assert not any(_alive(k) for k in kids)
     data = out.read_bytes()
     summary = make_reader(io.BytesIO(data)).get_summary()
@@ -144,7 +144,7 @@ def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         _cleanup(proc)
-    assert proc.returncode == 1 and "'recorder': -9" in stderr, stderr
+    assert proc.returncode == 1 and "ended early: recorder killed by SIGKILL" in stderr, stderr
     killed = tmp_path / "run.killed.mcap"
     assert "the recorder was killed by SIGKILL: " in stdout and f"kept as {killed}" in stdout
     with pytest.warns(TruncatedBagWarning):
@@ -158,6 +158,33 @@ def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
     assert not repaired.truncated and repaired.message_count == n
     assert {t: [ts for ts, _ in v] for t, v in repaired.messages.items()} == \
         {t: [ts for ts, _ in v] for t, v in unfinished.messages.items()}
+
+
+@pytest.mark.heavy
+@pytest.mark.parametrize("node", ["simulator", "motor_driver"])
+def test_a_node_stopped_from_outside_ends_the_run_non_zero_naming_it(tmp_path, node):
+    """SIGTERM to one node of a `--processes` run, from outside the run (issue 39: the
+    simulator so stopped had ended the run early with exit 0, saying nothing): the node
+    says so, the run ends with status 1 and one line naming the node, the signal and (the
+    simulator) how far it got; the bag is finalized."""
+    out = tmp_path / "run.mcap"
+    proc, kids = _start(out)
+    try:
+        pid = next(k for k in kids if f"flexarm_ros.nodes.{node} " in _cmdline(k))
+        os.kill(pid, signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        _cleanup(proc)
+    assert proc.returncode == 1, stderr
+    lines = [ln for ln in stderr.splitlines() if ln.startswith("flexarm run:")]
+    assert len(lines) == 1, stderr
+    assert f"ended early: {node} stopped by SIGTERM from outside the run" in lines[0]
+    if node == "simulator":
+        assert " at t = " in lines[0] and " of 100 s" in lines[0], lines[0]
+    assert f"{out} holds what was recorded until then" in lines[0]
+    assert "Traceback" not in stderr
+    bag = read_bag(out)
+    assert not bag.truncated and bag.message_count > 100
 
 
 _PDEATHSIG = """
@@ -211,7 +238,7 @@ def test_a_node_whose_teardown_hangs_ends_with_the_status_it_earned(diverged, co
 
 
 @pytest.mark.heavy
-def test_ctrl_c_to_a_split_run_exits_0_with_a_finalized_bag(tmp_path):
+def test_ctrl_c_to_a_split_run_exits_130_with_a_finalized_bag(tmp_path):
     """--layout split (the simulator in its own process, the bag written by another): a
     terminal's Ctrl-C reaches all three; the run ends with exit 0, a finalized bag, and
     no process left."""
@@ -244,8 +271,8 @@ def test_ctrl_c_to_a_split_run_exits_0_with_a_finalized_bag(tmp_path):
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         _cleanup(proc)
-    assert proc.returncode == 0, stderr
-    assert "interrupted" in stdout and "Traceback" not in stderr
+    assert proc.returncode == 130, stderr
+    assert "interrupted by SIGINT" in stdout and "Traceback" not in stderr
     t0 = time.monotonic()
     while any(_alive(k) for k in kids) and time.monotonic() - t0 < 5:
         time.sleep(0.05)

@@ -1,6 +1,8 @@
 """``flexarm run``: the ROS 2 twin (simulator, motor driver, controller and recorder
 nodes; :mod:`flexarm_ros.run`), its pacing flags checked before the graph starts.
-Exit 0 done, 1 a node exited with an error, 2 bad input, 3 diverged or stalled."""
+Exit 0 done, 1 a node exited with an error or ended before the run (a signal from outside
+it), 2 bad input, 3 diverged, stalled or another twin in its namespace and domain, 4 messages missing from the bag, 128 + n a signal
+interrupted the run (130 Ctrl-C, 143 SIGTERM)."""
 
 from __future__ import annotations
 
@@ -158,14 +160,43 @@ def main(args):
             print(json.dumps(res.to_json(), indent=2))
         else:
             print(res.summary())
+    if res.conflict and not res.diverged:     # before ended_early: the others were stopped
+        if not res.processes and res.layout != "split":     # else the node said it
+            print(f"flexarm: {res.conflict}", file=sys.stderr)
+        return 3
     if res.diverged or res.stalled:           # like simulate: the message once, status 3
         if not res.processes and res.layout != "split":     # else the node said it
             print(f"flexarm: {res.diverged or res.stalled}", file=sys.stderr)
         return 3
+    return _exit_status(res)
+
+
+def _exit_status(res) -> int:
+    """After the summary: one line on stderr for what ended the run early, and the status
+    (docs/commands.md, *`flexarm run`*): 128 + n when a signal interrupted the run itself
+    (130 Ctrl-C, 143 SIGTERM), 1 when a node ended before the run (a signal from outside
+    it, a crash) or exited with an error, else 0."""
+    kept = f"; {res.record} holds what was recorded until then" if res.record else ""
+    at = (f" at t = {res.sim_s:.6g} s" + (f" of {res.end_s:.6g} s" if res.end_s else "")
+          if res.sim_s is not None else "")
+    if res.interrupted:
+        print(f"flexarm run: interrupted by {res.signal or 'a signal'}{at}{kept}",
+              file=sys.stderr)
+        import signal
+        return 128 + (signal.Signals[res.signal].value if res.signal else signal.SIGINT)
+    if res.ended_early:
+        print("flexarm run: ended early: " + "; ".join(
+            f"{n} {how}" for n, how in res.ended_early.items()) + kept, file=sys.stderr)
+        return 1
     bad = {k: v for k, v in res.returncodes.items() if v not in (0, None)}
     if bad:
         print(f"flexarm run: nodes exited with {bad}", file=sys.stderr)
         return 1
+    if res.missing:
+        print("flexarm run: the bag misses messages the simulator published: " + ", ".join(
+            f"{t} {v['recorded']} of {v['published']}" for t, v in res.missing.items())
+              + f" (written into {res.record}'s missing_messages metadata)", file=sys.stderr)
+        return 4
     return 0
 
 

@@ -5,6 +5,7 @@ from a message stamp to the simulator's float time, and the ``main()`` of every 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -29,7 +30,7 @@ import flexarm_ros.nodes.environment as environment
 from flexarm_ros.nodes.parameters import COMMON, FIDELITY, MODES, fidelity_overrides
 from flexarm_ros.twin.cores import to_ns, control_period
 
-DEPTH = 1000
+DEPTH = 10000
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 """Every topic of the twin: reliable, volatile, keep_last 1000 (deep enough that nothing
@@ -269,11 +270,19 @@ class Barrier:
                 return f"{pub.topic_name} (the recorder in {ns})"
         return None
 
+    conflict = None       # another twin in this namespace and domain: never starts
+
     def __call__(self) -> bool:
-        if not self.ok:
+        if not self.ok and self.conflict is None:
             missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
             missing += [f"{sub.topic_name} (0/1 publishers matched: {who})"
                         for sub, who in self.inputs if sub.get_publisher_count() < 1]
+            if not missing:                 # what met the needs may be another twin's
+                self.conflict = other_twin(self.node)
+                if self.conflict:
+                    self.node.conflict = f"not started: {self.conflict}"
+                    self.node.get_logger().error(self.node.conflict)
+                    return False
             self.ok, self.missing = not missing, missing
             waited = missing and self._warn.due()
             if waited:
@@ -332,10 +341,105 @@ class StopFlag:
             raise KeyboardInterrupt
         self.set, self.signum = True, signum
 
+    @property
+    def signal_name(self) -> str | None:
+        """'SIGINT', 'SIGTERM', or None while no signal came."""
+        return signal.Signals(self.signum).name if self.signum else None
+
     def restore(self):
         for s, h in self._old.items():
             signal.signal(s, h)
         self._old = {}
+
+
+#: the enclave of a run's nodes: this prefix and a random token (run.py, new_run_enclave)
+RUN_ENCLAVE_PREFIX = "/flexarm_run_"
+#: the names of the twin's nodes
+TWIN_NODES = ("simulator", "motor_driver", "controller", "recorder")
+
+
+def new_run_enclave() -> str:
+    """A fresh enclave for the nodes of one run: the prefix, the run's start in ms of
+    wall time (which of two runs came first), the pid of the process that started it
+    (whether it still runs) and a random token."""
+    import secrets
+    return (f"{RUN_ENCLAVE_PREFIX}{int(time.time() * 1000)}_{os.getpid()}_"
+            f"{secrets.token_hex(3)}")
+
+
+def _started_ms(enclave: str) -> int:
+    """The start time a run enclave carries (0 for one without)."""
+    try:
+        return int(enclave[len(RUN_ENCLAVE_PREFIX):].split("_")[0])
+    except ValueError:
+        return 0
+
+
+def _running(enclave: str) -> bool:
+    """Whether the run of ``enclave`` still runs: the process that started it is alive
+    (discovery is loopback-only, so it is on this machine). A run killed outright leaves
+    its nodes on the graph until their DDS lease ends (~20 s); they are not a twin."""
+    try:
+        pid = int(enclave[len(RUN_ENCLAVE_PREFIX):].split("_")[1])
+    except (ValueError, IndexError):
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def other_twin(node, older_only: bool = False) -> str | None:
+    """What the graph shows of another twin in ``node``'s namespace on its domain, else
+    None: a twin's node there in another run's enclave (``run_enclave``), or a second node
+    named ``simulator`` (twins started by hand). Two twins there would take each other's
+    messages — their topics and node names are the same, and neither a user's node nor
+    RViz could tell them apart — so a node does not start beside another twin, and a
+    running simulator stops its run when it finds a twin that started before it
+    (``older_only``: it slipped past its start condition before discovery showed the
+    other; docs/decisions/0027-one-twin-per-namespace-and-domain.md)."""
+    ns = node.get_namespace()
+    mine = getattr(node, "p", {}).get("run_enclave", "")
+    here = [(name, enc) for name, nns, enc in node.get_node_names_and_namespaces_with_enclaves()
+            if nns == ns and name in TWIN_NODES]
+    others = sorted({enc for _, enc in here if mine and enc != mine
+                     and enc.startswith(RUN_ENCLAVE_PREFIX) and _running(enc)
+                     and not (older_only and (_started_ms(enc), enc) > (_started_ms(mine),
+                                                                          mine))})
+    # nodes started by hand (no run enclave): a second simulator is the only sign
+    sims = 0 if mine else sum(1 for name, _ in here if name == "simulator")
+    if not others and sims <= 1:
+        return None
+    what = (", ".join(f"{sorted(n for n, e in here if e == enc)} of the run in enclave {enc}"
+                      for enc in others) if others else f"{sims} nodes named simulator")
+    return (f"another twin runs in namespace {ns} on ROS_DOMAIN_ID "
+            f"{node.context.get_domain_id()} ({what}): two twins there take each other's "
+            f"messages; give one of them another --namespace or ROS_DOMAIN_ID")
+
+
+def tell_the_run(node, text: str) -> None:
+    """For ``flexarm run``, which started this node as a process: one line of why it
+    ended, appended to ``<stop_file>.conflict`` (run.ProcessGraph.conflict)."""
+    path = getattr(node, "p", {}).get("stop_file")
+    if path:
+        try:
+            with open(path + ".conflict", "a") as f:
+                f.write(f"{node.get_name()}: {text}\n")
+        except OSError:
+            pass
+
+
+def stopped_from_outside(stop: StopFlag, node) -> str | None:
+    """The name of the signal that stopped a node ``flexarm run`` started as a process
+    when the run did not send it (its ``stop_file`` does not exist yet: the run creates it
+    before it stops its nodes), else None."""
+    path = getattr(node, "p", {}).get("stop_file") if node is not None else None
+    if not (stop.set and stop.signum and path) or os.path.exists(path):
+        return None
+    return signal.Signals(stop.signum).name
 
 
 def make_executor(context, kind="drain"):
@@ -448,7 +552,8 @@ def _node_main(cls, args=None) -> int:
         # docs/decisions/0007-realtime-on-two-cores.md)
         pause = float(getattr(node, "spin_pause_s", 0.0))
         with profiled(cls.EXECUTABLE):
-            while ctx.ok() and not stop.set and not getattr(node, "finished", False):
+            while ctx.ok() and not stop.set and not getattr(node, "finished", False) \
+                    and not getattr(node, "conflict", None):
                 exe.spin_once(timeout_sec=0.1)
                 if pause > 0:
                     time.sleep(pause)
@@ -456,6 +561,9 @@ def _node_main(cls, args=None) -> int:
         # when its bag is finalized, below)
         if not hasattr(node, "close"):
             ShutdownGuard(cls.EXECUTABLE, node)
+        outside = stopped_from_outside(stop, node)
+        if outside:
+            node.stopped_by = outside           # the simulator's summary names it
         if hasattr(node, "finish"):
             node.finish(exe)
         if bus is not None:
@@ -468,6 +576,15 @@ def _node_main(cls, args=None) -> int:
         if getattr(node, "stalled", None):       # lockstep without answers: the message, 3
             print(f"{cls.EXECUTABLE}: {node.stalled}", file=sys.stderr)
             return 3
+        if getattr(node, "conflict", None):      # another twin on this graph: 3
+            print(f"{cls.EXECUTABLE}: {node.conflict}", file=sys.stderr)
+            tell_the_run(node, node.conflict)
+            return 3
+        if outside:                              # killed from outside the run: say so
+            where = getattr(node, "where", None)
+            print(f"{cls.EXECUTABLE}: stopped by {outside} from outside the run"
+                  + (f" {where()}" if where else ""), file=sys.stderr)
+            return 128 + stop.signum
         return 0
     except KeyboardInterrupt:
         return 130

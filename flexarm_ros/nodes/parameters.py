@@ -26,6 +26,13 @@ COMMON = {
                      "loses nothing only if every subscriber is matched first)"),
     "set": ("", "scene values to set before the fidelity parameters, a JSON object "
                 "{\"key path\": value} (flexarm run --set KEY=VALUE; empty: none)"),
+    "run_enclave": ("", "set by flexarm run: the ROS enclave it put this run's nodes in "
+                        "(--ros-args --enclave), which tells its nodes from another run's "
+                        "in the same namespace and domain (empty: started by hand)"),
+    "stop_file": ("", "set by flexarm run for the nodes it starts as processes: a file it "
+                      "creates before it stops them; a SIGINT/SIGTERM while the file does "
+                      "not exist came from outside the run, and the node says so and exits "
+                      "128 + the signal's number (empty: every signal is a normal stop)"),
 }
 
 FIDELITY = {

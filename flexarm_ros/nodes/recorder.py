@@ -160,7 +160,12 @@ class RecorderNode(Node):
                                         "another core; flexarm run sets it in one process)"),
               "batch_s": (0.005, "s of wall time the recorder's own process pauses between "
                                  "draining its queues (one wake-up per batch; below "
-                                 f"{C.DEPTH} messages per topic nothing is lost; 0: none)")}
+                                 f"{C.DEPTH} messages per topic nothing is lost; 0: none)"),
+              "published_file": ("", "the simulator's summary file (flexarm run sets it): "
+                                     "at the end the recorder compares what it took with "
+                                     "what the simulator published, per topic, and writes "
+                                     "any shortfall into the bag's missing_messages "
+                                     "metadata (empty: no comparison)")}
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
@@ -282,13 +287,42 @@ class RecorderNode(Node):
         while time.monotonic() - self.last_rx < quiet and time.monotonic() - t0 < limit:
             executor.spin_once(timeout_sec=quiet / 4)
 
+    #: the simulator's published counts per topic (relative names), when the recorder is
+    #: in its process (a callable; else ``published_file`` is read)
+    published_counts = None
+
+    def missing(self) -> dict:
+        """topic -> {"published": n, "recorded": m} for every topic of the simulator's of
+        which the bag holds fewer messages than it published (a paused or overloaded
+        recorder whose queue overflowed): nothing may be lost without a word."""
+        published = None
+        if self.published_counts is not None:
+            published = self.published_counts()
+        elif self.p["published_file"]:
+            try:
+                with open(self.p["published_file"]) as f:
+                    published = json.load(f).get("published")
+            except (OSError, ValueError):
+                published = None
+        return {self.abs[t]: {"published": n, "recorded": self.received.get(t, 0)}
+                for t, n in sorted((published or {}).items())
+                if t in self.abs and self.received.get(t, 0) < n}
+
     def close(self):
-        """Write what is held, the rejection counts, and finalize the file (idempotent)."""
+        """Write what is held, the rejection counts, any shortfall against what the
+        simulator published, and finalize the file (idempotent)."""
         if not self.sink.closed:
             counts = self.rejections.counts
-            self.sink.close({"rejected_messages": {
-                "total": str(self.rejections.total()),
-                "by_topic": json.dumps(counts, sort_keys=True)}})
+            meta = {"rejected_messages": {"total": str(self.rejections.total()),
+                                          "by_topic": json.dumps(counts, sort_keys=True)}}
+            missing = self.missing()
+            if missing:
+                self.get_logger().error(
+                    "the bag misses messages the simulator published: " + ", ".join(
+                        f"{t} {v['recorded']} of {v['published']}"
+                        for t, v in missing.items()))
+                meta["missing_messages"] = {t: json.dumps(v) for t, v in missing.items()}
+            self.sink.close(meta)
 
     @property
     def path(self) -> Path:

@@ -89,6 +89,10 @@ from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
 
+#: s between the simulator's looks for another twin in its namespace and domain
+ALONE_CHECK_S = 0.25
+
+
 class SimulatorNode(Node):
     """flexarm twin simulator node: plant, sensors, contact and /clock."""
 
@@ -179,6 +183,9 @@ class SimulatorNode(Node):
         self.rejections = Rejections(self)
         self.diverged: SimulationDiverged | None = None
         self.stalled: str | None = None         # lockstep: why the run ended without effort
+        self.conflict: str | None = None        # another twin in this namespace and domain
+        self.twin_seen: str | None = None       # a newer twin appeared (it stops itself)
+        self._alone = self.create_timer(ALONE_CHECK_S, self._check_alone)
         self._watch = None                      # lockstep: the stall watchdog's timer
         self._progress_wall = time.monotonic()  # when the last state went out
         r = self.p["recorders"]
@@ -314,6 +321,7 @@ class SimulatorNode(Node):
             self.t_wall_end = time.monotonic()
             self.cpu_end = time.process_time()
             self.timer.cancel()
+            self._alone.cancel()
             if self._watch is not None:
                 self._watch.cancel()
             if self._thread is not None and self._thread is not threading.current_thread():
@@ -506,9 +514,33 @@ class SimulatorNode(Node):
         elif self.started and not self.finished:
             self._step(tau)
 
+    def _check_alone(self):
+        """Every ALONE_CHECK_S: a twin in this namespace and domain that started before
+        this run ends it (exit 3): this run slipped past its start condition before
+        discovery showed the other, and their messages would mix (a graph query, ~10 µs).
+        A newer twin is refused by its own start condition and left to stop itself."""
+        if self.finished or self.conflict:
+            return
+        other = C.other_twin(self, older_only=self.started)
+        if other:
+            self.conflict = f"stopped {self.where()}: {other}" if self.started else (
+                f"not started: {other}")
+            self.get_logger().error(self.conflict)
+            self.halt()
+        elif self.started and self.twin_seen is None:
+            newer = C.other_twin(self)           # a newer twin: it stops itself
+            if newer:
+                self.twin_seen = (f"{self.where()}: a newer {newer[len('another '):]}; it "
+                                  f"stops itself, but until it did its messages and this "
+                                  f"run's may have mixed")
+                self.get_logger().warning(self.twin_seen)
+
     def _on_timer(self):
         if not self.started:
             if not self.ready():
+                if self.conflict:                # the start condition found another twin
+                    self.halt()
+                    return
                 self._start_timeout()
                 return
             self.started, self.t_wall0 = True, time.monotonic()
@@ -552,6 +584,9 @@ class SimulatorNode(Node):
                "rejected_efforts": dict(self.core.validator.counts),
                "diverged": str(self.diverged) if self.diverged else None,
                "stalled": self.stalled,
+               "conflict": self.conflict, "twin_seen": self.twin_seen,
+               "end_s": None if self.n_end is None else self.n_end * self.period,
+               "stopped_by": getattr(self, "stopped_by", None),
                # the ticking on the system-wide monotonic clock, and this process's CPU
                # over it (the run's per-process CPU budget: twin/cpu_load.py)
                "ticking_monotonic_s": ([self.t_wall0, self.t_wall_end]
@@ -564,6 +599,11 @@ class SimulatorNode(Node):
             out.update({"scheduling": self.scheduling, "effort_waits": self.waited_ticks,
                         "effort_wait_timeouts": self.stale_ticks})
         return out
+
+    def where(self) -> str:
+        """How far the run got, for a message: 'at t = 2.198 s of 3 s'."""
+        return f"at t = {self.core.t:.6g} s" + (
+            "" if self.n_end is None else f" of {self.n_end * self.period:.6g} s")
 
     def _write_summary(self):
         path = self.p["summary_file"]

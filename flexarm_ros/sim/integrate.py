@@ -138,7 +138,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         # were most of a 1 s two_link_free run)
         chunk = h * max(MIN_CALL_STEPS, int(np.ceil(t_end / 100 / h)))
         bps = input_breakpoints(chain, t_end)
-        first = h * FORECAST_STEPS           # a short first call times the pace
+        first = min(h * FORECAST_STEPS, chunk)   # a short first call times the pace
         while t < t_end - 1e-12 * max(1.0, t_end):
             t_stop = min(t + (first if steps == 0 else chunk),
                          next(b for b in bps if b > t + 1e-12 * max(1.0, t_end)))

@@ -31,18 +31,23 @@ from __future__ import annotations
 import argparse
 import gc
 import sys
-
-import numpy as np
-
-from flexarm_ros.commands import (
-    bag, compare, explain, linearize, modes, replay, run, simulate, study)
-from flexarm_ros.nodes import environment
+import time
 
 #: the commands in the order ``flexarm --help`` lists them (then the ensembles' and
-#: calibrate, registered by their own packages)
-COMMANDS = (simulate, modes, linearize, explain, study, run, replay, compare, bag)
+#: calibrate, registered by their own packages): modules of :mod:`flexarm_ros.commands`,
+#: imported by :func:`main` inside its Ctrl-C handling (a Ctrl-C while numpy and the
+#: commands load is one line too)
+COMMAND_NAMES = ("simulate", "modes", "linearize", "explain", "study", "run", "replay",
+                 "compare", "bag")
 #: what a batch process runs with its own collector settings (:func:`_startup_gc`)
-_BATCH_COMMANDS = tuple(c.main for c in (simulate, modes, linearize, explain))
+BATCH_COMMAND_NAMES = ("simulate", "modes", "linearize", "explain")
+#: exit status of an interrupted command (128 + SIGINT, as a shell reports it)
+INTERRUPTED = 130
+
+
+def _commands():
+    import importlib
+    return [importlib.import_module(f"flexarm_ros.commands.{n}") for n in COMMAND_NAMES]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -59,7 +64,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser():
     p = _Parser(prog="flexarm", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
-    for command in COMMANDS:
+    for command in _commands():
         command.add_parser(sub)
     from flexarm_ros.ensemble.cli import add_parsers    # sweep, uncertainty, sensitivity
     add_parsers(sub)
@@ -93,11 +98,57 @@ def _startup_gc():
 
 def main(argv=None) -> int:
     """Exit 0 done, 1 failed (see the module doc), 2 bad input (one line: the key, the
-    value, the expectation), 3 diverged, 130 interrupted."""
-    environment.use_loopback()
+    value, the expectation), 3 diverged, 130 interrupted (one line, whatever was running:
+    an import, a compiled integration, a Dask ensemble)."""
+    t0 = time.perf_counter()
+    try:
+        from flexarm_ros.io.paths import forget_written
+        forget_written()
+        return _main(argv)
+    except KeyboardInterrupt:
+        return interrupted(t0)
+    except Exception as exc:
+        if _caused_by_interrupt(exc):   # numba: "returned a result with an exception set"
+            return interrupted(t0)
+        raise
+
+
+def _caused_by_interrupt(exc) -> bool:
+    """A KeyboardInterrupt among the causes and contexts of ``exc``: a Ctrl-C that arrived
+    while compiled code called back into Python (numba's dispatcher then raises
+    ``SystemError: ... returned a result with an exception set`` from it)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def interrupted(t0: float) -> int:
+    """The one line of a Ctrl-C (what was written before it is kept: tables are written
+    beside their names and renamed whole), exit status 130."""
+    if "distributed" in sys.modules:   # a Dask cluster closing behind us: no log noise
+        from flexarm_ros.ensemble.cluster import quiet_dask_logs
+        quiet_dask_logs()
+    from flexarm_ros.io.paths import written
+    kept = written()
+    what = (f"; kept what was written: {', '.join(kept[:4])}"
+            + (f" and {len(kept) - 4} more" if len(kept) > 4 else "")) if kept else \
+        "; outputs finished before it are kept"
+    print(f"flexarm: interrupted (Ctrl-C) after {time.perf_counter() - t0:.3g} s{what}",
+          file=sys.stderr, flush=True)
+    return INTERRUPTED
+
+
+def _main(argv=None) -> int:
+    import numpy as np
     from flexarm_ros.errors import InputError, SimulationDiverged
+    from flexarm_ros.nodes import environment
+    environment.use_loopback()
     args = build_parser().parse_args(argv)
-    batch = argv is None and args.func in _BATCH_COMMANDS
+    batch = argv is None and args.command in BATCH_COMMAND_NAMES
     if batch:
         _startup_gc()
     try:
@@ -114,9 +165,6 @@ def main(argv=None) -> int:
     except OSError as exc:          # the environment, not the program: a disk filled up
         print(f"flexarm: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("flexarm: interrupted", file=sys.stderr)
-        return 130
     finally:
         if batch:
             gc.freeze()

@@ -463,7 +463,7 @@ def test_unreachable_scheduler_exits_2(capsys):
                          "--quiet"], capsys)
     assert code == 2
     assert len(err.strip().splitlines()) == 1
-    assert f"--scheduler: got '{addr}', cannot connect within 1 s" in err
+    assert f"--scheduler: got '{addr}', no Dask scheduler answered within 1 s" in err
     assert "dask scheduler" in err
 
 

@@ -168,7 +168,7 @@ def _option(args, opts, name, default, check):
         v = opts.get(name, default)
     if v is not None and not check(v):
         raise InputError(f"--{name.replace('_', '-')}: got {v!r}, expected "
-                         + {"starts": "an integer >= 1", "seed": "an integer >= 0",
+                         + {"starts": "an integer >= 1", "seed": "an integer from 0 to 4294967295",
                             "diff_step": "a number in (0, 0.5)",
                             "max_evaluations": "an integer >= 1"}[name])
     return v
@@ -208,11 +208,15 @@ def cmd_calibrate(args) -> int:
     from flexarm_ros.calibration.fit import calibrate
     from flexarm_ros.calibration.task import CaseTask
     from flexarm_ros.ensemble.runner import open_executor
+    from flexarm_ros.ensemble.limits import SEED_MAX, check_seed, check_workers
     spec = args.spec is not None
     _check_outputs(args, spec)
+    check_seed(args.seed)
+    check_workers(args.workers)                 # within the cores and the memory
     problem, opts = _problem(args)
     starts = _option(args, opts, "starts", 1, lambda v: isinstance(v, int) and v >= 1)
-    seed = _option(args, opts, "seed", 0, lambda v: isinstance(v, int) and v >= 0)
+    seed = _option(args, opts, "seed", 0,
+                   lambda v: isinstance(v, int) and 0 <= v <= SEED_MAX)
     h = _option(args, opts, "diff_step", 1e-3,
                 lambda v: isinstance(v, (int, float)) and 0 < v < 0.5)
     nmax = _option(args, opts, "max_evaluations", None,

@@ -13,8 +13,10 @@ def add_parser(sub) -> None:
                                         "MCAP bag (killed recorder, corrupt chunks) into a "
                                         "complete file")
     br.add_argument("bag", type=Path, metavar="IN.mcap", help="the damaged bag (kept as is)")
-    br.add_argument("--out", type=Path, metavar="OUT.mcap",
-                    help="the complete bag to write (default: IN.repaired.mcap)")
+    br.add_argument("--out", metavar="OUT.mcap",
+                    help="the complete bag to write (default: IN.repaired.mcap); an "
+                         "existing directory (or a path ending in /): IN.repaired.mcap in "
+                         "it")
     br.add_argument("--json", action="store_true", help="print the report as JSON")
     br.set_defaults(func=repair)
     be = bsub.add_parser("export", help="write a twin bag's channels as 'name [unit]' CSV "
@@ -30,9 +32,37 @@ def add_parser(sub) -> None:
     be.set_defaults(func=export)
 
 
+def repair_output(bag, out) -> Path | None:
+    """The file ``--out`` names: ``None`` (the default beside the input); a directory
+    (existing, or written with a trailing separator) → ``IN.repaired.mcap`` in it, which
+    must exist; else the path as given. Checked before the bag is read (InputError, exit
+    2): a writable file in an existing directory."""
+    import os
+    from flexarm_ros.bag.repair import default_output
+    from flexarm_ros.errors import InputError
+    from flexarm_ros.io.paths import check_output_file
+    if out is None:
+        return None
+    text = str(out)
+    as_dir = text.endswith(("/", os.sep)) or Path(text).is_dir()
+    if as_dir:
+        d = Path(text)
+        if not d.is_dir():
+            what = "is a file" if d.exists() else "does not exist"
+            raise InputError(f"--out: got {text!r}, a directory that {what}, expected an "
+                             f"existing directory (the repaired bag is written into it) or "
+                             f"a file name OUT.mcap")
+        path = d / default_output(bag).name
+    else:
+        path = Path(text)
+    check_output_file("--out", path)      # the input itself: repair() refuses it
+    return path
+
+
 def repair(args):
     """A damaged or unfinished bag rewritten complete; see flexarm_ros.bag.repair."""
     from flexarm_ros.bag.repair import cli
+    args.out = repair_output(args.bag, args.out)
     return cli(args)
 
 

@@ -44,11 +44,14 @@ def main(args):
     progress = Progress(scene.duration if args.duration is None else args.duration,
                         args.quiet or args.json)
     from flexarm_ros.io.progress import CompileNotice
+    from flexarm_ros.sim import budget
+    budget.FORECAST_STREAM = sys.stderr     # a run of over a minute says so, even --quiet
     try:
         with CompileNotice(enabled=not args.quiet):
             res = run_scene(scene, args.duration, progress=progress.callback,
                             open_loop=args.open_loop)
     finally:
+        budget.FORECAST_STREAM = None
         progress.clear()
     summ = res.summary()
     summ["set"] = set_values(args)

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from flexarm_ros.commands.common import check_duration, fail, load, open_loop_arg, scene_arg
+from flexarm_ros.commands.common import check_duration, load, open_loop_arg, scene_arg
 from flexarm_ros.io.arguments import integer, number
 
 
@@ -37,13 +37,16 @@ def main(args):
     from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.studies.ladder import run_study, plot_pareto
     check_duration(args.duration)
+    from flexarm_ros.ensemble.limits import check_workers
+    check_workers(args.workers)                  # >= 0, within the cores and the memory
+    if args.scheduler is not None:
+        from flexarm_ros.ensemble.runner import check_scheduler_address
+        check_scheduler_address(args.scheduler)
     if args.png:
         check_output_file("--png", args.png, (".png", ".pdf", ".svg"))
     scene = load(args)
     quiet = args.quiet or args.json
     from flexarm_ros.ensemble.runner import open_executor
-    if args.workers is not None and args.workers < 0:
-        fail(f"--workers: got {args.workers}, expected an integer >= 0 (0: in this process)")
     with open_executor(args.workers or 0, args.scheduler) as ex:   # rows as runner tasks
         rows = run_study(scene, duration=args.duration, quick=args.quick, executor=ex,
                          open_loop=args.open_loop,

@@ -133,11 +133,28 @@ def _check_out(args):
         check_output_dir("--png", args.png)
     if getattr(args, "markdown", None):
         check_output_file("--markdown", args.markdown, (".md",))
-    if args.workers is not None and args.workers < 0:
-        raise InputError(f"--workers: got {args.workers}, expected an integer >= 0 (0: in "
-                         f"this process)")
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
         raise InputError(f"--timeout: got {args.timeout}, expected a finite number > 0 s")
+    from flexarm_ros.ensemble.limits import check_ensemble
+    # --samples >= 1, --seed in [0, 2**32 - 1], --workers within the cores and memory,
+    # before a scene is loaded or a channel probed (the memory of the runs: per command)
+    check_ensemble(samples=args.samples, seed=args.seed, workers=args.workers)
+    if args.scheduler is not None:
+        from flexarm_ros.ensemble.runner import check_scheduler_address
+        check_scheduler_address(args.scheduler)
+
+
+def _check_runs(args, runs, scene, duration=None, channels: int = 0,
+                flag: str = "--samples") -> None:
+    """The memory of ``runs`` runs (and the time series of ``channels`` channels each)
+    within the machine's (:mod:`flexarm_ros.ensemble.limits`), before any work."""
+    from flexarm_ros.ensemble.limits import check_memory, run_bytes
+    points = 0
+    if channels:
+        T = duration if duration is not None else scene.duration
+        points = int(T / scene.fidelity.output_dt) + 1
+    check_memory(runs, run_bytes(points, channels), flag,
+                 args.samples if flag == "--samples" else None)
 
 
 def check_channels(scene, metrics, series=(), duration=None, open_loop=False) -> None:
@@ -250,9 +267,12 @@ def cmd_sweep(args):
     check_not_set(keys, sets, "sweeps")
     if len(set(keys)) != len(keys):
         raise InputError(f"--param: got {keys}, expected each key once")
+    series = _names(args.series)
+    from flexarm_ros.ensemble.designs import design_runs
+    _check_runs(args, design_runs(params, args.design, args.samples), scene, args.duration,
+                len(series))
     assignments = make_design(params, args.design, args.samples, args.seed)
     metrics = resolve_metrics(_names(args.metric), scene, args.open_loop)
-    series = _names(args.series)
     check_channels(scene, metrics, series, args.duration, args.open_loop)
     model = SceneModel(scene, metrics, args.duration, series, args.open_loop)
     meta = {"kind": "sweep", "design": args.design, "seed": args.seed,
@@ -288,6 +308,9 @@ def cmd_uncertainty(args):
     _check_out(args)
     spec, base, metrics = _spec(args)
     channel = args.channel or spec.channel
+    _check_runs(args, spec.samples if args.samples is None else args.samples, base,
+                spec.duration, 1 if channel else 0,
+                "--samples" if args.samples is not None else f"{args.spec}: samples")
     check_channels(base, metrics, [channel] if channel else [], spec.duration,
                    args.open_loop)
     model = SceneModel(base, metrics, spec.duration, (channel,) if channel else (),
@@ -336,11 +359,12 @@ def cmd_sensitivity(args):
     from flexarm_ros.ensemble.uq import format_sensitivity, run_sensitivity
     _check_out(args)
     spec, base, metrics = _spec(args)
+    from flexarm_ros.ensemble.uq import sensitivity_design, sensitivity_runs
+    n = args.samples if args.samples is not None else (8 if args.method == "morris" else 64)
+    _check_runs(args, sensitivity_runs(spec, args.method, n), base)
+    sensitivity_design(spec, args.method, n, 0)   # checks the method's sample size first
     check_channels(base, metrics, (), spec.duration, args.open_loop)
     model = SceneModel(base, metrics, spec.duration, open_loop=args.open_loop)
-    from flexarm_ros.ensemble.uq import sensitivity_design
-    sensitivity_design(spec, args.method, args.samples or (8 if args.method == "morris"
-                                                           else 64), 0)   # checks first
     with _executor(args, model) as ex:
         result, table = run_sensitivity(spec, args.method, args.samples, args.seed,
                                         model=model, executor=ex,

@@ -158,14 +158,27 @@ def unit_points(design: str, d: int, n: int, seed: int) -> np.ndarray:
     raise InputError(f"--design: got {design!r}, expected one of {', '.join(DESIGNS)}")
 
 
+def design_runs(params: list[Param], design: str = "grid", samples: int | None = None
+                ) -> int:
+    """The number of runs :func:`make_design` would make, without making them (the grid's
+    product of levels can be astronomically large: checked before it is built)."""
+    n = DEFAULT_SAMPLES.get(design, 1) if samples is None else int(samples)
+    if not params:
+        return 1
+    if design == "grid":
+        return math.prod(n if p.is_range else len(p.values) for p in params)
+    return n
+
+
 def make_design(params: list[Param], design: str = "grid", samples: int | None = None,
                 seed: int = 0) -> list[dict]:
     """The assignments ``[{key: value}, ...]`` of a design (see module doc)."""
     if design not in DESIGNS:
         raise InputError(f"--design: got {design!r}, expected one of {', '.join(DESIGNS)}")
     n = DEFAULT_SAMPLES[design] if samples is None else int(samples)
-    if n < 1:
-        raise InputError(f"--samples: got {n}, expected an integer >= 1")
+    from flexarm_ros.ensemble.limits import check_samples, check_seed
+    check_samples(n)
+    check_seed(seed)
     if not params:
         return [{}]
     if design == "grid":

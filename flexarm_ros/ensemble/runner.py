@@ -188,12 +188,44 @@ class SerialExecutor:
         self.close()
 
 
+#: the address schemes of Dask's communication layers
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+SCHEDULER_EXPECT = ("expected the address of a running Dask scheduler, e.g. "
+                    "tcp://127.0.0.1:8786 (start one with `dask scheduler` and workers with "
+                    "`dask worker ADDRESS`; docs/ensembles.md)")
+
+
+def check_scheduler_address(address) -> None:
+    """``[SCHEME://]HOST:PORT`` with a Dask scheme and a port in 1..65535, else
+    InputError (before any connection is tried)."""
+    text = str(address).strip()
+    scheme, sep, rest = text.rpartition("://")
+    if not sep:
+        scheme, rest = "tcp", text
+    if scheme not in SCHEDULER_SCHEMES:
+        raise InputError(f"--scheduler: got {address!r}, an unknown scheme {scheme!r} "
+                         f"(expected one of {', '.join(SCHEDULER_SCHEMES)}); "
+                         f"{SCHEDULER_EXPECT}")
+    if scheme == "inproc":
+        return
+    host, colon, port = rest.rpartition(":")
+    if not (colon and host.strip("[]") and port.isdigit() and 1 <= int(port) <= 65535):
+        raise InputError(f"--scheduler: got {address!r}, not HOST:PORT with a port in "
+                         f"1..65535; {SCHEDULER_EXPECT}")
+
+
 def open_executor(workers: int | None = None, scheduler: str | None = None,
                   warm_up: Callable | None = None, timeout_s: float = 10.0):
     """``workers=0`` → :class:`SerialExecutor`; otherwise a Dask executor on a new local
-    cluster (``workers`` processes, default one per core) or on ``scheduler``."""
+    cluster (``workers`` processes, default one per core, at most
+    :data:`~flexarm_ros.ensemble.limits.WORKERS_PER_CORE` per core) or on ``scheduler``."""
     if scheduler is None and workers == 0:
         return SerialExecutor()
+    if scheduler is None:
+        from flexarm_ros.ensemble.limits import check_workers
+        check_workers(workers)
+    else:
+        check_scheduler_address(scheduler)
     try:
         from flexarm_ros.ensemble.cluster import DaskExecutor
     except ImportError as exc:
@@ -264,21 +296,28 @@ class EnsembleTable:
             self._write_parquet(path)
         else:
             raise InputError(f"--out: got {str(path)!r}, expected a .csv or .parquet file")
+        from flexarm_ros.io.paths import note_written
+        note_written(path)
         meta_path = path.with_name(path.name + ".meta.json")
         meta_path.write_text(json.dumps(self.public_meta, indent=2, default=_json_default)
                              + "\n")
+        note_written(meta_path)
         if self.series is not None:
             self.write_series(path)
         return path
 
     def _write_csv(self, path: Path) -> None:
         tmp = path.with_name(path.name + ".part")
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(self.columns)
-            for r in self.rows:
-                w.writerow([_cell(r.get(c)) for c in self.columns])
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(self.columns)
+                for r in self.rows:
+                    w.writerow([_cell(r.get(c)) for c in self.columns])
+            os.replace(tmp, path)
+        except BaseException:        # a full disk, a Ctrl-C: no half-written .part left
+            tmp.unlink(missing_ok=True)
+            raise
 
     def _write_parquet(self, path: Path) -> None:
         try:

@@ -238,10 +238,9 @@ def parse_spec(data, path: Path | None = None, check_keys: bool = True) -> Spec:
             raise InputError(f"{where}duration: got {dur:g}, expected a number > 0 s")
     samples = data.get("samples", 256)
     seed = data.get("seed", 0)
-    for k, v in (("samples", samples), ("seed", seed)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k == "samples" else 0):
-            raise InputError(f"{where}{k}: got {v!r}, expected an integer >= "
-                             f"{1 if k == 'samples' else 0}")
+    from flexarm_ros.ensemble.limits import check_samples, check_seed
+    check_samples(samples, f"{where}samples")
+    check_seed(seed, f"{where}seed")
     metrics = data.get("metrics") or []
     if not isinstance(metrics, list):
         raise InputError(f"{where}metrics: got {metrics!r}, expected a list of metric names")

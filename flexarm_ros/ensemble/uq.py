@@ -93,8 +93,11 @@ def run_uncertainty(spec, samples=None, seed=None, design="random", channel=None
                     model=None, **kw):
     """Monte Carlo over the spec; returns ``(table, stats, envelope or None)``."""
     from flexarm_ros.ensemble.designs import unit_points
-    n = spec.samples if samples is None else int(samples)
-    seed = spec.seed if seed is None else int(seed)
+    from flexarm_ros.ensemble.limits import check_samples, check_seed
+    n = spec.samples if samples is None else samples
+    seed = spec.seed if seed is None else seed
+    check_samples(n)
+    check_seed(seed)
     if design not in ("random", "lhs"):
         raise InputError(f"--design: got {design!r}, expected random or lhs")
     base = spec.base_scene() if model is None else None
@@ -122,6 +125,12 @@ def _problem(spec) -> dict:
                              f"analysis (the designs reach the ends of the quantile range)")
     return {"num_vars": len(spec.unknowns), "names": spec.names,
             "bounds": [[0.0, 1.0]] * len(spec.unknowns)}
+
+
+def sensitivity_runs(spec, method: str, n: int) -> int:
+    """Runs of the method's design of ``n``: Morris ``n (d + 1)``, Sobol ``n (d + 2)``."""
+    d = len(spec.unknowns)
+    return int(n) * (d + (1 if method == "morris" else 2))
 
 
 def sensitivity_design(spec, method: str, n: int, seed: int) -> np.ndarray:
@@ -187,8 +196,11 @@ def analyse(spec, method: str, unit: np.ndarray, table, seed: int) -> dict:
 
 def run_sensitivity(spec, method="sobol", samples=None, seed=None, model=None, **kw):
     """Morris or Sobol over the spec's unknowns; returns ``(result, table)``."""
-    seed = spec.seed if seed is None else int(seed)
-    n = int(samples) if samples is not None else (8 if method == "morris" else 64)
+    from flexarm_ros.ensemble.limits import check_samples, check_seed
+    seed = spec.seed if seed is None else seed
+    n = samples if samples is not None else (8 if method == "morris" else 64)
+    check_samples(n)
+    check_seed(seed)
     unit = sensitivity_design(spec, method, n, seed)
     base = spec.base_scene() if model is None else None
     model = model or _model(spec, base)

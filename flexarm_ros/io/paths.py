@@ -74,3 +74,23 @@ def check_output_dir(flag: str, path) -> Path:
                          f"({existing} is a file)")
     _probe_directory(flag, path, existing if existing.exists() else Path("."))
     return p
+
+
+#: the outputs this process has written whole (a table renamed into place, its meta file),
+#: in order: what an interrupted command says it kept (:func:`flexarm_ros.cli.interrupted`)
+_WRITTEN: list[str] = []
+
+
+def note_written(path) -> None:
+    """Record that ``path`` has been written whole."""
+    _WRITTEN.append(str(path))
+
+
+def written() -> list[str]:
+    """The outputs recorded by :func:`note_written` since the last :func:`forget_written`."""
+    return list(_WRITTEN)
+
+
+def forget_written() -> None:
+    """Start a new record (each command of :func:`flexarm_ros.cli.main`)."""
+    _WRITTEN.clear()

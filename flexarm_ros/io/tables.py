@@ -42,18 +42,24 @@ def write_table(path, columns: dict, units: dict | None = None) -> Path:
     if suffix not in (".csv", ".npz"):
         raise InputError(f"--out: got {str(path)!r}, expected a .csv or .npz file name")
     tmp = path.with_name(path.name + ".part")
-    if suffix == ".csv":
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(",".join(f"{k} [{units[k]}]" if k in units else k for k in names)
-                     + "\n")
-            lines = csv_rows(columns, names, text)
-            while chunk := "".join(islice(lines, CSV_CHUNK_ROWS)):
-                fh.write(chunk)
-    else:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **{k: (np.asarray(columns[k]).astype(str) if k in text else
-                                np.asarray(columns[k], float)) for k in names})
-    tmp.replace(path)
+    try:
+        if suffix == ".csv":
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(",".join(f"{k} [{units[k]}]" if k in units else k for k in names)
+                         + "\n")
+                lines = csv_rows(columns, names, text)
+                while chunk := "".join(islice(lines, CSV_CHUNK_ROWS)):
+                    fh.write(chunk)
+        else:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **{k: (np.asarray(columns[k]).astype(str) if k in text else
+                                    np.asarray(columns[k], float)) for k in names})
+        tmp.replace(path)
+    except BaseException:            # a full disk, a Ctrl-C: no half-written .part left
+        tmp.unlink(missing_ok=True)
+        raise
+    from flexarm_ros.io.paths import note_written
+    note_written(path)
     return path
 
 

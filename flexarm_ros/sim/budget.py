@@ -25,6 +25,7 @@ exceeds the budget stops with the same explanation at its current state.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -75,6 +76,52 @@ def check_work(chain, x0, h, duration, integrator="rk4", contact=None) -> None:
         f"{duration:g} s / step {h:.3g} s), expected at most {max_steps:.3g}. "
         + why_step(chain, x0, h, integrator, contact)
         + " (or raise fidelity.max_steps / --max-steps to run it anyway)")
+
+
+#: where a fixed-step run predicted to take long says so as it starts (None: silent, the
+#: library's default and the ensemble workers'; ``flexarm simulate`` sets its stderr, with
+#: or without --quiet)
+FORECAST_STREAM = None
+#: wall seconds above which the forecast is said
+FORECAST_S = 60.0
+#: steps of the first compiled call, which times the run's pace
+FORECAST_STEPS = 1000
+
+
+class Forecast:
+    """``update(steps_done)`` after each compiled call of a fixed-step run of
+    ``total_steps``: the first call that took a measurable time (>= 20 ms, or the whole
+    run) sets the pace; a run whose steps at that pace need more than :data:`FORECAST_S`
+    says so once on :data:`FORECAST_STREAM` (steps, estimated time) — before a run of
+    minutes goes silent under --quiet. Costs one clock read per compiled call."""
+
+    def __init__(self, total_steps: float, integrator: str, h: float, duration: float):
+        self.total, self.integrator, self.h, self.duration = total_steps, integrator, h, \
+            duration
+        self.t0 = time.perf_counter()
+        self.done = FORECAST_STREAM is None or not math.isfinite(total_steps)
+
+    def update(self, steps: int) -> None:
+        if self.done or steps <= 0:
+            return
+        wall = time.perf_counter() - self.t0
+        if wall < 0.02 and steps < self.total:
+            return
+        self.done = True
+        estimate = wall / steps * self.total
+        if estimate > FORECAST_S:
+            print(f"flexarm: this run needs {self.total:.3g} {self.integrator} steps "
+                  f"(duration {self.duration:g} s / step {self.h:.3g} s), about "
+                  f"{_duration_text(estimate)} at the pace of its first {steps} steps; "
+                  f"Ctrl-C stops it (exit 130)", file=FORECAST_STREAM, flush=True)
+
+
+def _duration_text(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 7200:
+        return f"{s / 60:.0f} min"
+    return f"{s / 3600:.1f} h"
 
 
 class Pace:

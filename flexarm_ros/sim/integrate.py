@@ -12,6 +12,7 @@ returned. The step size and its stability limit: :mod:`flexarm_ros.sim.step`.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -28,7 +29,7 @@ from flexarm_ros.model.linear import smooth_rhs
 from flexarm_ros.model.programs import torque_breakpoints
 from flexarm_ros.sim.guard import DivergenceGuard
 from flexarm_ros.sim.step import choose_step, nystrom_positions, rk4_step
-from flexarm_ros.sim.budget import Pace, check_work
+from flexarm_ros.sim.budget import FORECAST_STEPS, Forecast, Pace, check_work
 
 #: scipy's solve_ivp methods by integrator name (the class by :func:`solve_ivp_method`)
 SOLVE_IVP = {"rk45": "RK45", "dop853": "DOP853", "radau": "Radau", "bdf": "BDF",
@@ -127,6 +128,8 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         kloops.warm_up(integrator, chain.kernel_args, x0, xs, dense=dense)
     wall0 = time.perf_counter()
     last_report = wall0
+    forecast = Forecast(t_end / h if integrator in FIXED_STEP else math.inf, integrator, h,
+                        t_end)
     if dense and chain.backend == "numba":
         ws = kchain.workspace(chain.kernel_args)
         x, t, k_next, steps = np.array(x0, float), 0.0, 1, 0
@@ -135,8 +138,10 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
         # were most of a 1 s two_link_free run)
         chunk = h * max(MIN_CALL_STEPS, int(np.ceil(t_end / 100 / h)))
         bps = input_breakpoints(chain, t_end)
+        first = min(h * FORECAST_STEPS, chunk)   # a short first call times the pace
         while t < t_end - 1e-12 * max(1.0, t_end):
-            t_stop = min(t + chunk, next(b for b in bps if b > t + 1e-12 * max(1.0, t_end)))
+            t_stop = min(t + (first if steps == 0 else chunk),
+                         next(b for b in bps if b > t + 1e-12 * max(1.0, t_end)))
             code, t_new, st, calls, k_next, x_last, x_bad = kloops.rk4_dense(
                 x, t, h, t_stop, output_dt, k_next, max_deflection_ratio, xs,
                 chain.kernel_args, ws, nq > 0)
@@ -146,6 +151,7 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                 guard.last = x_last
                 guard.check(t_new, x_bad)
             x, t = x_last, t_new
+            forecast.update(steps)
             last_report = _report(progress, last_report, t / t_end)
         xs[k_next:] = x                  # t_end exactly on the grid but below rounding
     elif dense:
@@ -164,11 +170,12 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
                 guard.last = x_last
                 guard.check(t_fail, x_bad)
             x = x_last
+            forecast.update(steps)
             last_report = _report(progress, last_report, k1 * output_dt / t_end)
         f.calls += 4 * steps
     elif integrator == "trapezoid":
         steps, calls = _run_trapezoid(chain, x0, h, n_out, output_dt, max_deflection_ratio,
-                                      xs, guard, progress)
+                                      xs, guard, progress, forecast)
         f.calls += calls
     elif integrator in EXPLICIT:
         per = int(round(output_dt / h))
@@ -310,7 +317,8 @@ def iteration_matrix(chain, t, x, h) -> np.ndarray:
     return np.linalg.inv(M + 0.5 * h * C + 0.25 * h * h * K)
 
 
-def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progress=None):
+def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progress=None,
+                   forecast=None):
     """Drive the compiled trapezoidal loop, refreshing the iteration matrix when Newton
     stalls (fast rotation, large deflection change the tangent)."""
     model = chain.kernel_args
@@ -329,6 +337,8 @@ def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progres
             TRAPEZOID_TOL, TRAPEZOID_MAX_ITER)
         steps += st
         calls += it
+        if forecast is not None:
+            forecast.update(steps)
         if code == kchain.OK:
             last_report = _report(progress, last_report, k * output_dt / (n_out * output_dt))
             if k >= n_out:

@@ -126,7 +126,7 @@ def test_spec_seed_above_32_bits_is_refused():
     ("garbage", r"not HOST:PORT"), ("tcp://127.0.0.1:0", r"not HOST:PORT"),
     ("tcp://host:99999", r"not HOST:PORT"), ("foo://host:1", r"unknown scheme 'foo'")])
 def test_scheduler_addresses_checked_before_connecting(address, pattern):
-    from flexarm_ros.ensemble.runner import check_scheduler_address
+    from flexarm_ros.ensemble.limits import check_scheduler_address
     with pytest.raises(InputError, match=pattern):
         check_scheduler_address(address)
     for good in ("tcp://127.0.0.1:8786", "10.0.0.5:8786", "tls://[::1]:8786"):

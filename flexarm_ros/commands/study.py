@@ -40,7 +40,7 @@ def main(args):
     from flexarm_ros.ensemble.limits import check_workers
     check_workers(args.workers)                  # >= 0, within the cores and the memory
     if args.scheduler is not None:
-        from flexarm_ros.ensemble.runner import check_scheduler_address
+        from flexarm_ros.ensemble.limits import check_scheduler_address
         check_scheduler_address(args.scheduler)
     if args.png:
         check_output_file("--png", args.png, (".png", ".pdf", ".svg"))

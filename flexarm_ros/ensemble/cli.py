@@ -140,7 +140,7 @@ def _check_out(args):
     # before a scene is loaded or a channel probed (the memory of the runs: per command)
     check_ensemble(samples=args.samples, seed=args.seed, workers=args.workers)
     if args.scheduler is not None:
-        from flexarm_ros.ensemble.runner import check_scheduler_address
+        from flexarm_ros.ensemble.limits import check_scheduler_address
         check_scheduler_address(args.scheduler)
 
 

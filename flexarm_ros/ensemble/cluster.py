@@ -20,7 +20,7 @@ from distributed import Client, LocalCluster, as_completed
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from flexarm_ros.errors import InputError
-from flexarm_ros.ensemble.runner import SCHEDULER_EXPECT, check_scheduler_address
+from flexarm_ros.ensemble.limits import SCHEDULER_EXPECT, check_scheduler_address
 
 
 def _one_line(exc) -> str:

@@ -188,32 +188,6 @@ class SerialExecutor:
         self.close()
 
 
-#: the address schemes of Dask's communication layers
-SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
-SCHEDULER_EXPECT = ("expected the address of a running Dask scheduler, e.g. "
-                    "tcp://127.0.0.1:8786 (start one with `dask scheduler` and workers with "
-                    "`dask worker ADDRESS`; docs/ensembles.md)")
-
-
-def check_scheduler_address(address) -> None:
-    """``[SCHEME://]HOST:PORT`` with a Dask scheme and a port in 1..65535, else
-    InputError (before any connection is tried)."""
-    text = str(address).strip()
-    scheme, sep, rest = text.rpartition("://")
-    if not sep:
-        scheme, rest = "tcp", text
-    if scheme not in SCHEDULER_SCHEMES:
-        raise InputError(f"--scheduler: got {address!r}, an unknown scheme {scheme!r} "
-                         f"(expected one of {', '.join(SCHEDULER_SCHEMES)}); "
-                         f"{SCHEDULER_EXPECT}")
-    if scheme == "inproc":
-        return
-    host, colon, port = rest.rpartition(":")
-    if not (colon and host.strip("[]") and port.isdigit() and 1 <= int(port) <= 65535):
-        raise InputError(f"--scheduler: got {address!r}, not HOST:PORT with a port in "
-                         f"1..65535; {SCHEDULER_EXPECT}")
-
-
 def open_executor(workers: int | None = None, scheduler: str | None = None,
                   warm_up: Callable | None = None, timeout_s: float = 10.0):
     """``workers=0`` → :class:`SerialExecutor`; otherwise a Dask executor on a new local
@@ -225,6 +199,7 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
         from flexarm_ros.ensemble.limits import check_workers
         check_workers(workers)
     else:
+        from flexarm_ros.ensemble.limits import check_scheduler_address
         check_scheduler_address(scheduler)
     try:
         from flexarm_ros.ensemble.cluster import DaskExecutor

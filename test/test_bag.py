@@ -588,3 +588,14 @@ def test_bag_package_imports_without_rclpy():
             "import flexarm_ros.bag, flexarm_ros.bag.reader, flexarm_ros.bag.writer\n"
             "assert 'rclpy' not in [k for k, v in sys.modules.items() if v is not None]\n")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_uint8_sequences_are_written_from_bytes_as_the_readers_give_them():
+    """A message read back from a bag carries uint8[] as bytes (a CompressedImage's data,
+    a Marker's texture.data): writing it again encodes the same CDR as from a list (the
+    golden bag's arm_markers, rewritten by test_bag_export, failed on it)."""
+    from flexarm_ros.bag.writer import encode_cdr
+    base = {"header": {"stamp": {"sec": 1, "nanosec": 2}, "frame_id": "f"}, "format": "png"}
+    as_list = encode_cdr("sensor_msgs/msg/CompressedImage", {**base, "data": [0, 7, 255]})
+    for raw in (b"\x00\x07\xff", bytearray(b"\x00\x07\xff"), memoryview(b"\x00\x07\xff")):
+        assert encode_cdr("sensor_msgs/msg/CompressedImage", {**base, "data": raw}) == as_list

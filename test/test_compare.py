@@ -83,13 +83,14 @@ def test_golden_bag_channels(golden):
     # wall_gap: the tool point's distance to the wall x = -0.025 m (normal +x). The tool
     # sits on RB4 beyond the beam tip (tool.position), so the gap is derived from the
     # coordinates through the scene's kinematics, not from tip_x. At t = 0 the arm is
-    # straight and undeformed: the tool lies at the straight reach R along q1 = 55 deg.
+    # straight and undeformed: the tool lies at the straight reach R along q1 = 55 deg
+    # (1.735 m with the Case 1 calibration's tool, 0.3186 m on RB4; 1.700 m geometry-only).
     # Whenever the contact flag is up the impulse rung holds the tool on the wall (its
     # drift bound is 1 nm); before the first contact the gap is open.
     sc = golden.scene
     reach = (sum(lk.beam.hub_radius + lk.beam.length for lk in sc.links)
              + sc.links[0].tip.joint_offset[0] + sc.tool.position[0])
-    assert reach == pytest.approx(1.700, abs=1e-9)
+    assert reach == pytest.approx(1.735215, abs=1e-9)
     gap, contact = golden["wall_gap"], golden["contact"]
     assert gap.y[0] == pytest.approx(reach * math.cos(math.radians(55.0)) + 0.025, abs=1e-9)
     assert gap.y[0] - (golden["tip_x"].y[0] + 0.025) == pytest.approx(
@@ -101,25 +102,25 @@ def test_golden_bag_channels(golden):
 
 
 def test_golden_impact_time_matches_the_seed(self_cmp):
-    """Seed 000 Case 1: the tool reaches the wall near t = 2.1 s (the scene's drive
-    resistance was calibrated to the wall line crossing at 2.100 s)."""
+    """Seed 000 Case 1: the tool reaches the wall near t = 2.1 s (the scene's Case 1
+    calibration fits the impact time with the frequencies and the bounce: 2.0985 s)."""
     c = self_cmp.result["contact"]
     assert c["impact_source"] == "contact"
     assert c["impact_time_reference_s"] == pytest.approx(2.1, abs=0.01)       # seed
-    assert c["impact_time_reference_s"] == pytest.approx(2.0995, abs=5e-4)    # pinned
+    assert c["impact_time_reference_s"] == pytest.approx(2.0985, abs=5e-4)    # pinned
 
 
 def test_golden_wall_gap_impact(golden):
-    """The gap falls through the wall between the 2.099 s and 2.100 s samples."""
+    """The gap falls through the wall between the 2.098 s and 2.099 s samples."""
     g = golden["wall_gap"]
     t = C.M.event_time(g.t, g.y, C.IMPACT_GAP_M, direction=-1)
-    assert 2.099 < t <= 2.100
-    assert g.y[np.searchsorted(g.t, 2.099)] > 1e-5      # still free at 2.099 s
+    assert 2.098 < t <= 2.099
+    assert g.y[np.searchsorted(g.t, 2.098)] > 1e-5      # still free at 2.098 s
 
 
 #: dominant frequency (Hz) of each accelerometer over the whole 2.5 s record, measured
 #: once on the golden bag; tolerance: the estimator's stated bound (0.1 bin = 0.04 Hz).
-GOLDEN_FREQ_HZ = {"acc_A": 12.366, "acc_B": 1.5632, "acc_C": 12.372, "acc_D": 1.2430}
+GOLDEN_FREQ_HZ = {"acc_A": 20.197, "acc_B": 1.5301, "acc_C": 1.6954, "acc_D": 1.2365}
 
 
 def test_golden_accelerometer_frequencies(golden, self_cmp):
@@ -132,21 +133,21 @@ def test_golden_accelerometer_frequencies(golden, self_cmp):
         assert b["frequency_bound_hz"] == pytest.approx(0.1 * b["frequency_resolution_hz"])
         assert b["frequency_run_hz"] == pytest.approx(f, abs=b["frequency_bound_hz"])
     # independent: the linearized arm (joints held by the drives) has modes near 1.6 Hz
-    # and 12.2 Hz at the start configuration. Over the whole record the beam-midpoint
-    # accelerometers A and C ring at the upper one, RB2's accelerometer B at the lower one
-    # (the arm's configuration changes during the swing, hence 5 %). D, on RB4 next to the
-    # tool, is dominated over the whole record by the 0.14 s the tool spends on the wall
-    # after the strike, which is no mode of the free arm; in the free swing before the
-    # strike (0.2-2.09 s) it rings at the upper mode as C does, while A and B carry the
-    # lower one.
+    # and 11.1 Hz at the start configuration (11.1 with the Case 1 calibration's heavier
+    # RB4, 12.2 geometry-only). In the free swing before the strike (0.2-2.09 s) the
+    # accelerometers ring at them: A, C (beam mid-points) and D (RB4) at the upper one,
+    # RB2's B at the lower one. Over the whole record B and C follow the gross swing near
+    # the lower mode (the configuration changes during the swing, hence 10 %), while A
+    # and D are dominated by the 0.4 s the tool spends on the wall after the strike
+    # (20.2 and 1.24 Hz), which are no modes of the free arm.
     modes = natural_modes(Chain(golden_scene(self_cmp)), joints="locked").frequencies_hz
     low = min(modes, key=lambda f: abs(f - 1.6))
-    high = min(modes, key=lambda f: abs(f - 12.5))
-    assert 1.5 < low < 1.9 and 12.0 < high < 14.5
-    for n, mode in (("acc_A", high), ("acc_C", high), ("acc_B", low)):
-        assert chans[n]["frequency_run_hz"] == pytest.approx(mode, rel=0.05), n
+    high = min(modes, key=lambda f: abs(f - 11.5))
+    assert 1.5 < low < 1.9 and 10.5 < high < 14.5
+    for n, mode in (("acc_B", low), ("acc_C", low)):
+        assert chans[n]["frequency_run_hz"] == pytest.approx(mode, rel=0.10), n
     free = C.compare(golden, golden, window=(0.2, 2.09)).result["channels"]
-    for n, mode in (("acc_A", low), ("acc_B", low), ("acc_C", high), ("acc_D", high)):
+    for n, mode in (("acc_A", high), ("acc_B", low), ("acc_C", high), ("acc_D", high)):
         assert free[n]["frequency_run_hz"] == pytest.approx(mode, rel=0.05), n
 
 
@@ -212,17 +213,18 @@ def test_synthetic_experiment_in_bags(golden):
     r = cmp.result
     assert abs(r["offset"]["offset_s"] + SYNTHETIC_SHIFT_S) < r["offset"]["sample_period_s"]
     assert r["contact"]["impact_time_error_s"] == pytest.approx(0.0, abs=2.5e-4)
-    # the bounce from the tool's gap (0.5 mm noise on a ~38 mm bounce)
-    assert r["contact"]["bounce_height_run_m"] == pytest.approx(0.0375, abs=1e-3)
+    # the bounce from the tool's gap (0.5 mm noise on a ~30 mm bounce)
+    assert r["contact"]["bounce_height_run_m"] == pytest.approx(0.0300, abs=1e-3)
     assert abs(r["contact"]["bounce_height_error"]) < 0.05
     for n in ("acc_A", "acc_C"):
         # noise of 2 % of the signal's std: relative RMS error ~ 0.02
         assert r["channels"][n]["relative_rms_error"] == pytest.approx(0.02, rel=0.1)
     assert abs(r["channels"]["acc_C"]["frequency_error"]) < 0.01
-    # acc_A and acc_D carry two spectral peaks of nearly equal height over this record
-    # (A: 12.4 Hz, the free arm, and 18.8 Hz, the 0.14 s with the tool held on the wall;
-    # D: 1.5 and 2.2 Hz), so the noise decides which one is the dominant frequency: the
-    # reference's is one of the run's two. Every other criterion passes.
+    # acc_A carries two spectral peaks of nearly equal height over this record (15.4 and
+    # 20.2 Hz, within 1 %; the free arm before the strike rings at 11.1 Hz), so the noise
+    # decides which one is the dominant frequency: the reference's is one of the run's
+    # two, moved by the noise by up to 0.13 Hz (3 bounds). Every other criterion passes
+    # (acc_D too: with the Case 1 calibration its peaks no longer tie).
     for n, bands in TIED_PEAKS.items():
         b = r["channels"][n]
         t, y = golden[n].t, golden[n].y
@@ -232,7 +234,7 @@ def test_synthetic_experiment_in_bags(golden):
         assert min(p.amplitude for p in peaks) > 0.9 * max(p.amplitude for p in peaks), n
         assert b["frequency_run_hz"] in [pytest.approx(p.frequency_hz, abs=p.bound_hz)
                                          for p in peaks], n
-        assert b["frequency_reference_hz"] in [pytest.approx(p.frequency_hz, abs=2 * p.bound_hz)
+        assert b["frequency_reference_hz"] in [pytest.approx(p.frequency_hz, abs=4 * p.bound_hz)
                                                for p in peaks], n
     rest = [n for n in r["channels"] if n not in TIED_PEAKS]
     rr = C.compare(golden, ref, channels=rest).result
@@ -241,7 +243,7 @@ def test_synthetic_experiment_in_bags(golden):
 
 #: accelerometers whose dominant frequency over the whole golden record is a near tie of
 #: two peaks (Hz bands holding them)
-TIED_PEAKS = {"acc_A": ((10.0, 15.0), (15.0, 25.0)), "acc_D": ((1.0, 1.8), (1.8, 3.0))}
+TIED_PEAKS = {"acc_A": ((10.0, 18.0), (18.0, 25.0))}
 
 
 def test_scaled_copy_amplitude_error(golden):
@@ -621,7 +623,7 @@ def test_golden_contact_flag_is_boolean(self_cmp):
     assert b["signal"] == "boolean" and b["frequency_run_hz"] is None
     ev = b["events"]["run"]
     assert ev == b["events"]["reference"] and ev["rises"] >= 1
-    assert ev["first_rise_s"] == pytest.approx(2.100, abs=1e-9)   # the 1 ms sample after 2.0995
+    assert ev["first_rise_s"] == pytest.approx(2.099, abs=1e-9)   # the 1 ms sample after 2.0985
     assert self_cmp.result["channels"]["acc_A"]["signal"] == "continuous"
 
 

@@ -292,17 +292,21 @@ def _tip_error(scene, duration, target):
 
 @pytest.mark.slow
 def test_position_control_reaches_the_tip_target():
-    """two_link_position: tool from (1.15, 1.2) to (1.0, 1.0) m. Stated: the tool's error
-    falls monotonically (no overshoot, no oscillation: the tuned PD damps the 0.25 Hz
-    beam mode), is below 2 cm from t = 4.9 s, below 1 cm from 5.6 s, below 3.5 mm at 7 s;
-    commands stay below 4.5 V (the scene's assumptions: 4.6 / 5.3 / 6.8 s, 4.1 V)."""
+    """two_link_position: tool from (1.15, 1.2) to (1.0, 1.0) m. Stated: after the first
+    0.1 s the tool's error falls monotonically (no overshoot, no oscillation: the tuned PD
+    damps the 0.25 Hz beam mode), is below 2 cm from t = 4.9 s, below 1 cm from 5.6 s,
+    below 3.5 mm at 7 s; commands stay below 4.5 V (the scene's assumptions: 4.3 / 5.0 /
+    6.5 s, 3.7 V). In the first 50 ms the calibrated arm (issue 40: tool 0.3186 m on RB4,
+    RB4's inertia x 1.678) moves the tool 0.06 mm away before it heads in: the start may
+    rise by less than 0.1 mm."""
     import dataclasses
     scene = load_scene("two_link_position")
     scene = dataclasses.replace(scene, sensors=tuple(s for s in scene.sensors
                                                      if s.kind == "encoder"))
     t, err, volts = _tip_error(scene, 7.0, scene.twin_control.tip_target)
     assert err[0] == pytest.approx(math.hypot(0.15, 0.2), abs=1e-3)
-    assert np.all(np.diff(err) <= 1e-6)
+    assert err[t <= 0.1].max() - err[0] < 1e-4
+    assert np.all(np.diff(err[t >= 0.1]) <= 1e-6)
     assert err[t >= 4.9].max() < 0.02
     assert err[t >= 5.6].max() < 0.01
     assert err[-1] < 0.0035

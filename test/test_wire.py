@@ -41,8 +41,8 @@ def test_limits_follow_the_drive_or_the_stated_defaults():
     1000 N·m or the key for a joint without a drive."""
     case1 = joint_limits(load_scene("two_link_case1"))
     assert [lim.command_limit for lim in case1] == [48.0, 48.0] == [DEFAULT_SUPPLY_VOLTAGE] * 2
-    assert case1[0].torque_limit == pytest.approx(156.0 * 0.0302 * 2 * 48.0 / 0.9182, rel=1e-12)
-    assert case1[1].torque_limit == pytest.approx(236.0 * 0.0258 * 2 * 48.0 / 3.757, rel=1e-12)
+    assert case1[0].torque_limit == pytest.approx(156.0 * 0.0302 * 2 * 48.0 / 0.9879832, rel=1e-12)
+    assert case1[1].torque_limit == pytest.approx(236.0 * 0.0258 * 2 * 48.0 / 4.042532, rel=1e-12)
     assert "default" in case1[0].command_from
     pos = joint_limits(load_scene("two_link_position"))
     assert [lim.command_limit for lim in pos] == [24.0, 24.0]
@@ -73,7 +73,7 @@ def test_explain_states_every_limit():
     text = explain(load_scene("two_link_case1"))
     assert "wire limits" in text
     assert "link1: voltage command within ±48 V (default" in text
-    assert "effort within ±492.567 N·m" in text          # 156·0.0302·2·48 V / 0.9182 Ω
+    assert "effort within ±457.776 N·m" in text          # 156·0.0302·2·48 V / 0.9879832 Ω
 
 
 def test_validator_rejects_by_reason_and_counts():

@@ -278,6 +278,10 @@ def _numeric_array(ftype: str, value: Any, path: str) -> np.ndarray:
     """Validated 1-D little-endian array of a numeric/bool sequence field."""
     if isinstance(value, np.ndarray):
         arr = value
+    elif isinstance(value, (bytes, bytearray, memoryview)) and ftype in ("uint8", "byte"):
+        # how the bag readers give uint8[] back (e.g. a Marker's texture.data): re-writing
+        # a message read from a bag must not fail on it
+        arr = np.frombuffer(bytes(value), np.uint8)
     elif isinstance(value, (list, tuple)):
         if not value:
             return np.zeros(0, _DTYPES[ftype])

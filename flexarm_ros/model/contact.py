@@ -18,7 +18,11 @@ the events between them, located on the step by root finding:
   Kane's frictional-impact paradox of a fixed-direction sliding impulse.
 * sliding: M q̈ = f + (J_n − μ s J_t)ᵀ λ, J_n q̈ = −c_n; λ ≥ 0 the normal force,
   friction −μ λ s (s = sign v_t). Events: λ → 0⁻ (separation), v_t → 0 (stick or keep
-  slipping).
+  slipping), d = G_nn − μ s G_nt → 0⁻ (Painlevé: a tangential impact, below).
+* tangential impact (Painlevé's case, Génot & Brogliato 1999): where sliding has no
+  consistent normal force (d ≤ 0) the contact jams — an impulse at zero approach speed,
+  the impact law above with v_n = 0, which stops the slip with P_n > 0 and |P_t| ≤ μ P_n
+  (d ≤ 0 puts the sticking impulse inside the cone); then sticking or separation.
 * sticking: M q̈ = f + J_nᵀλ + J_tᵀλ_t, J_n q̈ = −c_n, J_t q̈ = −c_t. Events: λ → 0⁻,
   |λ_t| → μ_s λ (slip starts against λ_t).
 
@@ -249,6 +253,15 @@ class WallContact:
 
     def kinetic(self, tm: Terms, qd_free) -> float:
         return 0.5 * qd_free @ tm.M @ qd_free
+
+    def painleve(self, tm: Terms, s: float) -> float:
+        """The sliding mode's consistency margin d = G_nn − μ s G_nt (1/kg), the factor of
+        the normal force in J_n q̈ = −c_n: λ = (−c_n − J_n M⁻¹f)/d. Positive: one normal
+        force for every state (sliding or separation). Zero or negative: Painlevé's case —
+        sliding has no solution (free flight heads into the wall) or two (it separates as
+        well); the stepper resolves it by a tangential impact (§8.2)."""
+        Minv_jn = np.linalg.solve(tm.M, self.n @ tm.J)
+        return float((self.n @ tm.J) @ Minv_jn - self.mu * s * ((self.t @ tm.J) @ Minv_jn))
 
 
 

@@ -22,6 +22,9 @@ from flexarm_ros.model.compiled.chain import STAGE_EPS
 from flexarm_ros.sim.integrate import hermite
 from flexarm_ros.sim.step import RK4_AUTO, rk4_step
 
+#: index of Painlevé's margin among the sliding mode's event functions
+PAINLEVE = 2
+
 
 @dataclass
 class ContactRun:
@@ -164,8 +167,8 @@ class ContactStepper:
         _, ln, lt, gap, vt = self._rhs(tt, xx, md, sg)
         if md == FREE:
             return (gap,)
-        if md == SLIDING:
-            return (ln, sg * vt)
+        if md == SLIDING:                # λ, slip, Painlevé's margin (PAINLEVE)
+            return (ln, sg * vt, self.contact.painleve(self.contact.terms(tt, xx), sg))
         return (ln, self.contact.mus * ln - abs(lt))
 
     def _transition(self, tt, xx, which):
@@ -185,6 +188,13 @@ class ContactStepper:
                                     -math.copysign(1.0, pt) if pt else 1.0)
             if new_mode == SLIDING and abs(vt1) < 1e-12:
                 new_mode, sg = stick_or_slip(c, tt, xx)
+            if new_mode == SLIDING and c.painleve(c.terms(tt, xx), sg) <= 0.0:
+                # sliding away from the impact would be Painlevé's case: the impact's
+                # impulse and the tangential one at once
+                self.impacts.append(ImpactRecord(tt, pn, pt, -vn, ke0, c.kinetic(tm, v1),
+                                                 "sliding"))
+                self.normal_impulse += pn
+                return self._tangential_impact(tt, xx)
             _, ln, _, _ = c.rhs(tt, xx, new_mode, sg)
             outcome = "sticking" if new_mode == STICKING else "sliding"
             if ln < 0 and tt - self.last_sep > MIN_FLIGHT:
@@ -195,6 +205,13 @@ class ContactStepper:
             self.normal_impulse += pn
             self.impact_pending = True
             return xx, new_mode, sg
+        if self.mode == SLIDING and (which == PAINLEVE or (
+                which == 0 and c.painleve(c.terms(tt, xx), self.s) <= 0.0)):
+            # Painlevé's inconsistent case: d = G_nn − μ s G_nt reached zero while sliding
+            # (λ through its pole), or λ = N/d reached zero with d < 0 — beyond, sliding
+            # would pull (N > 0, d < 0) while free flight heads into the wall: the contact
+            # jams by a tangential impact
+            return self._tangential_impact(tt, xx)
         if which == 0:                                     # normal force turned pulling
             self.last_sep = tt
             return xx, FREE, 0.0
@@ -202,7 +219,39 @@ class ContactStepper:
             md, sg = stick_or_slip(c, tt, xx)
             return xx, md, sg
         _, _, lt, _ = c.rhs(tt, xx, STICKING)              # static friction exceeded
+        # (a slip into d < 0 is Painlevé's indeterminate case — sliding with λ = N/d > 0
+        # and lift-off both solve it; the sliding solution carries the sticking force on
+        # continuously and is taken)
         return xx, SLIDING, -math.copysign(1.0, lt)
+
+    def _tangential_impact(self, tt, xx):
+        """Painlevé's case resolved as the literature does (Génot & Brogliato 1999; the
+        impulse a Moreau–Jean time-stepping scheme finds): an impact without collision — the
+        impact law at the current state (v_n = 0) gives the impulse that stops the slip, with
+        P_n > 0 and |P_t| ≤ μ P_n inside the cone since d = G_nn − μ s G_nt ≤ 0. Then
+        sticking, or free flight if the stuck contact would pull. Recorded as an impact with
+        the outcome 'jam'."""
+        c, nf = self.contact, self.contact.nf
+        tm = c.terms(tt, xx)
+        v = xx[nf:2 * nf]
+        ke0 = c.kinetic(tm, v)
+        v1, pn, pt, stick = c.impulse(tm, v)
+        xx = xx.copy()
+        xx[nf:2 * nf] = v1
+        self.impacts.append(ImpactRecord(tt, pn, pt, -float(c.n @ tm.J @ v), ke0,
+                                         c.kinetic(tm, v1), "jam"))
+        self.normal_impulse += pn
+        self.impact_pending = True
+        if stick:
+            mode, sg = STICKING, 0.0
+        else:                                  # not reached with μ_s ≥ μ (docstring)
+            vt1 = float(c.t @ tm.J @ v1)
+            mode, sg = SLIDING, (math.copysign(1.0, vt1) if vt1 else -math.copysign(1.0, pt))
+        _, ln, _, _ = c.rhs(tt, xx, mode, sg)
+        if ln < 0.0:
+            self.last_sep = tt
+            return xx, FREE, 0.0
+        return xx, mode, sg
 
     def _compliant_step(self, t, x):
         """Largest stable RK4 step near or in a compliant contact: RK4_AUTO/|λ| of the
@@ -346,10 +395,18 @@ class ContactStepper:
                         return self._indicators(t + tau, self._rk4(t, x, tau, mode, s),
                                                 mode, s)[j]
                     tau = _first_crossing(fun, dt)
-                    if tau < best_tau:
+                    # Painlevé's margin and λ change sign together (λ through its pole):
+                    # the margin's event wins the tie
+                    if tau < best_tau or (mode == SLIDING and j == PAINLEVE
+                                          and tau <= best_tau + 1e-12 * max(1.0, t)):
                         best_tau, best_j = tau, j
                 xe, dp = (self._rk4(t, x, best_tau, mode, s, want_impulse=True)
                           if best_tau > 0 else (x, 0.0))
+                if mode != FREE and best_tau > 0:
+                    # the event's state back on the wall, as every step's end in contact
+                    # (near Painlevé's case λ is large and a partial step drifts)
+                    xe, drift = self.contact.project(t + best_tau, xe, mode)
+                    self.max_drift = max(self.max_drift, drift)
                 if best_tau > 0:
                     self._fill(buf, t, x, best_tau, xe, mode, s, self.normal_impulse, dp,
                                t_target)

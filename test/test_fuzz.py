@@ -456,3 +456,82 @@ def test_fuzz_command_lines_all(worker, tmp_path):
     failures, codes = run_cli_cases(cases, worker)
     _report("command-line fuzz (all)", len(cases), codes, failures)
     assert not failures, "\n".join(failures)
+
+
+# ---------------------------------------------------------- the new ground of issue 39
+#: YAML structures a file may hold (test_yaml_input.py has the loader's own cases)
+YAML_STRUCTURES = {
+    "alias bomb": ('a0: &a0 ["x", "x", "x", "x", "x", "x", "x", "x", "x", "x"]\n'
+                   + "".join(f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]\n"
+                             for i in range(1, 10)) + "links: *a9\n"),
+    "deep nesting": "links: " + "[" * 5000 + "]" * 5000 + "\n",
+    "duplicate key": "duration: 1.0\nlinks: []\nduration: 2.0\n",
+    "huge string": "name: " + "x" * 2_000_000 + "\nlinks: []\n",
+    "non-UTF-8": None,                       # latin-1 bytes, written below
+    "empty": "",
+}
+
+
+def new_ground_cases(tmp) -> list[tuple]:
+    """Issue 39's inputs: YAML structure for every command that reads YAML (scene, spec,
+    calibration spec, channel map), the ensemble commands' numbers, seeds, workers and
+    scheduler, and bag repair's input and output. (case id, argv, option, value), as
+    :func:`cli_cases`; valid values are kept cheap (serial, 2 samples, 0.01 s)."""
+    tmp = Path(tmp)
+    cases = []
+    files = {}
+    for what, text in YAML_STRUCTURES.items():
+        p = tmp / f"yaml_{what.replace(' ', '_').replace('-', '_')}.yaml"
+        if text is None:
+            p.write_bytes("name: caf\xe9\nlinks: []\n".encode("latin-1"))
+        else:
+            p.write_text(text)
+        files[what] = p
+    bag = small_bag(tmp / "small.mcap")
+    csv = HERE.parent / "bags" / "synthetic_experiment_case1.csv"
+    for what, p in files.items():
+        for argv in (["simulate", p, "--quiet"], ["explain", p], ["uncertainty", p],
+                     ["sensitivity", p, "--quiet"], ["calibrate", "--spec", p],
+                     ["compare", bag, csv, "--map", p]):
+            cases.append((f"{argv[0]} {what}", argv, None, None))
+    sweep = ["sweep", "link", "--param", "links[0].beam.EI=1:2", "--duration", "0.01"]
+    spec = tmp / "uq.yaml"
+    spec.write_text("scene: link\nduration: 0.01\nunknowns:\n  - name: EI\n"
+                    "    key: links[0].beam.EI\n    dist: uniform\n    low: 1.0\n"
+                    "    high: 2.0\n")
+    for opt in ("--samples", "--seed", "--workers"):
+        for v in BAD_NUMBERS + ["-5", "1000", "2.5", "4294967296"]:
+            rest = {"--samples": ["--seed", "0", "--workers", "0"],
+                    "--seed": ["--samples", "2", "--workers", "0"],
+                    "--workers": ["--samples", "2", "--seed", "0"]}[opt]
+            for head in (sweep, ["uncertainty", spec], ["sensitivity", spec, "--quiet"]):
+                if head is not sweep and opt == "--samples" and v == "1000":
+                    continue                    # a valid 1000-run study: minutes
+                cases.append((f"{head[0]} {opt} {v!r}", [*head, f"{opt}={v}", *rest],
+                              opt, v))
+    for addr in ("garbage", "tcp://host", "tcp://127.0.0.1:99999", "nope://1.2.3.4:1"):
+        cases.append((f"sweep --scheduler {addr!r}",
+                      [*sweep, "--samples", "2", "--scheduler", addr], "--scheduler", addr))
+    (tmp / "b_dir").mkdir(exist_ok=True)
+    (tmp / "b_file").write_text("not a bag")
+    for what, argv in {"missing bag": ["bag", "repair", tmp / "none.mcap"],
+                       "a directory": ["bag", "repair", tmp / "b_dir"],
+                       "not a bag": ["bag", "repair", tmp / "b_file"],
+                       "--out missing DIR/": ["bag", "repair", bag, "--out",
+                                              f"{tmp / 'no_dir'}/"],
+                       "--out unwritable": ["bag", "repair", bag, "--out",
+                                            "/proc/flexarm_fuzz/x.mcap"],
+                       "--out the input": ["bag", "repair", bag, "--out", bag]}.items():
+        cases.append((f"bag repair {what}", argv, None, None))
+    return cases
+
+
+@pytest.mark.heavy
+@pytest.mark.subprocess
+def test_fuzz_new_ground(worker, tmp_path):
+    """Every case of :func:`new_ground_cases` ends clean: exit 0 with finite output, or
+    one line (exit 2 naming the option and the value, or 3), never a traceback or a hang."""
+    cases = new_ground_cases(tmp_path)
+    failures, codes = run_cli_cases(cases, worker)
+    _report("issue 39's new ground", len(cases), codes, failures)
+    assert not failures, "\n".join(failures)

@@ -149,12 +149,13 @@ def repair(source: str | os.PathLike, output: str | os.PathLike | None = None, *
     src_path = Path(source)
     out = Path(output) if output is not None else default_output(src_path)
     if not src_path.exists():
-        raise FileNotFoundError(f"{src_path}: no such file")
+        raise FileNotFoundError(f"{src_path}: no such file, expected the damaged MCAP bag "
+                                f"to repair")
     if src_path.is_dir():
-        raise BagError(f"{src_path}: is a directory; pass the .mcap file to repair")
+        raise BagError(f"{src_path}: is a directory, expected the .mcap file to repair")
     if out.exists() and os.path.samefile(out, src_path):
         raise BagError(f"{out}: the output must differ from the input (the damaged file "
-                       "is kept as it is)")
+                       "is kept as it is), expected another path for --out")
     scanner, src = scan(src_path)
     report = RepairReport(str(src_path), str(out))
     fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp",

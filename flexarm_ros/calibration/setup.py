@@ -304,7 +304,9 @@ def load_spec(path):
     if not p.exists():
         raise InputError(f"spec: {p}: no such file, expected a calibration spec (YAML)")
     try:
-        data = load_yaml(p.read_text(), f"spec: {p}")   # bounded: depth, aliases, duplicates
+        from flexarm_ros.scene.yaml_input import read_yaml_text
+        data = load_yaml(read_yaml_text(p, "calibration spec"),
+                         f"spec: {p}")           # bounded: depth, aliases, duplicates
     except InputError as exc:
         hint = ("; a key path with [i] inside [ ] is not flow YAML: write a block list "
                 "(- links[0]...) or quote it" if "flow sequence" in str(exc) else "")

@@ -253,11 +253,8 @@ def parse_spec(data, path: Path | None = None, check_keys: bool = True) -> Spec:
 
 
 def load_spec(path) -> Spec:
+    from flexarm_ros.scene.yaml_input import read_yaml_text
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read the spec ({exc.strerror or exc}), expected a "
-                         f"readable YAML file") from None
+    text = read_yaml_text(p, "spec")
     data = load_yaml(text, str(p))           # bounded: depth, alias expansion, duplicates
     return parse_spec(data, p)

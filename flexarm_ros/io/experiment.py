@@ -293,8 +293,13 @@ def load_channel_map(path) -> ChannelMap:
         text = Path(p).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise CompareInputError(f"{p}: no such map file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CompareInputError(f"{p}: cannot read the map file ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise CompareInputError(f"{p}: got byte 0x{exc.object[exc.start]:02x} at offset "
+                                f"{exc.start}, expected a UTF-8 text file (a channel map "
+                                f"is YAML text)") from None
+    except OSError as exc:
+        raise CompareInputError(f"{p}: cannot read the map file ({exc.strerror or exc}), "
+                                f"expected a readable YAML file") from None
     try:
         data = load_yaml(text, str(p))       # bounded: depth, alias expansion, duplicates
     except InputError as exc:

@@ -89,6 +89,24 @@ def _expanded_size(root) -> int:
     return size[id(root)]
 
 
+def read_yaml_text(path, what: str) -> str:
+    """The UTF-8 text of the YAML file ``path`` (``what`` it is: "spec", "map file"...),
+    or InputError naming the file, what went wrong and what was expected."""
+    from pathlib import Path
+    p = Path(path)
+    try:
+        return p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{p}: got byte 0x{exc.object[exc.start]:02x} at offset "
+                         f"{exc.start}, expected a UTF-8 text file (a {what} is YAML "
+                         f"text)") from None
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file, expected a {what} (YAML)") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read the {what} ({exc.strerror or exc}), expected a "
+                         f"readable YAML file") from None
+
+
 def load_yaml(text: str, source: str):
     """The document in ``text`` (from ``source``, named in errors) as ``yaml.safe_load``
     gives it, or :class:`InputError` — invalid YAML, or one of the limits above."""

@@ -760,6 +760,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     t0 = time.monotonic()                    # the summary's "with start-up" counts from here
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes.common import StopFlag
+    from flexarm_ros.twin.recording import missing_messages
     if mode not in MODES:
         raise ValueError(f"mode: got {mode!r}, expected one of {MODES}")
     if layout is None:
@@ -988,6 +989,7 @@ def _summary_path() -> Path:
 def _run_split(scene, mode, duration, record, namespace, progress, fidelity, simulator,
                nodes, pin, stop, name, t0, cpus, sets=None) -> RunResult:
     """:func:`run` with a :class:`SplitGraph`."""
+    from flexarm_ros.twin.recording import missing_messages
     summary_file = _summary_path()
     g = SplitGraph(scene, mode, duration, record, namespace, progress, nodes=nodes,
                    fidelity=fidelity, simulator={**(simulator or {}),
@@ -1043,17 +1045,6 @@ def _run_split(scene, mode, duration, record, namespace, progress, fidelity, sim
         res.missing = missing_messages(res.published, res.recorded)
         res.first_command_s = _first_command_s(record)
     return res
-
-
-def missing_messages(published: dict | None, recorded: dict | None) -> dict | None:
-    """topic -> {"published": n, "recorded": m} where the bag holds fewer of the
-    simulator's messages than it published (absolute topic names both); None: none
-    missing or nothing to compare."""
-    if not published or recorded is None:
-        return None
-    out = {t: {"published": n, "recorded": recorded.get(t, 0)}
-           for t, n in sorted(published.items()) if recorded.get(t, 0) < n}
-    return out or None
 
 
 def ended_early(codes: dict, interrupted: bool) -> dict | None:

@@ -3,6 +3,7 @@ the same bag as DDS delivery, byte for byte; no DDS reader between the process's
 nodes; every message still on DDS while a foreign subscriber is there; bytes that are not a
 message dropped with a count, nothing changed."""
 
+import contextlib
 import json
 import time
 
@@ -20,6 +21,22 @@ NS = "/flexarm"
 def _graph(**kw):
     from flexarm_ros.run import InProcessGraph
     return InProcessGraph(namespace=NS, **kw)
+
+
+@contextlib.contextmanager
+def _outside_node(g, name):
+    """A node of a user's own (its own rclpy context) in NS on ``g``'s domain; on exit
+    ``g`` closes, then that context shuts down."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
+    try:
+        yield Node(name, namespace=NS, context=ctx)
+    finally:
+        g.close()
+        rclpy.shutdown(context=ctx)
 
 
 def _lockstep(path, intraprocess, duration=0.05):
@@ -155,17 +172,11 @@ def test_bytes_that_are_not_a_command_from_the_only_publisher_are_rejected(tmp_p
     Float64MultiArray on motor_driver/commands: the driver rejects each (``not a CDR
     message of its type``, counted with the other rejections; the junk never makes its
     publisher the topic's owner) and nothing steps — lockstep stays at tick 0."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
     from flexarm_ros.nodes.common import QOS
     g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05, record=None,
                nodes=("simulator", "motor_driver"))
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
-    try:
-        node = Node("junk_controller", namespace=NS, context=ctx)
+    with _outside_node(g, "junk_controller") as node:
         pub = node.create_publisher(Float64MultiArray, T.COMMANDS, QOS)
         assert g.spin_until(lambda: pub.get_subscription_count() >= 1, 30)
         for junk in (b"\x00\x01\x00\x00\xff\xff\xff\x7f", b"\x00\x01", b"\x00\x01\x00\x00"):
@@ -173,9 +184,6 @@ def test_bytes_that_are_not_a_command_from_the_only_publisher_are_rejected(tmp_p
         drv, sim = g["motor_driver"], g["simulator"]
         assert g.spin_until(lambda: getattr(drv, "undecodable", 0) >= 3, 30)
         assert not g.spin_until(lambda: sim.core.k > 0, 1.0)
-    finally:
-        g.close()
-        rclpy.shutdown(context=ctx)
     assert dict(drv.core.validator.counts) == {NOT_CDR: 3}
     assert drv.source.owner == set() and sim.core.k == 0
 
@@ -315,18 +323,12 @@ def test_lockstep_does_not_start_before_its_effort_input_is_matched():
     publishes no effort yet: the lockstep simulator does not publish its first state (it
     could not hear the answer) and names the missing input; the outside publisher's
     appearance starts it."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
     from flexarm_ros.nodes.common import QOS
     g = _graph(scene="two_link_case1", mode="lockstep", duration=0.05, record=None,
                nodes=("simulator", "controller"))
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=g.context.get_domain_id())
-    try:
-        node = Node("outside_amplifier", namespace=NS, context=ctx)
+    with _outside_node(g, "outside_amplifier") as node:
         node.create_subscription(JointState, T.GT_JOINT_STATES, lambda m: None, QOS)
         node.create_subscription(Float64MultiArray, T.COMMANDS, lambda m: None, QOS)
         sim = g["simulator"]
@@ -340,6 +342,3 @@ def test_lockstep_does_not_start_before_its_effort_input_is_matched():
                                      f"driver or an amplifier of yours)"], sim.ready.missing
         node.create_publisher(Float64MultiArray, T.EFFORTS, QOS)
         assert g.spin_until(sent, 30)
-    finally:
-        g.close()
-        rclpy.shutdown(context=ctx)

@@ -17,7 +17,8 @@ import pytest
 
 from flexarm_ros.bag import read_bag
 from flexarm_ros.commands.run import _exit_status
-from flexarm_ros.run import RunResult, ended_early, missing_messages
+from flexarm_ros.run import RunResult, ended_early
+from flexarm_ros.twin.recording import missing_messages
 
 
 def test_a_shortfall_is_found_per_topic():

@@ -160,13 +160,12 @@ def main(args):
             print(json.dumps(res.to_json(), indent=2))
         else:
             print(res.summary())
-    if res.conflict and not res.diverged:     # before ended_early: the others were stopped
+    # like simulate: the message once, status 3 (another twin: before ended_early, the
+    # others were stopped by it)
+    why = res.diverged or res.conflict or res.stalled
+    if why:
         if not res.processes and res.layout != "split":     # else the node said it
-            print(f"flexarm: {res.conflict}", file=sys.stderr)
-        return 3
-    if res.diverged or res.stalled:           # like simulate: the message once, status 3
-        if not res.processes and res.layout != "split":     # else the node said it
-            print(f"flexarm: {res.diverged or res.stalled}", file=sys.stderr)
+            print(f"flexarm: {why}", file=sys.stderr)
         return 3
     return _exit_status(res)
 

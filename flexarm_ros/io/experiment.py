@@ -288,18 +288,12 @@ def _number(p, where, value, *, positive=False, integer=False):
 
 def load_channel_map(path) -> ChannelMap:
     """Parse and validate a channel map YAML file (format in the module docstring)."""
+    from flexarm_ros.scene.yaml_input import read_yaml_text
     p = str(path)
     try:
-        text = Path(p).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CompareInputError(f"{p}: no such map file") from None
-    except UnicodeDecodeError as exc:
-        raise CompareInputError(f"{p}: got byte 0x{exc.object[exc.start]:02x} at offset "
-                                f"{exc.start}, expected a UTF-8 text file (a channel map "
-                                f"is YAML text)") from None
-    except OSError as exc:
-        raise CompareInputError(f"{p}: cannot read the map file ({exc.strerror or exc}), "
-                                f"expected a readable YAML file") from None
+        text = read_yaml_text(p, "map file")
+    except InputError as exc:
+        raise CompareInputError(str(exc)) from None
     try:
         data = load_yaml(text, str(p))       # bounded: depth, alias expansion, duplicates
     except InputError as exc:

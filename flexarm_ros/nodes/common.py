@@ -33,8 +33,9 @@ from flexarm_ros.twin.cores import to_ns, control_period
 DEPTH = 10000
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-"""Every topic of the twin: reliable, volatile, keep_last 1000 (deep enough that nothing
-is dropped while a subscriber lags by less than 1000 messages per topic)."""
+"""Every topic of the twin: reliable, volatile, keep_last DEPTH (deep enough that nothing
+is dropped while a subscriber lags by less than DEPTH messages per topic: a recorder
+paused for 5 s, docs/decisions/0026-a-history-deep-enough-for-a-paused-reader.md)."""
 
 
 def publisher(node, msgtype: str, topic: str):

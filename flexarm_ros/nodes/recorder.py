@@ -72,6 +72,7 @@ from flexarm_ros.bag.writer import encode_cdr
 from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.scene.overrides import decode_sets
 from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.recording import missing_messages
 from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, NOT_CDR, Validator
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes._msgconv import msg_class, to_dict
@@ -304,9 +305,9 @@ class RecorderNode(Node):
                     published = json.load(f).get("published")
             except (OSError, ValueError):
                 published = None
-        return {self.abs[t]: {"published": n, "recorded": self.received.get(t, 0)}
-                for t, n in sorted((published or {}).items())
-                if t in self.abs and self.received.get(t, 0) < n}
+        return missing_messages(
+            {self.abs[t]: n for t, n in (published or {}).items() if t in self.abs},
+            {self.abs[t]: n for t, n in self.received.items()}) or {}
 
     def close(self):
         """Write what is held, the rejection counts, any shortfall against what the

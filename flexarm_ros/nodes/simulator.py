@@ -521,19 +521,20 @@ class SimulatorNode(Node):
         A newer twin is refused by its own start condition and left to stop itself."""
         if self.finished or self.conflict:
             return
-        other = C.other_twin(self, older_only=self.started)
-        if other:
-            self.conflict = f"stopped {self.where()}: {other}" if self.started else (
-                f"not started: {other}")
+        other = C.other_twin(self)               # one graph query while alone
+        if other is None:
+            return
+        older = C.other_twin(self, older_only=True) if self.started else other
+        if older:
+            self.conflict = f"stopped {self.where()}: {older}" if self.started else (
+                f"not started: {older}")
             self.get_logger().error(self.conflict)
             self.halt()
-        elif self.started and self.twin_seen is None:
-            newer = C.other_twin(self)           # a newer twin: it stops itself
-            if newer:
-                self.twin_seen = (f"{self.where()}: a newer {newer[len('another '):]}; it "
-                                  f"stops itself, but until it did its messages and this "
-                                  f"run's may have mixed")
-                self.get_logger().warning(self.twin_seen)
+        elif self.twin_seen is None:             # a newer twin: it stops itself
+            self.twin_seen = (f"{self.where()}: a newer {other[len('another '):]}; it "
+                              f"stops itself, but until it did its messages and this "
+                              f"run's may have mixed")
+            self.get_logger().warning(self.twin_seen)
 
     def _on_timer(self):
         if not self.started:

@@ -9,7 +9,7 @@ from pathlib import Path
 from flexarm_ros.errors import InputError, SceneError
 from flexarm_ros.scene.schema import from_mapping
 from flexarm_ros.scene.sections import Scene
-from flexarm_ros.scene.yaml_input import load_yaml
+from flexarm_ros.scene.yaml_input import load_yaml, read_yaml_text
 
 #: the scene every command uses when none is named: seed 000 Case 1 (the wall strike)
 DEFAULT_SCENE = "two_link_case1"
@@ -24,15 +24,8 @@ def load_scene(path) -> Scene:
     """Load and validate a scene YAML file (a path, or a name of a shipped scene)."""
     p = resolve_scene_path(path)
     try:
-        text = p.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"{p}: got byte 0x{exc.object[exc.start]:02x} at offset {exc.start}, "
-                         f"expected a UTF-8 text file (a scene is YAML text)") from None
-    except OSError as exc:
-        raise SceneError(f"{p}: cannot read the scene ({exc.strerror or exc}), expected a "
-                         f"readable YAML file") from None
-    try:
-        data = load_yaml(text, str(p))       # bounded: depth, alias expansion, duplicates
+        # UTF-8 text, bounded: depth, alias expansion, duplicates
+        data = load_yaml(read_yaml_text(p, "scene"), str(p))
     except InputError as exc:
         raise SceneError(str(exc)) from None
     try:

@@ -253,3 +253,14 @@ def sensor_batches(bag, topic: str, scene, ns: str | None = None) -> SensorBatch
         spec = []
     names = [s.name for s in spec] or [f"{kind}_{j}" for j in range(values.shape[1])]
     return SensorBatches(T.resolve(ns, topic), kind, names, spec, rate, t_ns, values, notes)
+
+
+def missing_messages(published: dict | None, recorded: dict | None) -> dict | None:
+    """topic -> {"published": n, "recorded": m} where the bag holds fewer of the
+    simulator's messages than it published (absolute topic names both); None: none
+    missing or nothing to compare."""
+    if not published or recorded is None:
+        return None
+    out = {t: {"published": n, "recorded": recorded.get(t, 0)}
+           for t, n in sorted(published.items()) if recorded.get(t, 0) < n}
+    return out or None

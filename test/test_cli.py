@@ -75,7 +75,7 @@ def test_modes_free_joints_include_the_rigid_mode(capsys):
 
 
 def test_explain_names_coordinates_and_omissions(capsys):
-    assert main(["explain", "link_tipmass"]) == 0
+    assert main(["explain", "link_tipmass", "--no-check"]) == 0
     text = capsys.readouterr().out
     assert "link1_joint" in text and "left out" in text and "gravity" in text
     assert "contact (no wall in this scene)" in text
@@ -248,11 +248,12 @@ def test_set_reaches_simulate_and_an_explicit_flag_wins(tmp_path, capsys):
 
 
 def test_set_reaches_explain_and_creates_a_section_the_scene_leaves_out(capsys):
-    assert main(["explain", "link", "--set", "fidelity.rung=fem"]) == 0
+    assert main(["explain", "link", "--set", "fidelity.rung=fem", "--no-check"]) == 0
     text = capsys.readouterr().out
     assert "rung fem (refine" in text and text.endswith("set: fidelity.rung=fem\n")
     # two_link_free declares no control: section; the set creates one (twin_control)
-    assert main(["explain", "two_link_free", "--set", "control.rate_hz=500"]) == 0
+    assert main(["explain", "two_link_free", "--set", "control.rate_hz=500",
+                 "--no-check"]) == 0
     assert "control every 2 ms (500 Hz)" in capsys.readouterr().out
 
 

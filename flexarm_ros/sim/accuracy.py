@@ -500,8 +500,12 @@ def truth_summary(res, out: dict) -> dict:
         if res.contact is not None and res.check is not None:
             return new          # a wall: the class check's verdict stands (auto_summary)
         new["tolerance_met"] = None         # never claimed without the check
-        new["estimate"] = (out.get("estimate", "a priori") + f"; the check against the top "
-                           f"rung did not run ({chk.status}): the tolerance is not certified")
+        why = f"the check against the top rung did not run ({chk.status})"
+        base = out.get("estimate")
+        if tol is not None:
+            new["estimate"] = f"{base or 'a priori'}; {why}: the tolerance is not certified"
+        else:
+            new["estimate"] = f"{base}; {why}" if base else f"none: {why}"
         return new
     est = chk.estimate
     new["estimated_tip_error_m"] = est.position_m

@@ -137,12 +137,12 @@ def check_metric(metric: str) -> str:
     return metric
 
 
-def _reference_scene(scene, terms):
+def _reference_scene(scene, terms, closed_loop=False):
     """The scene on the rod with ``terms`` terms at its automatic RK4 step, no tolerance,
-    no estimate, the input programs alone (the check runs open loop: the accuracy tools
-    refuse a closed loop)."""
+    no estimate; the input programs alone, or (``closed_loop``) with the scene's controller
+    and driver in the loop at the control rate, as the checked run had them."""
     import dataclasses
-    sc = dataclasses.replace(scene, control=None)
+    sc = scene if closed_loop else dataclasses.replace(scene, control=None)
     defaults = type(sc.fidelity)()
     return sc.with_fidelity(rung="rod", refine=terms, dt=0.0, tolerance=0.0,
                             estimate=False, integrator="rk4",
@@ -152,14 +152,14 @@ def _reference_scene(scene, terms):
                             tolerance_metric=defaults.tolerance_metric)
 
 
-def _rod_columns(scene, T, terms, simulate):
+def _rod_columns(scene, T, terms, simulate, closed_loop=False):
     """The output columns the check compares (t, tip, tip deflections) of the scene on the
     rod with ``terms`` terms over T s, and the link names (kept per process, keyed by the
     reference scene — the fidelity keys the rod does not read set to their defaults — so
     every rung and tolerance of one scene, and the pairs of references, share the runs).
     ``simulate``: the batch run without a check
     (:func:`flexarm_ros.sim.simulate._simulate`, passed in: this module sits below it)."""
-    return _rod_run(_reference_scene(scene, terms), T, simulate)
+    return _rod_run(_reference_scene(scene, terms, closed_loop), T, simulate)
 
 
 @functools.lru_cache(maxsize=16)
@@ -170,23 +170,25 @@ def _rod_run(ref_scene, T, simulate):
     return cols, [lm.name for lm in run.chain.links]
 
 
-def reference(scene, T: float, tolerance_m: float, simulate):
+def reference(scene, T: float, tolerance_m: float, simulate, closed_loop=False):
     """(label, columns, links, own error Measures) of the top rung for ``scene`` over
     ``T`` s: the first pair of :data:`REFERENCES` whose own bound is at most
     :data:`BOUND_SHARE` of ``tolerance_m`` (0: the first pair)."""
     for i, (ref_terms, bound_terms) in enumerate(REFERENCES):
-        cols, links = _rod_columns(scene, T, ref_terms, simulate)
-        bound, _ = _rod_columns(scene, T, bound_terms, simulate)
+        cols, links = _rod_columns(scene, T, ref_terms, simulate, closed_loop)
+        bound, _ = _rod_columns(scene, T, bound_terms, simulate, closed_loop)
         own = measures(bound, cols, links)
         good = max(own.position_m, own.deflection_max_m) <= BOUND_SHARE * tolerance_m
         if tolerance_m <= 0 or good or i == len(REFERENCES) - 1:
             return f"rod {ref_terms}", cols, links, own
 
 
-def top_check(scene, columns, T: float, tolerance_m: float, simulate) -> TopCheck:
+def top_check(scene, columns, T: float, tolerance_m: float, simulate,
+              closed_loop: bool = False) -> TopCheck:
     """The run of ``scene`` (its output ``columns`` over ``T`` s) against the top rung
     (the reference good enough for ``tolerance_m``, :func:`reference`; ``simulate`` runs
-    it)."""
+    it; ``closed_loop``: the reference runs with the scene's controller and driver, and
+    ``simulate`` is the closed-loop batch run)."""
     t0 = time.perf_counter()
     if scene.walls:
         return TopCheck("rod", None, None, 0.0, WALL_NOTE)
@@ -195,7 +197,8 @@ def top_check(scene, columns, T: float, tolerance_m: float, simulate) -> TopChec
     except TypeError:                        # an unhashable scene: no memo
         return TopCheck("rod", None, None, 0.0, "not run: the scene is not hashable")
     try:
-        label, cols, links, own = reference(scene, float(T), tolerance_m, simulate)
+        label, cols, links, own = reference(scene, float(T), tolerance_m, simulate,
+                                            closed_loop)
     except (InputError, SimulationDiverged) as exc:
         return TopCheck(f"rod {REFERENCES[0][0]}", None, None, time.perf_counter() - t0,
                         "not run: " + " ".join(str(exc).split()))

@@ -161,30 +161,58 @@ def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
 
 
 @pytest.mark.heavy
-@pytest.mark.parametrize("node", ["simulator", "motor_driver"])
-def test_a_node_stopped_from_outside_ends_the_run_non_zero_naming_it(tmp_path, node):
-    """SIGTERM to one node of a `--processes` run, from outside the run (issue 39: the
-    simulator so stopped had ended the run early with exit 0, saying nothing): the node
-    says so, the run ends with status 1 and one line naming the node, the signal and (the
-    simulator) how far it got; the bag is finalized."""
+@pytest.mark.parametrize("node, sig", [("simulator", "SIGTERM"), ("motor_driver", "SIGTERM"),
+                                       ("controller", "SIGTERM"), ("simulator", "SIGKILL"),
+                                       ("motor_driver", "SIGKILL"),
+                                       ("controller", "SIGKILL")])
+def test_a_node_stopped_from_outside_ends_the_run_non_zero_naming_it(tmp_path, node, sig):
+    """SIGTERM or SIGKILL to one node of a `--processes` run, from outside the run (issue
+    39: the simulator so stopped had ended the run early with exit 0, saying nothing): the
+    run ends with status 1 and one line naming the node and the signal (SIGTERM: the node
+    says so itself, the simulator how far it got); the bag is finalized."""
     out = tmp_path / "run.mcap"
     proc, kids = _start(out)
     try:
         pid = next(k for k in kids if f"flexarm_ros.nodes.{node} " in _cmdline(k))
-        os.kill(pid, signal.SIGTERM)
+        os.kill(pid, getattr(signal, sig))
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         _cleanup(proc)
     assert proc.returncode == 1, stderr
     lines = [ln for ln in stderr.splitlines() if ln.startswith("flexarm run:")]
     assert len(lines) == 1, stderr
-    assert f"ended early: {node} stopped by SIGTERM from outside the run" in lines[0]
-    if node == "simulator":
+    how = "stopped by SIGTERM from outside the run" if sig == "SIGTERM" else \
+        "killed by SIGKILL"
+    assert f"ended early: {node} {how}" in lines[0], lines[0]
+    if node == "simulator" and sig == "SIGTERM":
         assert " at t = " in lines[0] and " of 100 s" in lines[0], lines[0]
     assert f"{out} holds what was recorded until then" in lines[0]
     assert "Traceback" not in stderr
     bag = read_bag(out)
     assert not bag.truncated and bag.message_count > 100
+
+
+@pytest.mark.heavy
+def test_a_recorder_stopped_from_outside_finalizes_its_bag(tmp_path):
+    """SIGTERM to the recorder of a `--processes` run: the run ends with status 1 naming
+    it, and the bag is finalized (readable by the indexed reader, not truncated) with
+    everything recorded until then."""
+    out = tmp_path / "run.mcap"
+    proc, kids = _start(out)
+    try:
+        pid = next(k for k in kids if "flexarm_ros.nodes.recorder " in _cmdline(k))
+        os.kill(pid, signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        _cleanup(proc)
+    assert proc.returncode == 1, stderr
+    lines = [ln for ln in stderr.splitlines() if ln.startswith("flexarm run:")]
+    assert len(lines) == 1 and "ended early: recorder stopped by SIGTERM" in lines[0], stderr
+    assert "Traceback" not in stderr
+    bag = read_bag(out)
+    assert not bag.truncated and bag.message_count > 100
+    with open(out, "rb") as f:
+        assert make_reader(f).get_summary().statistics.message_count == bag.message_count
 
 
 _PDEATHSIG = """

@@ -68,22 +68,30 @@ def quiet_dask_logs() -> None:
 
 @contextlib.contextmanager
 def _children_ignore_sigint():
-    """SIGINT ignored while the local cluster starts its worker processes, which inherit
-    it (an ignored signal stays ignored across exec, and Python then installs no
-    KeyboardInterrupt handler): a Ctrl-C at the terminal reaches the whole process group,
-    and each worker printed a KeyboardInterrupt traceback of its own. The workers leave
-    the Ctrl-C to this process, which closes the cluster. A Ctrl-C during these seconds
-    of start-up is not seen (the signal is discarded, not held): press it again."""
+    """SIGINT blocked while the local cluster starts its worker processes and its event
+    loop thread, which inherit the blocked mask (across fork and exec; Python never
+    unblocks it): a Ctrl-C at the terminal reaches the whole process group, and each
+    worker had printed a KeyboardInterrupt traceback of its own. The workers leave the
+    Ctrl-C to this process, which closes the cluster. Blocked, not ignored: a Ctrl-C
+    during these seconds of start-up is taken by another thread of this process (numpy's
+    BLAS threads, started before, do not block it) and raised at once, or stays pending
+    and is raised once the mask is restored (ignored, it was discarded and the command
+    ran on to exit 0: issue 39)."""
     import signal
     import threading
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # multiprocessing's resource tracker, started on the first worker's spawn, unblocks
+    # SIGINT in the thread that starts it (the mask it sets for its own child): started
+    # first, it leaves the mask below alone
+    from multiprocessing import resource_tracker
+    resource_tracker.ensure_running()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 class _Client(Client):

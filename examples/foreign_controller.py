@@ -125,6 +125,11 @@ def main():
                 break
     except (KeyboardInterrupt, ExternalShutdownException):    # Ctrl-C, SIGTERM
         pass
+    except Exception:
+        # a SIGTERM that shut the context down while a callback was publishing ("the
+        # publisher's context is invalid") is a stop like the others; anything else is not
+        if rclpy.ok():
+            raise
     node.get_logger().info(f"answered {node.answered} joint states")
     node.destroy_node()
     if rclpy.ok():

@@ -288,11 +288,12 @@ def _node_rejections(nodes) -> dict:
 
 
 def _params(scene, mode, duration, record, node, progress, fidelity=None,
-            simulator=None, sets=None) -> dict:
+            simulator=None, sets=None, graph=None) -> dict:
     """ROS parameters of ``node``: the common ones, the ``--set`` values (``set``, JSON),
     the fidelity overrides, the recorder's output, the simulator's progress and
     ``simulator`` parameters (``late_policy``, ``late_bound``, ``ground_truth_rate_hz``;
-    None values: the node's defaults), sim time for the others in fast mode."""
+    None values: the node's defaults), sim time for the others in fast mode; ``graph``:
+    the names of the nodes the run starts (:func:`awaits`)."""
     from flexarm_ros.scene.overrides import encode_sets
     p = {"scene": _scene_arg(scene), "mode": mode, "duration": float(duration or 0.0),
          "recorders": 1 if record else 0, **fidelity_parameters(fidelity)}
@@ -300,12 +301,29 @@ def _params(scene, mode, duration, record, node, progress, fidelity=None,
         p["set"] = encode_sets(sets)
     if node == "recorder":
         p["output"] = str(record)
+    sim_awaits, driver_awaits = awaits(mode, graph)
     if node == "simulator":
         p["progress"] = bool(progress)
+        if sim_awaits:
+            p["await_first_effort"] = True
         p.update({k: v for k, v in (simulator or {}).items() if v is not None})
     elif mode == "fast":
         p["use_sim_time"] = True
+    if node == "motor_driver" and driver_awaits:
+        p["await_first_command"] = True
     return p
+
+
+def awaits(mode, graph) -> tuple:
+    """(the simulator awaits its first effort, the driver its first command): in realtime
+    and fast, where the run does not start the controller or the driver (a user's takes
+    its place), the twin's clock starts at the answer to its first state, as in lockstep
+    (issue 38: a foreign controller's first command had come 1.3–2 s after the start, the
+    arm unpowered meanwhile, and a fast run whose controller never answered exited 0)."""
+    if mode == "lockstep" or graph is None:
+        return False, False
+    return (not {"controller", "motor_driver"} <= set(graph),
+            "controller" not in graph)
 
 
 def _scene_arg(scene) -> str:
@@ -359,7 +377,7 @@ class InProcessGraph:
                 if name not in names:
                     continue
                 p = _params(scene, mode, duration, record, name, progress, fidelity,
-                            simulator, sets)
+                            simulator, sets, graph=names + list(remote))
                 p["run_enclave"] = self.enclave
                 if name == "recorder":
                     # the bag's stamping and writing on the other core (bag/writer_process.py)
@@ -509,7 +527,7 @@ class ProcessGraph:
                                                                        "controller"),
                  stderr=None, fidelity=None, simulator=None, pin=False, extra_env=None,
                  pass_fds=(), start_recorder=True, controllers=None, sets=None,
-                 enclave=None):
+                 enclave=None, graph=None):
         from flexarm_ros.nodes.common import new_run_enclave
         self.enclave = enclave or new_run_enclave()
         env = {**environment.child_environment(), **(extra_env or {})}
@@ -531,7 +549,8 @@ class ProcessGraph:
                 sim = {**(simulator or {}), "controllers": (
                     1 if "controller" in names else -1) if controllers is None else controllers}
                 p = _params(scene, mode, duration, record and Path(record).resolve(), name,
-                            progress, fidelity, sim, sets)
+                            progress, fidelity, sim, sets,
+                            graph=names if graph is None else graph)
                 p["stop_file"] = str(self.stop_file)
                 p["run_enclave"] = self.enclave
                 if name == "recorder" and (simulator or {}).get("summary_file"):
@@ -621,7 +640,7 @@ class SplitGraph:
                 scene, mode, duration, record, namespace, progress, nodes=("simulator",),
                 fidelity=fidelity, simulator=simulator, start_recorder=False,
                 controllers=1 if "controller" in nodes else -1, sets=sets,
-                enclave=self.graph.enclave,
+                enclave=self.graph.enclave, graph=list(nodes),
                 extra_env=bridge.child_environment(theirs, members),
                 pass_fds=(theirs.fileno(),))
             self._affinity = None

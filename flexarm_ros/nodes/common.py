@@ -38,6 +38,13 @@ is dropped while a subscriber lags by less than DEPTH messages per topic: a reco
 paused for 5 s, docs/decisions/0026-a-history-deep-enough-for-a-paused-reader.md)."""
 
 
+def wall_clock():
+    """A steady clock for the timers that must run before the twin's first /clock (the
+    start barriers): with use_sim_time a node's own clock stands still until then."""
+    from rclpy.clock import Clock, ClockType
+    return Clock(clock_type=ClockType.STEADY_TIME)
+
+
 def publisher(node, msgtype: str, topic: str):
     """A publisher with :data:`QOS` and no QoS-event handlers: rclpy's default handlers
     add waitables that every executor wait has to scan (a large share of a lockstep tick,

@@ -68,7 +68,9 @@ class ControllerNode(Node):
         if self.pub_targets is not None:
             self.published[T.JOINT_TARGETS] = 0
         self._started = False                   # the start barrier passed
-        self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
+        # the start barrier, on the wall clock: with use_sim_time (fast mode) a timer on
+        # the node's clock would wait for the /clock that only the start brings
+        self.timer = self.create_timer(0.01, self._drain, clock=C.wall_clock())
 
     def _on(self, topic, m, info=None):
         who = self.sources[topic].verdict(info)

@@ -25,8 +25,12 @@ commands beyond the states answered and the one the last state may have had) and
 at WARN level; ``realtime`` / ``fast`` take each accepted command when it arrives and
 answer every state with the latest one (the source's latest wins). A command older than
 ``control.watchdog_s`` of simulated time gives 0 V / a closed valve (``tripped``), so a
-dead controller lets the arm coast. The final log line gives the rejected messages by
-topic and reason.
+dead controller lets the arm coast. With ``await_first_command`` (realtime and fast;
+``flexarm run`` sets it where a controller of the user's is expected) the states are
+subscribed once a command publisher is matched, as in lockstep, and no state is answered
+before the first accepted command, which answers the newest one (the simulator's state at
+t = 0, whose clock waits for that answer). The final log line gives the rejected
+messages by topic and reason.
 """
 
 from __future__ import annotations
@@ -49,12 +53,19 @@ class MotorDriverNode(Node):
 
     EXECUTABLE = "motor_driver"
     PARAMS = {"command_source": (T.SOURCE[T.COMMANDS], "node whose commands are taken while "
-                                 "it is on the graph ('': the first publisher)")}
+                                 "it is on the graph ('': the first publisher)"),
+              "await_first_command": (False, "realtime and fast: subscribe to the states "
+                                      "once a command publisher is matched and answer no "
+                                      "state before the first accepted command, which then "
+                                      "answers the newest (the simulator's first) state, as "
+                                      "in lockstep (flexarm run sets it where a controller "
+                                      "of the user's is expected)")}
 
     def __init__(self, **kwargs):
         super().__init__("motor_driver", **kwargs)
         self.p, scene, self.n_end = C.load(self, self.PARAMS)
         self.lockstep = self.p["mode"] == "lockstep"
+        self.awaits = bool(self.p["await_first_command"]) and not self.lockstep
         self.scene = scene
         self.core = DriverCore(scene)
         self.n = len(scene.links)
@@ -81,14 +92,16 @@ class MotorDriverNode(Node):
         self._state_sub = None
         self.state_source = None
         self._wait_warning = C.WaitWarning(self.WARN_AFTER_S)
-        if not self.lockstep:
+        if not (self.lockstep or self.awaits):
             self._subscribe_states()
         self.rejections = Rejections(self)
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
         self.accepted = {T.COMMANDS: 0}
         self.paired = 0                         # lockstep: states answered with a command
         self._started = False                   # the start barrier passed
-        self.timer = self.create_timer(0.01, self._drain)   # wall clock: the start barrier
+        # the start barrier, on the wall clock: with use_sim_time (fast mode) a timer on
+        # the node's clock would wait for the /clock that only the start brings
+        self.timer = self.create_timer(0.01, self._drain, clock=C.wall_clock())
 
     @property
     def rejected(self) -> int:
@@ -122,6 +135,8 @@ class MotorDriverNode(Node):
             self._drain()
         else:
             self.core.accept(self.t, list(data))
+            if self.awaits and self.accepted[T.COMMANDS] == 1:
+                self._drain()                   # the first command answers the held state
 
     def _on_state(self, m, info):
         who = self.state_source.verdict(info)
@@ -176,9 +191,11 @@ class MotorDriverNode(Node):
                 if waited:
                     self.get_logger().warning(
                         f"not started after {waited:.0f} s: waiting for a publisher on "
-                        f"{self._cmd_sub.topic_name} (a controller; lockstep steps on its "
-                        f"answers" + C.other_types(self, self._cmd_sub.topic_name,
-                                                   T.TYPES[T.COMMANDS]) + ")")
+                        f"{self._cmd_sub.topic_name} (a controller; "
+                        + ("lockstep steps on its answers" if self.lockstep else
+                           "the twin's clock starts at its first command")
+                        + C.other_types(self, self._cmd_sub.topic_name,
+                                        T.TYPES[T.COMMANDS]) + ")")
                 return
             self._subscribe_states()
         if not self._started:
@@ -186,6 +203,10 @@ class MotorDriverNode(Node):
                 return
             self.timer.cancel()
             self._started = True
+        if self.awaits and not self.accepted[T.COMMANDS]:
+            while len(self.states) > 1:         # no answer before the first command; the
+                self.states.popleft()           # newest state waits for it
+            return
         while self.states and (self.commands or not self.lockstep):
             gt = self.states.popleft()
             t_ns = C.stamp_ns(gt.header.stamp)

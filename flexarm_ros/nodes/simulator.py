@@ -59,7 +59,10 @@ recorder on every topic; in ``lockstep`` also a publisher matched with its own
 ``effort_controller/commands`` subscription (the answer to the first state must reach
 it) — nothing else (a user's controller need not read
 ``tool/contact``). A wait longer than a few seconds is logged at WARN level with what is
-missing.
+missing. With ``await_first_effort`` (realtime and fast; ``flexarm run`` sets it where a
+controller or driver of the user's is expected) the start is lockstep's and the clock
+starts at the first effort answering the state at t = 0 (a WARN after 3 s, ``stalled``
+after ``stall_timeout_s``).
 With a finite ``duration`` the node stops after the state at that time (and its process
 exits); ``progress`` prints the simulated time on stderr.
 """
@@ -120,9 +123,15 @@ class SimulatorNode(Node):
               "controllers": (-1, "controllers on joint_states the first state waits for "
                                   "(-1: 1 in lockstep, where the twin steps on their answers, "
                                   "else 0; flexarm run sets 1 when it starts its controller)"),
-              "stall_timeout_s": (30.0, "lockstep: s without an effort after a published "
-                                  "state before the run ends as stalled (0: waits for "
-                                  "ever); after 3 s a WARN says what the twin waits for"),
+              "stall_timeout_s": (30.0, "lockstep (and the first effort awaited): s "
+                                  "without an effort after a published state before the "
+                                  "run ends as stalled (0: waits for ever); after 3 s a "
+                                  "WARN says what the twin waits for"),
+              "await_first_effort": (False, "realtime and fast: start the clock at the "
+                                     "first effort answering the first state, as lockstep "
+                                     "does, and wait for a controller on joint_states and "
+                                     "an effort publisher first (flexarm run sets it where "
+                                     "a controller or driver of the user's is expected)"),
               "start_timeout_s": (0.0, "s to wait for the start condition (the driver, "
                                   "in lockstep a controller, the recorder) before the run "
                                   "ends as stalled without a tick (0: waits for ever, as a "
@@ -195,6 +204,13 @@ class SimulatorNode(Node):
         # recording the recorder on every topic; nobody else (a user's controller need not
         # read tool/contact or tool/wrench)
         lockstep = self.mode == "lockstep"
+        # realtime and fast with a controller or driver of the user's: start as lockstep
+        # does (a controller on joint_states, a matched effort publisher), and the clock
+        # at the answer to the first state
+        self.awaits = bool(self.p["await_first_effort"]) and not lockstep
+        gated = lockstep or self.awaits
+        self._awaiting_since = None             # the first state out, no answer yet
+        self.first_answer_s = None              # how long the first answer took (awaited)
 
         def own_controller():
             """1 while the twin's own controller (which pairs contact and wrench with each
@@ -215,7 +231,7 @@ class SimulatorNode(Node):
                         self, T.resolve(self.get_namespace(), T.COMMANDS),
                         T.TYPES[T.COMMANDS]))
         needs = {T.GT_JOINT_STATES: (1, driver),
-                 T.JOINT_STATES: (int(lockstep) if self.p["controllers"] < 0 else
+                 T.JOINT_STATES: (int(gated) if self.p["controllers"] < 0 else
                                   int(self.p["controllers"]), "a controller"),
                  T.TOOL_CONTACT: (own_controller, "the twin's controller"),
                  T.TOOL_WRENCH: (own_controller, "the twin's controller")}
@@ -223,7 +239,7 @@ class SimulatorNode(Node):
             (p, (lambda f=needs[t][0]: r + f()) if callable(needs.get(t, (0,))[0]) else
              r + needs.get(t, (0,))[0], needs.get(t, (0, "the recorder"))[1])
             for t, p in pubs.items()], r,
-            inputs=[(sub, "the motor driver or an amplifier of yours")] if lockstep else [])
+            inputs=[(sub, "the motor driver or an amplifier of yours")] if gated else [])
         self.published = {t: 0 for t in pubs}
         self.torque = np.zeros(len(scene.links))
         self.finished = self.started = False
@@ -548,23 +564,75 @@ class SimulatorNode(Node):
             self.cpu0 = time.process_time()
             self._last_log = self.t_wall0
             self._publish_state()
-            if self.mode != "fast":
-                self.timer.cancel()
-            if self.mode == "lockstep" and not self.finished:
-                self._watch = self.create_timer(0.5, self._watchdog)
-            if self.mode == "realtime" and not self.finished:
-                # the pacing thread must get the GIL soon after its deadline: Python's
-                # default switch interval (5 ms) would hand it over 5 ticks late
-                sys.setswitchinterval(min(sys.getswitchinterval(), self.period / 10))
-                self.pacer.start(self.t_wall0)
-                self._effort_sub.taken_elsewhere = True     # by the pacing thread
-                self._thread = threading.Thread(target=self._pace, name="realtime-pacer",
-                                                daemon=True)
-                self._thread.start()
+            if self.awaits and not self.finished:
+                self._awaiting_since = self._progress_wall
+                if self.mode == "fast":             # poll, do not spin, while it waits
+                    self.timer.cancel()
+                    self.timer = self.create_timer(0.001, self._on_timer)
+                return
+            self._start_clock()
             return
+        if self._awaiting_since is not None:
+            if not self._first_answer():
+                return
+            self.first_answer_s = time.monotonic() - self._awaiting_since
+            self._awaiting_since = None
+            self.t_wall0 = time.monotonic()         # the clock starts at the answer
+            self.cpu0 = time.process_time()
+            self._last_log = self.t_wall0
+            if self.mode == "fast":
+                self.timer.cancel()
+                self.timer = self.create_timer(0.0, self._on_timer)
+            self._start_clock()
+            if self.mode == "realtime":
+                return
         if self.finished:
             return
         self._step(self.torque)
+
+    def _start_clock(self):
+        """Once the first state is out (and, awaited, answered): lockstep's watchdog, or
+        realtime's pacing thread; fast steps on the timer."""
+        if self.mode != "fast":
+            self.timer.cancel()
+        if self.mode == "lockstep" and not self.finished:
+            self._watch = self.create_timer(0.5, self._watchdog)
+        if self.mode == "realtime" and not self.finished:
+            # the pacing thread must get the GIL soon after its deadline: Python's
+            # default switch interval (5 ms) would hand it over 5 ticks late
+            sys.setswitchinterval(min(sys.getswitchinterval(), self.period / 10))
+            self.pacer.start(self.t_wall0)
+            self._effort_sub.taken_elsewhere = True     # by the pacing thread
+            self._thread = threading.Thread(target=self._pace, name="realtime-pacer",
+                                            daemon=True)
+            self._thread.start()
+
+    def _first_answer(self) -> bool:
+        """await_first_effort: True once an effort answered the first state; else a WARN
+        after STALL_WARN_S (every 5 s) and, past ``stall_timeout_s``, the run ends as
+        stalled (exit 3) with what it waited for."""
+        if self.answered >= 0:
+            return True
+        if self.finished:
+            return False
+        waited = time.monotonic() - self._awaiting_since
+        if waited < self.STALL_WARN_S:
+            return False
+        what = (f"no effort on {self.source.topic} for {waited:.0f} s after the first state "
+                f"(t = 0): {self.mode} with a controller or driver of yours starts its "
+                f"clock at the answer to the first joint_states (await_first_effort), as "
+                f"lockstep does (check that your controller runs in this namespace and "
+                f"publishes on motor_driver/commands, or your amplifier on "
+                f"{self.source.topic})")
+        limit = float(self.p["stall_timeout_s"])
+        if limit > 0 and waited >= limit:
+            self.stalled = f"not started: {what}; ended after stall_timeout_s = {limit:g} s"
+            self.get_logger().error(self.stalled)
+            self.halt()
+        elif waited - getattr(self, "_await_said", -5.0) >= 5.0:
+            self._await_said = waited
+            self.get_logger().warning(f"waiting: {what}")
+        return False
 
     def finish(self, executor):
         """Called by main() when the node is stopped: halts, and waits for the pacing
@@ -585,6 +653,7 @@ class SimulatorNode(Node):
                "rejected_efforts": dict(self.core.validator.counts),
                "diverged": str(self.diverged) if self.diverged else None,
                "stalled": self.stalled,
+               "await_first_effort": self.awaits, "first_answer_s": self.first_answer_s,
                "conflict": self.conflict, "twin_seen": self.twin_seen,
                "end_s": None if self.n_end is None else self.n_end * self.period,
                "stopped_by": getattr(self, "stopped_by", None),

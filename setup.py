@@ -47,7 +47,7 @@ setup(
         "viz": ["rerun-sdk>=0.20"],
         # bench/bench_peers.py only, never imported at run time: Exudyn's ANCF cable and
         # MuJoCo's elastic rod against the rod rung (docs/accuracy.md, "Against peer codes")
-        "peers": ["exudyn>=1.9", "mujoco>=3.3"],
+        "peers": ["exudyn>=1.9", "mujoco>=4.0"],   # tested: exudyn 1.13.6, mujoco 4.0.0 (its flexcomp rod)
         # ensembles (flexarm sweep / uncertainty / sensitivity): Dask local or remote
         # clusters, SALib's Morris and Sobol, the Dask dashboard, Parquet tables
         "ensemble": ["dask>=2024.8", "distributed>=2024.8", "SALib>=1.5", "bokeh>=3.1",

@@ -161,10 +161,12 @@ def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
 
 
 @pytest.mark.heavy
-@pytest.mark.parametrize("node, sig", [("simulator", "SIGTERM"), ("motor_driver", "SIGTERM"),
-                                       ("controller", "SIGTERM"), ("simulator", "SIGKILL"),
-                                       ("motor_driver", "SIGKILL"),
-                                       ("controller", "SIGKILL")])
+@pytest.mark.parametrize("node, sig", [
+    ("simulator", "SIGTERM"), ("motor_driver", "SIGTERM"), ("controller", "SIGTERM"),
+    ("simulator", "SIGKILL"),
+    # the same path as the simulator's SIGKILL (the run reads any node's -9): in -m slow
+    pytest.param("motor_driver", "SIGKILL", marks=pytest.mark.slow),
+    pytest.param("controller", "SIGKILL", marks=pytest.mark.slow)])
 def test_a_node_stopped_from_outside_ends_the_run_non_zero_naming_it(tmp_path, node, sig):
     """SIGTERM or SIGKILL to one node of a `--processes` run, from outside the run (issue
     39: the simulator so stopped had ended the run early with exit 0, saying nothing): the

@@ -15,6 +15,14 @@ against the same model by DOP853 at rtol 1e-12; a scene with a wall against its 
 by RK4 at a fixed 62.5 µs), the cost (RHS evaluations and wall time, pilot runs
 included) — the error must stay ≤ TOL and the cost fall as TOL loosens.
 
+Seed 001 (``--part defaults`` prints it first; ``--part seed001`` alone): link, link_tipmass,
+link_flexjoint, link_flexjoint_notip and link_motor as shipped and with the old default
+(clamped modal 3 by RK4), each against the geometrically exact rod with 12 terms over the
+whole run in the deflection measure of ``sim/truth.py`` (the elastic tip deflection in the
+hub frame, as a share of its peak) and the tip position, integration real-time factor best
+and median of ``SEED001_REPEATS`` alternating the two, and the speed ratio pair by pair
+(issue 36: within 2 % at >= 50x).
+
 Part 3, ``--part basis`` (not in ``both``): the modal basis of a chain on
 ``two_link_free`` — each modal rung with the tip-loaded (old) and the chain-loaded
 (default) modes, cubic, fem 2, ``--rung auto`` at 1e-6 m and modal 3 with rk4 and rkn4
@@ -23,7 +31,7 @@ at 7 and 7.5 ms, tip error against FEM 8 (1 s) and integration real-time factor,
 chain*).
 
     python bench/bench_accuracy.py [--quick] [--json] [--markdown docs/accuracy_table.md]
-        [--part defaults|tolerance|both|basis]
+        [--part defaults|tolerance|both|basis|seed001]
 """
 
 from __future__ import annotations
@@ -99,6 +107,64 @@ def _timed(scene, T):
 def _impact(res) -> float:
     c = res.contact
     return float(c.impacts[0].time) if c is not None and c.impacts else math.nan
+
+
+#: seed 001's scenes (issue 36, item 4): the default against the geometrically exact rod
+#: with 12 terms over the whole run, in the deflection measure (sim/truth.py), beside the
+#: old default (clamped modal 3 by RK4 at its stable step), timed alternating in one run
+SEED001 = ("link", "link_tipmass", "link_flexjoint", "link_flexjoint_notip", "link_motor")
+SEED001_OLD = {"rung": "modal", "refine": 3, "modal_basis": "chain_loaded",
+               "integrator": "rk4", "dt": 0.0}
+SEED001_REPEATS = 20
+
+
+def seed001(quick=False) -> list[dict]:
+    """Seed 001's defaults: deflection share against rod 12, integration real-time factor
+    (best and median of SEED001_REPEATS alternating with the old default), and the old
+    default's figures from the same run."""
+    from flexarm_ros.sim import truth
+    rows = []
+    for name in SEED001[:2] if quick else SEED001:
+        sc = load_scene(name)
+        T = min(sc.duration, 0.5) if quick else sc.duration
+        ref = simulate(sc.with_fidelity(rung="rod", refine=12, dt=0.0, integrator="rk4"), T)
+        links = [lm.name for lm in ref.chain.links]
+        pair = {"default": sc, "old default": sc.with_fidelity(**SEED001_OLD)}
+        walls = {k: [] for k in pair}
+        res = {}
+        for s in pair.values():
+            for _ in range(3):
+                simulate(s, T)
+        for _ in range(3 if quick else SEED001_REPEATS):
+            for k, s in pair.items():
+                res[k] = simulate(s, T)
+                walls[k].append(res[k].summary()["wall_time_s"])
+        for k, r in res.items():
+            m = truth.measures(r.columns, ref.columns, links)
+            fid = r.chain.fidelity
+            rows.append({"scene": name, "which": k, "duration_s": T,
+                         "model": f"{fid.rung} {fid.refine} {fid.modal_basis} "
+                                  f"{fid.integrator}", "step_s": r.run.dt,
+                         "deflection_share": m.deflection_share[0],
+                         "deflection_error_m": m.deflection_m[0],
+                         "position_error_m": m.position_m,
+                         "real_time_factor": T / min(walls[k]),
+                         "median_rtf": T / float(np.median(walls[k])),
+                         "speed_vs_old": float(np.median(np.array(walls["old default"])
+                                                         / np.array(walls[k])))})
+    return rows
+
+
+def seed001_markdown(rows) -> str:
+    out = ["| scene | | model | step (ms) | deflection vs rod 12 (share of peak) | tip "
+           "position (m) | RTF best / median | speed vs old (median of pairs) |",
+           "|" + "---|" * 8]
+    for r in rows:
+        out.append(f"| {r['scene']} | {r['which']} | {r['model']} | {r['step_s'] * 1e3:.3g} "
+                   f"| {r['deflection_error_m']:.2g} m ({100 * r['deflection_share']:.2f} %) "
+                   f"| {r['position_error_m']:.2g} | {r['real_time_factor']:.0f} / "
+                   f"{r['median_rtf']:.0f} | {r['speed_vs_old']:.2f}× |")
+    return "\n".join(out) + "\n"
 
 
 def defaults(quick=False) -> list[dict]:
@@ -253,9 +319,14 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="short runs, three scenes")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--markdown", metavar="FILE", help="write both tables as Markdown")
-    ap.add_argument("--part", choices=("defaults", "tolerance", "both", "basis"),
+    ap.add_argument("--part", choices=("defaults", "tolerance", "both", "basis", "seed001"),
                     default="both")
     a = ap.parse_args()
+    if a.part in ("seed001", "defaults"):
+        rows = seed001(a.quick)
+        print(json.dumps(rows, indent=1, default=float) if a.json else seed001_markdown(rows))
+        if a.part == "seed001":
+            return
     if a.part == "basis":
         rows = basis_table(a.quick)
         print(json.dumps(rows, indent=1, default=float) if a.json else basis_markdown(rows))

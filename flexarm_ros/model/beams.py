@@ -245,19 +245,25 @@ def rigid_spring(beam):
                         beam.EI, beam.damping, np.array([0.0, L]), evaluate, K=K)
 
 
-def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None):
+def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None,
+                  hub_inertia=None):
     """The first ``n_modes`` clamped modes of the beam, from a Hermite FEM eigen-solve.
 
     With ``with_tip`` the tip body's mass, inertia and CG offset are included in the
     eigenproblem (modes that can carry the tip shear, docs/physics.md §5.2); otherwise plain
-    clamped-free modes. Each mode is scaled to unit peak deflection, positive at the tip.
-    The FEM eigen-solve avoids the textbook closed form, which cancels catastrophically
-    above ~8 modes.
+    clamped-free modes. With ``hub_inertia`` (kg·m² about the joint axis) the root is not
+    held: the beam sits on its hub, which turns freely about the joint with that inertia
+    (``fidelity.modal_basis: free_hub``, :func:`hub_load`), and the shapes are the elastic
+    modes of that system seen from the hub (the deflection relative to the hub's turn:
+    still zero deflection and slope at the root, an admissible clamped-frame basis). Each
+    mode is scaled to unit peak deflection, positive at the tip. The FEM eigen-solve avoids
+    the textbook closed form, which cancels catastrophically above ~8 modes.
     """
     L = beam.length
     n_fe = mesh or max(48, 12 * n_modes)   # eigen-solve error < 1e-6 up to 12 modes
+    hub = None if hub_inertia is None else (float(hub_inertia), float(beam.hub_radius))
     K, V = _mode_shapes(beam.length, beam.mass_per_length, tip if with_tip else None, n_fe,
-                        max(n_modes, n_fe // 12))
+                        max(n_modes, n_fe // 12), hub)
     K = beam.EI * K
     V = V[:, :n_modes]
 
@@ -275,10 +281,12 @@ def natural_modes(beam, tip, n_modes, with_tip=True, mesh=None, n_segments=None)
 
 
 @functools.lru_cache(maxsize=32)
-def _mode_shapes(length, mass_per_length, tip, n_fe, n_modes):
+def _mode_shapes(length, mass_per_length, tip, n_fe, n_modes, hub=None):
     """(K, V) of :func:`natural_modes`: the FEM stiffness of ``n_fe`` Hermite elements per
     unit EI and its first ``n_modes`` clamped modes (with the tip body's mass when ``tip``
-    is given), scaled to unit peak deflection, positive at the tip. The shapes of
+    is given; on a hub free to turn when ``hub`` = (inertia about the joint, hub radius) is
+    given: :func:`_free_hub_modes`), scaled to unit peak deflection, positive at the tip.
+    The shapes of
     K v = ω² M v do not depend on EI (K is EI times a matrix of the geometry), so the key
     holds only what they depend on: a calibration or sweep of EI reuses one eigen-solve
     (it was 36 % of a link_motor fit). Kept per process (read-only): the ladder's modal
@@ -287,10 +295,13 @@ def _mode_shapes(length, mass_per_length, tip, n_fe, n_modes):
     beam = Beam(length=length, EI=1.0, mass_per_length=mass_per_length)
     fe = hermite_fem(beam, n_fe, with_S=False)       # K and M only: no S tensor
     K, M = np.array(fe.K), np.array(fe.M_e)
-    if tip is not None and (tip.mass > 0 or tip.inertia > 0):
-        M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
     import scipy.linalg       # lazily: start-up time of runs that never need it
-    vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
+    if hub is not None:
+        vecs = _free_hub_modes(fe, K, M, tip, hub, n_modes)
+    else:
+        if tip is not None and (tip.mass > 0 or tip.inertia > 0):
+            M = M + _tip_body_mass(fe.phi_tip, fe.slope_tip, tip)
+        vals, vecs = scipy.linalg.eigh(K, M, subset_by_index=[0, n_modes - 1])
     xs = np.linspace(0, L, 8 * n_fe + 1)
     peak = np.abs(_hermite_eval(xs, L, n_fe)[0] @ vecs).max(axis=0)
     sign = np.sign(fe.phi_tip @ vecs)
@@ -299,6 +310,55 @@ def _mode_shapes(length, mass_per_length, tip, n_fe, n_modes):
     K.setflags(write=False)
     V.setflags(write=False)
     return K, V
+
+
+def _free_hub_modes(fe, K, M, tip, hub, n_modes):
+    """The clamped-frame shapes (deflection relative to the hub) of the first ``n_modes``
+    elastic modes of the beam on a hub that turns freely about the joint axis: the
+    eigen-solve of (hub angle ψ, beam coordinates) with the kinetic energy
+    ½ I_h ψ̇² + ½ ∫ ρA ((r + x) ψ̇ + ẇ)² dx + the tip body's (its CG at (r + L + c_x, c_y)
+    in the hub frame, turning with ψ + w′(L)) and the strain energy of w only; the rigid
+    turn (ω = 0) is left out. ``hub`` = (I_h about the joint, hub radius r). On a one-link
+    arm these are the arm's own modes: the hub angle and n such shapes span its first
+    n + 1 linear modes exactly (Rayleigh–Ritz), where clamped modes only approach them."""
+    import scipy.linalg
+    inertia, r = hub
+    L = float(fe.length)
+    ne = K.shape[0]
+    arm = r + fe.x
+    Ma = np.zeros((ne + 1, ne + 1))
+    Ma[0, 0] = inertia + float(fe.mass @ arm ** 2)
+    Ma[0, 1:] = Ma[1:, 0] = (fe.phi * fe.mass[:, None]).T @ arm
+    Ma[1:, 1:] = M
+    if tip is not None and (tip.mass > 0 or tip.inertia > 0):
+        cx, cy = tip.cg
+        across = np.r_[r + L + cx, fe.phi_tip + cx * fe.slope_tip]   # CG's velocity across
+        along = np.r_[-cy, -cy * fe.slope_tip]                        # ... and along
+        turn = np.r_[1.0, fe.slope_tip]
+        Ma += tip.mass * (np.outer(across, across) + np.outer(along, along)) \
+            + tip.inertia * np.outer(turn, turn)
+    Ka = np.zeros_like(Ma)
+    Ka[1:, 1:] = K
+    _, vecs = scipy.linalg.eigh(Ka, Ma, subset_by_index=[1, n_modes])
+    return np.ascontiguousarray(vecs[1:, :])
+
+
+def hub_load(links, k, basis):
+    """The hub inertia (kg·m² about the joint axis) that the modal rung's modes of link
+    ``k`` turn with under ``fidelity.modal_basis: free_hub`` (None for the other bases:
+    a root held still). The hub body about the joint, plus the drive inertia where the
+    joint is rigid (no flexibility, no backlash: the drive turns with the hub); behind a
+    flexible joint or backlash the motor side is left out (measured on link_flexjoint:
+    the spring at 1 Hz leaves the hub all but free at the beam's frequencies). The inboard
+    links are held still."""
+    if basis != "free_hub":
+        return None
+    lk = links[k]
+    hub = lk.hub
+    inertia = hub.inertia + hub.mass * (hub.cg[0] ** 2 + hub.cg[1] ** 2)
+    if lk.joint.flexibility is None and lk.joint.backlash is None:
+        inertia += lk.joint.drive_inertia
+    return float(inertia)
 
 
 def _tip_body_mass(phi_tip, slope_tip, tip):
@@ -432,10 +492,12 @@ def modal_load(links, k, basis):
     only how fast the modal rung converges: on two_link_free (1 s, against FEM 8) 2 / 3 / 4
     modes miss the tip by 6.1e-4 / 3.3e-5 / 3.5e-6 m with ``tip_loaded`` and 3.1e-6 /
     3.9e-7 / 5.2e-8 m with ``chain_loaded`` (docs/accuracy.md, *The modal basis of a
-    chain*). ``clamped_free`` — no tip body (returned as it is; unused by the rung).
+    chain*). ``free_hub`` — as ``chain_loaded`` at the tip, the root on a hub free to turn
+    (:func:`hub_load`). ``clamped_free`` — no tip body (returned as it is; unused by the
+    rung).
     """
     tip = links[k].tip
-    if basis != "chain_loaded" or k == len(links) - 1:
+    if basis not in ("chain_loaded", "free_hub") or k == len(links) - 1:
         return tip
     parts = [(tip.mass, np.asarray(tip.cg, float), tip.inertia)]
     origin = np.asarray(tip.joint_offset, float)     # next joint, in link k's tip frame
@@ -461,9 +523,10 @@ def modal_load(links, k, basis):
                      cg=(float(cg[0]), float(cg[1])), joint_offset=tip.joint_offset)
 
 
-def discretize(beam, tip, fidelity) -> BeamDiscretization:
+def discretize(beam, tip, fidelity, hub_inertia=None) -> BeamDiscretization:
     """Build the rung named in ``fidelity`` for one beam (``tip``: the body its modes carry
-    at the tip, :func:`modal_load`; only the modal rung uses it)."""
+    at the tip, :func:`modal_load`; ``hub_inertia``: the inertia its hub turns with under
+    the free_hub basis, :func:`hub_load`; only the modal rung uses them)."""
     rung = fidelity.rung
     n = fidelity.refine or DEFAULT_REFINE[rung]
     if rung == "rigid":
@@ -474,7 +537,8 @@ def discretize(beam, tip, fidelity) -> BeamDiscretization:
         if n > 40:
             raise SceneError(f"fidelity.refine: got {n}, expected <= 40 modes for the modal "
                              f"rung (use fem for finer models)")
-        return natural_modes(beam, tip, n, with_tip=fidelity.modal_basis != "clamped_free")
+        return natural_modes(beam, tip, n, with_tip=fidelity.modal_basis != "clamped_free",
+                             hub_inertia=hub_inertia)
     if rung == "fem":
         if n > 200:
             raise SceneError(f"fidelity.refine: got {n}, expected <= 200 elements")

@@ -156,9 +156,9 @@ class RungChain:
             i_joint = len(names)
             names.append(f"{lk.name}_joint")
             units.append("rad")
-            disc = beams.discretize(
-                lk.beam, beams.modal_load(scene.links, k, self.fidelity.modal_basis),
-                self.fidelity)
+            basis = self.fidelity.modal_basis
+            disc = beams.discretize(lk.beam, beams.modal_load(scene.links, k, basis),
+                                    self.fidelity, beams.hub_load(scene.links, k, basis))
             start = len(names)
             names.extend(f"{lk.name}_{s}" for s in disc.coord_suffixes)
             units.extend(disc.coord_units)

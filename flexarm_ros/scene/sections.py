@@ -25,7 +25,7 @@ RUNGS = ("rigid", "cubic", "modal", "fem", "fd", "rod")
 RUNG_CHOICES = RUNGS + ("auto",)
 #: rkn4: RK4 with the positions stepped by the Runge–Kutta–Nyström formulas (same cost, about
 #: half the error on the arms' oscillations; :func:`flexarm_ros.sim.step.rk4_step`)
-INTEGRATORS = ("rk4", "rkn4", "trapezoid", "rk45", "dop853", "radau", "bdf", "lsoda")
+INTEGRATORS = ("rk4", "rkn4", "trapezoid", "lawson4", "rk45", "dop853", "radau", "bdf", "lsoda")
 TORQUE_PROGRAMS = ("constant", "step", "pulse", "square", "piecewise_constant",
                    "piecewise_linear")
 MOTION_PROGRAMS = ("spin_up", "smooth_step", "hold")
@@ -519,14 +519,16 @@ class Fidelity:
     refine: int = param(0, ge=0, doc="modes / elements / FD segments (0 → rung default; "
                                      "0 with rung auto, which chooses it)")
     modal_basis: str = param("chain_loaded", choices=("chain_loaded", "tip_loaded",
-                                                      "clamped_free"),
+                                                      "clamped_free", "free_hub"),
                              doc="modal rung: modes of the beam carrying its tip body and "
                                  "the links outboard of it (locked at their initial "
-                                 "angles), its tip body only, or nothing")
+                                 "angles), its tip body only, or nothing; free_hub: as "
+                                 "chain_loaded on a hub free to turn with its inertia "
+                                 "(the one-link arm's own modes)")
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
                                            "(geometric stiffening) terms")
     integrator: str = param("rk4", choices=INTEGRATORS, doc="time integrator")
-    dt: float = param(0.0, unit="s", ge=0.0, doc="fixed step (rk4, rkn4, trapezoid) or max step (0 → auto)")
+    dt: float = param(0.0, unit="s", ge=0.0, doc="fixed step (rk4, rkn4, trapezoid, lawson4) or max step (0 → auto)")
     rtol: float = param(1e-8, gt=0.0, lt=1.0, doc="relative tolerance (adaptive)")
     atol: float = param(1e-10, gt=0.0, doc="absolute tolerance (adaptive)")
     output_dt: float = param(1e-3, unit="s", gt=0.0, doc="sample period of the output")

@@ -38,7 +38,7 @@ SOLVE_IVP = {"rk45": "RK45", "dop853": "DOP853", "radau": "Radau", "bdf": "BDF",
 #: the explicit fixed-step integrators (one step function, :func:`rk4_step`) and with the
 #: implicit trapezoidal rule, the fixed-step ones
 EXPLICIT = ("rk4", "rkn4")
-FIXED_STEP = EXPLICIT + ("trapezoid",)
+FIXED_STEP = EXPLICIT + ("trapezoid", "lawson4")
 
 #: fewest RK4 steps per call of a compiled loop between progress reports
 MIN_CALL_STEPS = 250
@@ -124,8 +124,13 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     guard.check(0.0, x0)
     dense = integrator in EXPLICIT and not _divides(h, output_dt)
     nq = nystrom_positions(chain, integrator)
-    if chain.backend == "numba":                                # compile outside the timing
+    if chain.backend == "numba" and integrator == "lawson4":    # compile outside the timing
+        from flexarm_ros.model.compiled import lawson as klawson
+        klawson.warm_up(chain.kernel_args, x0, xs)
+    elif chain.backend == "numba":
         kloops.warm_up(integrator, chain.kernel_args, x0, xs, dense=dense)
+    # lawson4's matrices, before the timing as RK4's stable step (choose_step) is
+    lawson = lawson_matrices(chain, x0, h) if integrator == "lawson4" else None
     wall0 = time.perf_counter()
     last_report = wall0
     forecast = Forecast(t_end / h if integrator in FIXED_STEP else math.inf, integrator, h,
@@ -173,6 +178,9 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
             forecast.update(steps)
             last_report = _report(progress, last_report, k1 * output_dt / t_end)
         f.calls += 4 * steps
+    elif integrator == "lawson4":
+        steps = _run_lawson(chain, x0, h, lawson, n_out, output_dt, max_deflection_ratio,
+                            xs, guard, f, progress, forecast)
     elif integrator == "trapezoid":
         steps, calls = _run_trapezoid(chain, x0, h, n_out, output_dt, max_deflection_ratio,
                                       xs, guard, progress, forecast)
@@ -227,6 +235,65 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     wall = time.perf_counter() - wall0
     step_used = h if integrator in FIXED_STEP else 0.0
     return Integration.completed(chain, t_out, xs, f.calls, steps, wall, step_used)
+
+
+def lawson_matrices(chain, x0, h):
+    """(A, exp(A h/2), exp(A h)) of integrator lawson4: A = ∂f/∂x at the start state
+    (central differences, :func:`~flexarm_ros.model.differentiate.jacobian`; the inputs at
+    t = 0 do not enter it), the part of the model its steps take exactly
+    (:mod:`flexarm_ros.model.compiled.lawson`)."""
+    import scipy.linalg       # lazily: rk4 runs never load it
+    A = np.ascontiguousarray(jacobian(lambda x: chain.rhs(0.0, x), np.asarray(x0, float)))
+    E = scipy.linalg.expm(0.5 * h * A)
+    return A, np.ascontiguousarray(E), np.ascontiguousarray(E @ E)
+
+
+def lawson_step(f, t, x, h, A, E, E2):
+    """One step of integrator lawson4 (numpy twin of the compiled
+    :func:`~flexarm_ros.model.compiled.lawson._lawson_step`), ``f`` the right-hand side."""
+    def rest(tt, xx):
+        return f(tt, xx) - A @ xx
+    k1 = rest(t + STAGE_EPS * h, x)
+    k2 = rest(t + 0.5 * h, E @ (x + 0.5 * h * k1))
+    ex = E @ x
+    k3 = rest(t + 0.5 * h, ex + 0.5 * h * k2)
+    k4 = rest(t + (1.0 - STAGE_EPS) * h, E @ (ex + h * k3))
+    return E2 @ (x + h / 6.0 * k1) + E @ (h / 3.0 * (k2 + k3)) + h / 6.0 * k4
+
+
+def _run_lawson(chain, x0, h, matrices, n_out, output_dt, max_ratio, xs, guard, f, progress,
+                forecast) -> int:
+    """Integrator lawson4 on the output grid (h divides the output period: outputs on
+    step ends, input jumps on the grid as RK4's grid loop); compiled where numba is.
+    ``matrices``: :func:`lawson_matrices`."""
+    from flexarm_ros.model.compiled import lawson as klawson
+    A, E, E2 = matrices
+    per = int(round(output_dt / h))
+    x, steps = np.array(x0, float), 0
+    last_report = time.perf_counter()
+    if chain.backend == "numba":
+        ws = kchain.workspace(chain.kernel_args)
+        for k0, k1 in _chunks(n_out, per=per):
+            code, t_fail, st, x_last, x_bad = klawson.lawson_loop(
+                x, h, per, k0, k1, output_dt, max_ratio, xs, A, E, E2, chain.kernel_args, ws)
+            steps += st
+            if code != kchain.OK:
+                guard.last = x_last
+                guard.check(t_fail, x_bad)
+            x = x_last
+            forecast.update(steps)
+            last_report = _report(progress, last_report, k1 / n_out)
+        f.calls += 4 * steps
+        return steps
+    for k in range(n_out):
+        for j in range(per):
+            tj = k * output_dt + j * h
+            x = chain.clamp_states(lawson_step(f, tj, x, h, A, E, E2))
+            steps += 1
+            guard.check(tj + h, x)
+        xs[k + 1] = x
+        last_report = _report(progress, last_report, (k + 1) / n_out)
+    return steps
 
 
 def smooth(chain) -> bool:

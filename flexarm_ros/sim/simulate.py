@@ -183,7 +183,9 @@ def _simulate(scene, T, progress=None, chain=None) -> SimResult:
     if choice is None and fid.dt == 0 and trapezoid_step_by_error(chain):
         choice = _trapezoid_automatic_step(chain, T, out_dt)
     assessed = None
-    if fid.estimate and auto is None:      # rung auto estimates anyway
+    # rung auto estimates anyway; lawson4's estimate is the check against the top rung
+    # alone (simulate): the a-priori analysis follows RK4's and RKN4's steps
+    if fid.estimate and auto is None and fid.integrator != "lawson4":
         from flexarm_ros.model.autofidelity import assess
         assessed = assess(scene.with_fidelity(dt=choice.step_s) if choice else scene, T,
                           out_dt)

@@ -45,10 +45,11 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     ``contact`` of the impulse rung, |λ|max is also taken with the tool held on the wall
     (:func:`~flexarm_ros.model.contact.constrained_rate`: holding it raises the highest
     frequency, and the step must be stable in every contact mode); the compliant rung's
-    stepper shortens its own step near the wall. Trapezoid: no stability limit; automatic =
-    the output period (choose --dt for accuracy).
+    stepper shortens its own step near the wall. Trapezoid and lawson4: no stability limit
+    (lawson4 steps the linearization exactly); automatic = the output period, a given step
+    shortened to divide it (choose --dt for accuracy).
     """
-    if integrator == "trapezoid":
+    if integrator in ("trapezoid", "lawson4"):
         h = min(dt, output_dt) if dt > 0 else output_dt
         return output_dt / np.ceil(output_dt / h - 1e-9)
     if integrator not in ("rk4", "rkn4"):

@@ -20,6 +20,17 @@ from flexarm_ros.scene import load_scene, load_scene_dict
 from flexarm_ros.sim.simulate import simulate
 
 
+
+def _scene(name):
+    """The scene with the fidelity these tests of rung auto's search were measured on:
+    link_tipmass's default became free-hub modes stepped by lawson4 in session 21 (issue
+    36: 0.23 % of the peak deflection against the rod), where auto's candidates and steps
+    differ; its search is tested here on the clamped (chain-loaded) modes and RK4."""
+    sc = load_scene(name)
+    if name == "link_tipmass":
+        sc = sc.with_fidelity(modal_basis="chain_loaded", integrator="rk4")
+    return sc
+
 def _tip(res) -> np.ndarray:
     return np.c_[res.columns["tip_x"], res.columns["tip_y"]]
 
@@ -83,7 +94,7 @@ def test_auto_takes_rkn4_where_it_steps_further(monkeypatch, name, tol):
     same model, and both within TOL of that model by DOP853 (measured 1 s: link_tipmass
     modal 3, 0.937 against 0.789 ms; two_link_free modal 3, 5.8 against 4.6 ms at 1e-6 m).
     The check against the physics comes after it (test above)."""
-    sc = load_scene(name).with_fidelity(rung="auto", tolerance=tol)
+    sc = _scene(name).with_fidelity(rung="auto", tolerance=tol)
     with_rkn4 = autofidelity.resolve(sc, 1.0)[0]
     monkeypatch.setattr(auto_search._Analysis, "_with_rkn4", lambda self, *a: None)
     auto_search._choose.cache_clear()           # the choice is kept per process
@@ -106,7 +117,7 @@ def test_the_linear_estimates_track_the_nonlinear_errors():
     factor 2.5 of its measured nonlinear error against FEM 8 (at its own stable step), and the
     chosen candidate's temporal estimate within a factor 3 of RK4's measured error against
     the same model by DOP853."""
-    sc = load_scene("link_tipmass")
+    sc = _scene("link_tipmass")
     T = 1.0
     choice = autofidelity.choose(sc.with_fidelity(rung="auto"), T)
     ref = simulate(sc.with_fidelity(rung="fem", refine=8), T)
@@ -146,7 +157,9 @@ def test_simulate_json_reports_the_choice_and_the_estimate(tmp_path, capsys):
 
 
 def test_explain_says_what_was_chosen_and_why(capsys):
-    assert main(["explain", "link_tipmass", "--rung", "auto", "--no-check"]) == 0
+    assert main(["explain", "link_tipmass", "--rung", "auto", "--set",
+                 "fidelity.modal_basis=chain_loaded", "--integrator", "rk4",
+                 "--no-check"]) == 0
     text = capsys.readouterr().out
     # RK4 on the linear model at 0.789 ms leaves half the temporal budget: above the
     # stable step 0.678 ms (session 13); RKN4 at 0.937 ms, above its stable step 0.631 ms
@@ -194,7 +207,7 @@ def test_every_model_built_from_an_auto_scene_is_the_chosen_one():
     """Chain (modes, linearize, the ROS twin's nodes) and the twin's plant — which replaces
     the drives and programs by held torques — resolve auto on the scene as given."""
     from flexarm_ros.sim.plant import Plant
-    sc = load_scene("link_tipmass").with_fidelity(rung="auto")
+    sc = _scene("link_tipmass").with_fidelity(rung="auto")
     ch = Chain(sc)
     assert (ch.fidelity.rung, ch.fidelity.refine) == ("modal", 3) and ch.auto is not None
     plant = Plant(sc)
@@ -340,7 +353,7 @@ def test_auto_chooses_rung_and_integrator_together():
     integrator: a candidate that takes it steps further than RK4 would (its verdict names
     RK4's step), and the chosen one has the least predicted work among the admissible
     counting those longer steps."""
-    choice = autofidelity.choose(load_scene("link_tipmass").with_fidelity(rung="auto"), 1.0)
+    choice = autofidelity.choose(_scene("link_tipmass").with_fidelity(rung="auto"), 1.0)
     ok = [c for c in choice.candidates
           if c.verdict.startswith(("admissible", "chosen"))]
     chosen = next(c for c in ok if c.verdict.startswith("chosen"))

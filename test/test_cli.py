@@ -90,8 +90,8 @@ def test_explain_names_coordinates_and_omissions(capsys):
     (["simulate", "link", "--refine", "2", "--rung", "fd"], "expected >= 4 segments"),
     (["simulate", "link", "--rtol", "-1"], "fidelity.rtol: got -1.0"),
     (["simulate", "link", "--duration", "0.01", "--out", "x.txt"], "expected a .csv or .npz"),
-    (["simulate", "link", "--rung", "cubic", "--dt", "0.5", "--duration", "0.01"],
-     "RK4 stability limit"),
+    (["simulate", "link", "--rung", "cubic", "--integrator", "rk4", "--dt", "0.5",
+      "--duration", "0.01"], "RK4 stability limit"),
 ])
 def test_bad_input_exits_with_a_clear_message(argv, fragment, capsys, tmp_path,
                                               monkeypatch):

@@ -263,6 +263,115 @@ def beam_invariants(q, qd, s0, nk, k, fs, m0, m1, m2, G, H, Jo, Jpsi, M, h, Qg, 
 
 
 @_jit_raw
+def rod_sums(k, s0, nk, P, MP, RS, RV, RD, RA, Jo, Jpsi, M, h, Qg, V, E, c, s, cox, coy,
+             psid, g, has_g):
+    """Add the P mass points of link k's rod (its local kinematics in RS, RV, RD, RA from
+    :func:`rod_local`) to M, h, Q_g through sums over the points in the hub frame, as
+    :func:`beam_invariants` does for the floating-frame beams (the same formulas, with the
+    sums taken over the points at run time instead of from invariants):
+
+        M_ij = m Jo_i·Jo_j + (Jψ_j Jo_i + Jψ_i Jo_j)·(A c)^⊥ + Jψ_i Jψ_j I      (i, j < s0)
+        M_ia = Jo_i·A e_a + Jψ_i f_a,     M_ab = Σm d_a·d_b
+        h_i  = Jo_i·(m c_o + A Σm w) + Jψ_i ((A c)^⊥·c_o + 2ψ̇ Σm s·ṡ + Σm s^⊥·a)
+        h_a  = A e_a·c_o − ψ̇² Σm d_a·s + 2ψ̇ Σm d_a·ṡ^⊥ + Σm d_a·a
+        Qg_i = m Jo_i·g + Jψ_i (A c)^⊥·g,  Qg_a = A e_a·g
+
+    with w = −ψ̇²s + 2ψ̇ṡ^⊥ + a (v^⊥ = (−v_y, v_x)), c = Σm s, I = Σm|s|², e_a = Σm d_a,
+    f_a = Σm s^⊥·d_a, d_a = ∂s/∂η_a. The point-by-point sums cost O(P·(s0 + ne)²) per
+    link, these O(P·ne²) plus O(s0²) once (two_link_free's second rod: 36 entries of M per
+    point before, 6 now). Scratch: V = ws.inv_vec (rows: e_x, e_y, f, Σm d·s,
+    Σm d·ṡ^⊥, Σm d·a), E = ws.inv_E. Not inlined, as :func:`beam_invariants`."""
+    m = 0.0
+    cx = 0.0
+    cy = 0.0
+    vx = 0.0
+    vy = 0.0
+    ax = 0.0
+    ay = 0.0
+    inertia = 0.0
+    ssd = 0.0
+    spa = 0.0
+    for p in range(P):
+        mp = MP[k, p]
+        px = RS[p, 0]
+        py = RS[p, 1]
+        pvx = RV[p, 0]
+        pvy = RV[p, 1]
+        pax = RA[p, 0]
+        pay = RA[p, 1]
+        m += mp
+        cx += mp * px
+        cy += mp * py
+        vx += mp * pvx
+        vy += mp * pvy
+        ax += mp * pax
+        ay += mp * pay
+        inertia += mp * (px * px + py * py)
+        ssd += mp * (px * pvx + py * pvy)
+        spa += mp * (px * pay - py * pax)
+    for a in range(nk):                 # in locals, as rod_local's sums
+        v0 = 0.0
+        v1 = 0.0
+        v2 = 0.0
+        v3 = 0.0
+        v4 = 0.0
+        v5 = 0.0
+        for p in range(P):
+            dx = MP[k, p] * RD[p, 0, a]
+            dy = MP[k, p] * RD[p, 1, a]
+            v0 += dx
+            v1 += dy
+            v2 += RS[p, 0] * dy - RS[p, 1] * dx
+            v3 += dx * RS[p, 0] + dy * RS[p, 1]
+            v4 += dy * RV[p, 0] - dx * RV[p, 1]
+            v5 += dx * RA[p, 0] + dy * RA[p, 1]
+        V[0, a] = v0
+        V[1, a] = v1
+        V[2, a] = v2
+        V[3, a] = v3
+        V[4, a] = v4
+        V[5, a] = v5
+        for b in range(a, nk):
+            e = 0.0
+            for p in range(P):
+                e += MP[k, p] * (RD[p, 0, a] * RD[p, 0, b] + RD[p, 1, a] * RD[p, 1, b])
+            E[a, b] = e
+    acx = c * cx - s * cy                       # A c
+    acy = s * cx + c * cy
+    # Σm w = −ψ̇² c + 2ψ̇ (Σm ṡ)^⊥ + Σm a (local), then m c_o + A Σm w
+    wx = -psid * psid * cx - 2.0 * psid * vy + ax
+    wy = -psid * psid * cy + 2.0 * psid * vx + ay
+    cmx = m * cox + c * wx - s * wy
+    cmy = m * coy + s * wx + c * wy
+    rot_h = -acy * cox + acx * coy + 2.0 * psid * ssd + spa
+    rot_g = -acy * g[0] + acx * g[1]
+    for i in range(s0):
+        oxi = Jo[0, i]
+        oyi = Jo[1, i]
+        pi = Jpsi[i]
+        h[i] += oxi * cmx + oyi * cmy + pi * rot_h
+        if has_g:
+            Qg[i] += m * (oxi * g[0] + oyi * g[1]) + pi * rot_g
+        ai = -oxi * acy + oyi * acx
+        for j in range(i, s0):
+            aj = -Jo[0, j] * acy + Jo[1, j] * acx
+            M[i, j] += (m * (oxi * Jo[0, j] + oyi * Jo[1, j]) + Jpsi[j] * ai + pi * aj
+                        + pi * Jpsi[j] * inertia)
+    for a in range(nk):
+        ia = s0 + a
+        aex = c * V[0, a] - s * V[1, a]
+        aey = s * V[0, a] + c * V[1, a]
+        for i in range(s0):
+            M[i, ia] += Jo[0, i] * aex + Jo[1, i] * aey + Jpsi[i] * V[2, a]
+        for b in range(a, nk):
+            M[ia, s0 + b] += E[a, b]
+        h[ia] += (aex * cox + aey * coy - psid * psid * V[3, a] + 2.0 * psid * V[4, a]
+                  + V[5, a])
+        if has_g:
+            Qg[ia] += aex * g[0] + aey * g[1]
+
+
+@_jit_raw
 def rod_local(q, qd, s0, nk, k, P, model, ws):
     """The rod rung's local kinematics of link k (model/rod.py) into ws.rod_s (positions in
     the hub frame), ws.rod_sd (their rates ṡ), ws.rod_ds (∂s/∂η) and ws.rod_a
@@ -303,21 +412,27 @@ def rod_local(q, qd, s0, nk, k, P, model, ws):
         G[i, 0, nk + 2] = epd * ct - fac * thd * st       # ḟ: the rate of f
         G[i, 1, nk + 2] = epd * st + fac * thd * ct
     RV = ws.rod_sd
+    # every sum in a local (an array element summed in place is a chain of stores and
+    # loads the compiler cannot keep in registers: the arrays may alias; 20 % of this
+    # function on two_link_free)
     for j in range(P + 1):
+        for a in range(nk):
+            dx = 0.0
+            dy = 0.0
+            for i in range(P):
+                w = W[k, j, i]
+                dx += w * G[i, 0, a]
+                dy += w * G[i, 1, a]
+            RD[j, 0, a] = dx
+            RD[j, 1, a] = dy
         sx = model.hub_radius[k]
         sy = 0.0
         ax = 0.0
         ay = 0.0
         vx = 0.0
         vy = 0.0
-        for a in range(nk):
-            RD[j, 0, a] = 0.0
-            RD[j, 1, a] = 0.0
         for i in range(P):
             w = W[k, j, i]
-            for a in range(nk):
-                RD[j, 0, a] += w * G[i, 0, a]
-                RD[j, 1, a] += w * G[i, 1, a]
             ax += w * G[i, 0, nk]
             ay += w * G[i, 1, nk]
             sx += w * G[i, 0, nk + 1]
@@ -442,7 +557,9 @@ def chain_terms(q, qd, model, ws):
             RD = ws.rod_ds
             RA = ws.rod_a
             RV = ws.rod_sd
-            for p in range(P + 1):
+            rod_sums(k, s0, nk, P, MP, RS, RV, RD, RA, Jo, Jpsi, M, h, Qg, ws.inv_vec,
+                     ws.inv_E, c, s, cox, coy, psid, g, has_g)
+            for p in range(P, P + 1):          # the tip: the next frame's origin
                 Asx = c * RS[p, 0] - s * RS[p, 1]
                 Asy = s * RS[p, 0] + c * RS[p, 1]
                 Adx = c * RV[p, 0] - s * RV[p, 1]
@@ -455,16 +572,13 @@ def chain_terms(q, qd, model, ws):
                 for a in range(nk):
                     Jx[s0 + a] = c * RD[p, 0, a] - s * RD[p, 1, a]
                     Jy[s0 + a] = s * RD[p, 0, a] + c * RD[p, 1, a]
-                if p < P:
-                    _mass_point(MP[k, p], nact, Jx, Jy, cx, cy, g, has_g, M, h, Qg)
-                else:
-                    tox = ox + Asx
-                    toy = oy + Asy
-                    tcx = cx
-                    tcy = cy
-                    for i in range(nact):
-                        Jtx[i] = Jx[i]
-                        Jty[i] = Jy[i]
+                tox = ox + Asx
+                toy = oy + Asy
+                tcx = cx
+                tcy = cy
+                for i in range(nact):
+                    Jtx[i] = Jx[i]
+                    Jty[i] = Jy[i]
         elif model.invariant[k]:
             beam_invariants(q, qd, s0, nk, k, fs, model.inv_mass, model.inv_phi,
                             model.inv_mat, model.inv_G, model.inv_H, Jo, Jpsi, M, h, Qg,

@@ -259,6 +259,13 @@ def check_tolerance_applies(chain, contact) -> None:
     fid = chain.fidelity
     tol = fid.tolerance
     check_tolerance(tol, "the estimate is round-off")
+    if fid.integrator == "lawson4":
+        raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator 'lawson4' "
+                         f"(the seed 001 scenes' default), expected integrator rk4, rkn4 "
+                         f"or trapezoid: lawson4 steps at the output period (or a --dt "
+                         f"dividing it) with no step chosen for a tolerance; add "
+                         f"--integrator rk4, or see its error against the geometrically "
+                         f"exact rung with --estimate")
     if fid.integrator not in ("rk4", "rkn4", "trapezoid"):
         raise SceneError(f"fidelity.tolerance: got {tol:g} m with integrator "
                          f"{fid.integrator!r}, expected integrator rk4, rkn4 or trapezoid "

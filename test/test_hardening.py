@@ -77,6 +77,7 @@ def test_armature_rate_sets_the_step_and_is_named_with_its_closed_form(tmp_path,
     for name in ("_run_rk4_dense", "_run_trapezoid", "rk4_step"):
         monkeypatch.setattr(integ, name, never)
     data = _set(shipped("link_motor"), ("links", 0, "joint", "drive", "inductance"), 1e-9)
+    data["fidelity"]["integrator"] = "rk4"       # lawson4, the scene's, has no such limit
     R = data["links"][0]["joint"]["drive"]["resistance"]
     code = main(simulate_argv(tmp_path, data))
     msg = one_error_line(capsys, code)
@@ -90,7 +91,8 @@ def test_armature_rate_sets_the_step_and_is_named_with_its_closed_form(tmp_path,
 
 
 def test_fixed_step_count_is_duration_over_dt(capsys):
-    code = main(["simulate", "link", "--dt", "1e-12", "--duration", "2", "--quiet"])
+    code = main(["simulate", "link", "--dt", "1e-12", "--duration", "2", "--quiet",
+                 "--integrator", "rk4"])
     msg = one_error_line(capsys, code)
     assert "the run needs 2e+12 rk4 steps (duration 2 s / step 1e-12 s)" in msg
     assert "fixed fidelity.dt = 1e-12 s" in msg and "--dt 0" in msg
@@ -103,13 +105,14 @@ def test_budget_is_a_parameter(capsys):
     from flexarm_ros.model.linear import smooth_rhs
     from flexarm_ros.model.statics import initial_x
     from flexarm_ros.sim.integrate import choose_step
-    sc = load_scene("link").with_fidelity(rung="cubic")
+    sc = load_scene("link").with_fidelity(rung="cubic", integrator="rk4")
     ch = Chain(sc)
     h = choose_step(ch, initial_x(ch), "rk4", 0.0, sc.fidelity.output_dt,
                     dense=smooth_rhs(ch))
     need = 0.05 / h                 # the dense output's step need not divide the run
     steps = math.ceil(need - 1e-9)
-    base = ["simulate", "link", "--rung", "cubic", "--duration", "0.05", "--quiet"]
+    base = ["simulate", "link", "--rung", "cubic", "--integrator", "rk4", "--duration",
+            "0.05", "--quiet"]
     assert main(base + ["--max-steps", str(steps)]) == 0
     capsys.readouterr()
     code = main(base + ["--max-steps", str(steps - 1)])
@@ -128,7 +131,9 @@ def test_budget_is_a_parameter(capsys):
 def test_collapsed_beam_step_names_the_beam_key(tmp_path, capsys, path, value, coordinate,
                                                 key):
     data = _set(shipped("link"), path, value)
-    data["fidelity"].update(rung="fd", refine=10)      # the seed's own: nodes link1_y…
+    # the seed's own model (nodes link1_y…) by RK4, whose step the collapse sets (lawson4,
+    # the scene's integrator since session 21, steps the linearization exactly)
+    data["fidelity"].update(rung="fd", refine=10, integrator="rk4")
     code = main(simulate_argv(tmp_path, data))
     msg = one_error_line(capsys, code)
     assert f"in which {coordinate}" in msg and key in msg
@@ -151,7 +156,9 @@ def test_adaptive_run_is_stopped_by_its_pace(tmp_path, capsys):
     """dop853 has no step to check up front: the pace of its first steps projects the
     total, and the run stops within a window of steps, not after hours."""
     data = _set(shipped("link"), ("links", 0, "beam", "mass_per_length"), 1e-12)
-    data["fidelity"].update(rung="fd", refine=10)      # the seed's own: nodes link1_y…
+    # the seed's own model (nodes link1_y…) by RK4, whose step the collapse sets (lawson4,
+    # the scene's integrator since session 21, steps the linearization exactly)
+    data["fidelity"].update(rung="fd", refine=10, integrator="rk4")
     code = main(simulate_argv(tmp_path, data, "--integrator", "dop853", "--max-steps",
                               "1e5"))
     msg = one_error_line(capsys, code)

@@ -141,8 +141,9 @@ def test_a_product_of_two_parameters_is_reported_not_separately_identifiable(bas
 
 @pytest.mark.heavy
 def test_a_refused_sample_inside_the_bounds_is_penalized_with_a_warning(base, truth_run):
-    # a fixed RK4 step of 0.5 ms: EI above ~8000 N·m² needs a smaller one (refused)
-    fixed = set_keys(base, {"fidelity.dt": 5e-4})
+    # a fixed RK4 step of 0.5 ms: EI above ~8000 N·m² needs a smaller one (refused); RK4
+    # named (link_motor steps lawson4 since session 21, which has no stability limit)
+    fixed = set_keys(base, {"fidelity.dt": 5e-4, "fidelity.integrator": "rk4"})
     run = simulate(set_keys(fixed, TRUTH), DURATION)
     start = set_keys(fixed, {R: 1.3, EI: 1990.0})
     params = [make_param([R], 0.6, 2.4, None, start),

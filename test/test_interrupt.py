@@ -145,7 +145,10 @@ def test_sigint_during_a_long_quiet_integration(tmp_path):
         [sys.executable, "-m", "flexarm_ros.cli", "simulate", "link", "--set",
          "links[0].hub.inertia=0", "--set", "links[0].beam.mass_per_length=1e-8",
          "--integrator", "rk4", "--quiet", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path,
+        # as from a terminal: a CI script's background job passes SIGINT on ignored, and
+        # Python then installs no KeyboardInterrupt handler (a `cmd &` is not Ctrl-C's)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         first = p.stderr.readline()                  # the forecast, before minutes of work
         assert first.startswith("flexarm: this run needs "), first

@@ -28,7 +28,10 @@ pytestmark = [pytest.mark.subprocess,
 def _children(pid: int) -> list[int]:
     out = []
     for task in Path(f"/proc/{pid}/task").iterdir():
-        out += [int(p) for p in (task / "children").read_text().split()]
+        try:
+            out += [int(p) for p in (task / "children").read_text().split()]
+        except (FileNotFoundError, ProcessLookupError):   # a thread that just ended
+            continue
     return out
 
 

@@ -236,6 +236,14 @@ def _type_name(pub) -> str:
     return f"{mod[0]}/msg/{cls.__name__}"
 
 
+#: s a start condition waits at least, so that DDS discovery shows another run's nodes on
+#: the domain before this one starts: in one process a twin's own nodes match at once
+#: (in-process), and a second twin started beside a running one had started before it
+#: saw the first, whose driver then took its commands for up to ALONE_CHECK_S (once
+#: seen diverging in CI, issue 39)
+DISCOVERY_SETTLE_S = 0.5
+
+
 class Barrier:
     """The start condition of a node: true once every publisher in ``needs`` — (publisher,
     subscribers it needs, who they are) — has that many matched subscriptions and, with
@@ -285,6 +293,8 @@ class Barrier:
             missing = [m for p, n, who in self.needs if (m := self._missing(p, n, who))]
             missing += [f"{sub.topic_name} (0/1 publishers matched: {who})"
                         for sub, who in self.inputs if sub.get_publisher_count() < 1]
+            if not missing and time.monotonic() - self.since < DISCOVERY_SETTLE_S:
+                return False                # another run's nodes may not be seen yet
             if not missing:                 # what met the needs may be another twin's
                 self.conflict = other_twin(self.node)
                 if self.conflict:

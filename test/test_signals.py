@@ -72,6 +72,19 @@ def _start(out: Path):
     return proc, kids
 
 
+def _signal_node(out: Path, node: str, sig):
+    """:func:`_start` recording to ``out``, then ``sig`` to the process of ``node`` from
+    outside the run; (the finished parent, its stdout, its stderr)."""
+    proc, kids = _start(out)
+    try:
+        pid = next(k for k in kids if f"flexarm_ros.nodes.{node} " in _cmdline(k))
+        os.kill(pid, sig)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        _cleanup(proc)
+    return proc, stdout, stderr
+
+
 def _cleanup(proc):
     try:
         os.killpg(proc.pid, signal.SIGKILL)          # the whole job, nodes included
@@ -140,13 +153,7 @@ def test_a_killed_recorder_leaves_a_repaired_bag(tmp_path):
     unfinished file beside it; the repaired bag holds exactly what the unfinished one
     still has, readable by mcap's indexed reader."""
     out = tmp_path / "run.mcap"
-    proc, kids = _start(out)
-    try:
-        recorder = next(k for k in kids if "flexarm_ros.nodes.recorder " in _cmdline(k))
-        os.kill(recorder, signal.SIGKILL)
-        stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        _cleanup(proc)
+    proc, stdout, stderr = _signal_node(out, "recorder", signal.SIGKILL)
     assert proc.returncode == 1 and "ended early: recorder killed by SIGKILL" in stderr, stderr
     killed = tmp_path / "run.killed.mcap"
     assert "the recorder was killed by SIGKILL: " in stdout and f"kept as {killed}" in stdout
@@ -176,13 +183,7 @@ def test_a_node_stopped_from_outside_ends_the_run_non_zero_naming_it(tmp_path, n
     run ends with status 1 and one line naming the node and the signal (SIGTERM: the node
     says so itself, the simulator how far it got); the bag is finalized."""
     out = tmp_path / "run.mcap"
-    proc, kids = _start(out)
-    try:
-        pid = next(k for k in kids if f"flexarm_ros.nodes.{node} " in _cmdline(k))
-        os.kill(pid, getattr(signal, sig))
-        stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        _cleanup(proc)
+    proc, stdout, stderr = _signal_node(out, node, getattr(signal, sig))
     assert proc.returncode == 1, stderr
     lines = [ln for ln in stderr.splitlines() if ln.startswith("flexarm run:")]
     assert len(lines) == 1, stderr
@@ -203,13 +204,7 @@ def test_a_recorder_stopped_from_outside_finalizes_its_bag(tmp_path):
     it, and the bag is finalized (readable by the indexed reader, not truncated) with
     everything recorded until then."""
     out = tmp_path / "run.mcap"
-    proc, kids = _start(out)
-    try:
-        pid = next(k for k in kids if "flexarm_ros.nodes.recorder " in _cmdline(k))
-        os.kill(pid, signal.SIGTERM)
-        stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        _cleanup(proc)
+    proc, stdout, stderr = _signal_node(out, "recorder", signal.SIGTERM)
     assert proc.returncode == 1, stderr
     lines = [ln for ln in stderr.splitlines() if ln.startswith("flexarm run:")]
     assert len(lines) == 1 and "ended early: recorder stopped by SIGTERM" in lines[0], stderr

@@ -209,7 +209,7 @@ class SimulatorNode(Node):
         # at the answer to the first state
         self.awaits = bool(self.p["await_first_effort"]) and not lockstep
         gated = lockstep or self.awaits
-        self._awaiting_since = None             # the first state out, no answer yet
+        self._awaiting = None                   # WaitWarning: the first state out, no answer
         self.first_answer_s = None              # how long the first answer took (awaited)
 
         def own_controller():
@@ -377,10 +377,15 @@ class SimulatorNode(Node):
             return
         waited = time.monotonic() - self.ready.since
         if waited >= limit:
-            self.stalled = (f"not started within start_timeout_s = {limit:g} s: waiting for "
-                            + ", ".join(self.ready.missing or ["its start condition"]))
-            self.get_logger().error(self.stalled)
-            self.halt()
+            self._end_stalled(f"not started within start_timeout_s = {limit:g} s: waiting "
+                              f"for " + ", ".join(self.ready.missing or
+                                                  ["its start condition"]))
+
+    def _end_stalled(self, why: str) -> None:
+        """The run ends as stalled (exit status 3), saying ``why`` once."""
+        self.stalled = why
+        self.get_logger().error(why)
+        self.halt()
 
     def _watchdog(self):
         """Lockstep: the twin steps only on an effort answering its last state, so a lost
@@ -401,9 +406,8 @@ class SimulatorNode(Node):
                 f"namespace and publishes there, and the driver runs)")
         limit = float(self.p["stall_timeout_s"])
         if limit > 0 and waited >= limit:
-            self.stalled = f"lockstep stalled: {what}; ended after stall_timeout_s = {limit:g} s"
-            self.get_logger().error(self.stalled)
-            self.halt()
+            self._end_stalled(f"lockstep stalled: {what}; ended after stall_timeout_s = "
+                              f"{limit:g} s")
         elif waited - getattr(self, "_stall_said", 0.0) >= 5.0 or not getattr(
                 self, "_stall_said", 0.0):
             self._stall_said = waited
@@ -565,18 +569,18 @@ class SimulatorNode(Node):
             self._last_log = self.t_wall0
             self._publish_state()
             if self.awaits and not self.finished:
-                self._awaiting_since = self._progress_wall
+                self._awaiting = C.WaitWarning(self.STALL_WARN_S)
                 if self.mode == "fast":             # poll, do not spin, while it waits
                     self.timer.cancel()
                     self.timer = self.create_timer(0.001, self._on_timer)
                 return
             self._start_clock()
             return
-        if self._awaiting_since is not None:
+        if self._awaiting is not None:
             if not self._first_answer():
                 return
-            self.first_answer_s = time.monotonic() - self._awaiting_since
-            self._awaiting_since = None
+            self.first_answer_s = time.monotonic() - self._awaiting.since
+            self._awaiting = None
             self.t_wall0 = time.monotonic()         # the clock starts at the answer
             self.cpu0 = time.process_time()
             self._last_log = self.t_wall0
@@ -615,7 +619,7 @@ class SimulatorNode(Node):
             return True
         if self.finished:
             return False
-        waited = time.monotonic() - self._awaiting_since
+        waited = time.monotonic() - self._awaiting.since
         if waited < self.STALL_WARN_S:
             return False
         what = (f"no effort on {self.source.topic} for {waited:.0f} s after the first state "
@@ -626,11 +630,9 @@ class SimulatorNode(Node):
                 f"{self.source.topic})")
         limit = float(self.p["stall_timeout_s"])
         if limit > 0 and waited >= limit:
-            self.stalled = f"not started: {what}; ended after stall_timeout_s = {limit:g} s"
-            self.get_logger().error(self.stalled)
-            self.halt()
-        elif waited - getattr(self, "_await_said", -5.0) >= 5.0:
-            self._await_said = waited
+            self._end_stalled(f"not started: {what}; ended after stall_timeout_s = "
+                              f"{limit:g} s")
+        elif self._awaiting.due():
             self.get_logger().warning(f"waiting: {what}")
         return False
 

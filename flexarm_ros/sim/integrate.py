@@ -165,18 +165,11 @@ def integrate(chain, x0, t_end, integrator="rk4", dt=0.0, rtol=1e-8, atol=1e-10,
     elif integrator in EXPLICIT and chain.backend == "numba":
         per = int(round(output_dt / h))
         ws = kchain.workspace(chain.kernel_args)
-        x, steps = np.array(x0, float), 0
-        for k0, k1 in _chunks(n_out, per=per):
-            code, t_fail, st, x_last, x_bad = kloops.rk4_loop(
-                x, h, per, k0, k1, output_dt, max_deflection_ratio, xs, chain.kernel_args, ws,
-                nq > 0)
-            steps += st
-            if code != kchain.OK:
-                guard.last = x_last
-                guard.check(t_fail, x_bad)
-            x = x_last
-            forecast.update(steps)
-            last_report = _report(progress, last_report, k1 * output_dt / t_end)
+        steps = _compiled_grid(
+            lambda x, k0, k1: kloops.rk4_loop(x, h, per, k0, k1, output_dt,
+                                              max_deflection_ratio, xs, chain.kernel_args,
+                                              ws, nq > 0),
+            x0, n_out, per, guard, forecast, progress, output_dt / t_end)
         f.calls += 4 * steps
     elif integrator == "lawson4":
         steps = _run_lawson(chain, x0, h, lawson, n_out, output_dt, max_deflection_ratio,
@@ -269,22 +262,16 @@ def _run_lawson(chain, x0, h, matrices, n_out, output_dt, max_ratio, xs, guard, 
     from flexarm_ros.model.compiled import lawson as klawson
     A, E, E2 = matrices
     per = int(round(output_dt / h))
-    x, steps = np.array(x0, float), 0
-    last_report = time.perf_counter()
     if chain.backend == "numba":
         ws = kchain.workspace(chain.kernel_args)
-        for k0, k1 in _chunks(n_out, per=per):
-            code, t_fail, st, x_last, x_bad = klawson.lawson_loop(
-                x, h, per, k0, k1, output_dt, max_ratio, xs, A, E, E2, chain.kernel_args, ws)
-            steps += st
-            if code != kchain.OK:
-                guard.last = x_last
-                guard.check(t_fail, x_bad)
-            x = x_last
-            forecast.update(steps)
-            last_report = _report(progress, last_report, k1 / n_out)
+        steps = _compiled_grid(
+            lambda x, k0, k1: klawson.lawson_loop(x, h, per, k0, k1, output_dt, max_ratio,
+                                                  xs, A, E, E2, chain.kernel_args, ws),
+            x0, n_out, per, guard, forecast, progress, 1.0 / n_out)
         f.calls += 4 * steps
         return steps
+    x, steps = np.array(x0, float), 0
+    last_report = time.perf_counter()
     for k in range(n_out):
         for j in range(per):
             tj = k * output_dt + j * h
@@ -423,6 +410,25 @@ def _run_trapezoid(chain, x0, h, n_out, output_dt, max_ratio, xs, guard, progres
         k_failed = k
         refreshes += 1
         Sinv = iteration_matrix(chain, k * output_dt, x, h)
+
+
+def _compiled_grid(call, x0, n_out, per, guard, forecast, progress, scale) -> int:
+    """A compiled fixed-step loop on the output grid (RK4's, lawson4's) in ~100 calls,
+    progress between them: ``call(x, k0, k1)`` steps output intervals k0..k1 and returns
+    (code, t_fail, steps, x_last, x_bad); a diverged state stops the run through
+    ``guard``; ``progress`` gets k1·``scale``. Returns the steps taken."""
+    x, steps = np.array(x0, float), 0
+    last_report = time.perf_counter()
+    for k0, k1 in _chunks(n_out, per=per):
+        code, t_fail, st, x_last, x_bad = call(x, k0, k1)
+        steps += st
+        if code != kchain.OK:
+            guard.last = x_last
+            guard.check(t_fail, x_bad)
+        x = x_last
+        forecast.update(steps)
+        last_report = _report(progress, last_report, k1 * scale)
+    return steps
 
 
 def _chunks(n_out, parts=100, per=1):

@@ -116,6 +116,29 @@ def beam_point(q, qd, s0, ext, phi, S, k, p, fs, x0, c, s, Seta):
     return c * sx - s * w, s * sx + c * w, c * ud - s * wd, s * ud + c * wd, acc_ax
 
 
+@_jit_inline
+def _rigid_block(s0, Jo, Jpsi, m, inertia, acx, acy, cmx, cmy, rot_h, rot_g, g, has_g,
+                 M, h, Qg):
+    """A beam's share of the rigid coordinates' block (i, j < s0) from its sums — mass m,
+    A c = (acx, acy), inertia I about the hub, m c_o + A Σm w = (cmx, cmy), the rotational
+    terms rot_h and rot_g (:func:`beam_invariants`, :func:`rod_sums` give them):
+
+        M_ij += m Jo_i·Jo_j + (Jψ_j Jo_i + Jψ_i Jo_j)·(A c)^⊥ + Jψ_i Jψ_j I,
+        h_i += Jo_i·(cmx, cmy) + Jψ_i rot_h,    Qg_i += m Jo_i·g + Jψ_i rot_g."""
+    for i in range(s0):
+        oxi = Jo[0, i]
+        oyi = Jo[1, i]
+        pi = Jpsi[i]
+        h[i] += oxi * cmx + oyi * cmy + pi * rot_h
+        if has_g:
+            Qg[i] += m * (oxi * g[0] + oyi * g[1]) + pi * rot_g
+        ai = -oxi * acy + oyi * acx
+        for j in range(i, s0):
+            aj = -Jo[0, j] * acy + Jo[1, j] * acx
+            M[i, j] += (m * (oxi * Jo[0, j] + oyi * Jo[1, j]) + Jpsi[j] * ai + pi * aj
+                        + pi * Jpsi[j] * inertia)
+
+
 @_jit_raw
 def beam_invariants(q, qd, s0, nk, k, fs, m0, m1, m2, G, H, Jo, Jpsi, M, h, Qg, V, E, c, s,
                     cox, coy, psid, g, has_g):
@@ -235,18 +258,8 @@ def beam_invariants(q, qd, s0, nk, k, fs, m0, m1, m2, G, H, Jo, Jpsi, M, h, Qg, 
     cmy = m * coy + s * wx + c * wy
     rot_h = -acy * cox + acx * coy + 2.0 * psid * ssd + ggd
     rot_g = -acy * g[0] + acx * g[1]
-    for i in range(s0):
-        oxi = Jo[0, i]
-        oyi = Jo[1, i]
-        pi = Jpsi[i]
-        h[i] += oxi * cmx + oyi * cmy + pi * rot_h
-        if has_g:
-            Qg[i] += m * (oxi * g[0] + oyi * g[1]) + pi * rot_g
-        ai = -oxi * acy + oyi * acx
-        for j in range(i, s0):
-            aj = -Jo[0, j] * acy + Jo[1, j] * acx
-            M[i, j] += (m * (oxi * Jo[0, j] + oyi * Jo[1, j]) + Jpsi[j] * ai + pi * aj
-                        + pi * Jpsi[j] * inertia)
+    _rigid_block(s0, Jo, Jpsi, m, inertia, acx, acy, cmx, cmy, rot_h, rot_g, g, has_g,
+                 M, h, Qg)
     for a in range(nk):
         ia = s0 + a
         exl = -V[0, a]
@@ -345,18 +358,8 @@ def rod_sums(k, s0, nk, P, MP, RS, RV, RD, RA, Jo, Jpsi, M, h, Qg, V, E, c, s, c
     cmy = m * coy + s * wx + c * wy
     rot_h = -acy * cox + acx * coy + 2.0 * psid * ssd + spa
     rot_g = -acy * g[0] + acx * g[1]
-    for i in range(s0):
-        oxi = Jo[0, i]
-        oyi = Jo[1, i]
-        pi = Jpsi[i]
-        h[i] += oxi * cmx + oyi * cmy + pi * rot_h
-        if has_g:
-            Qg[i] += m * (oxi * g[0] + oyi * g[1]) + pi * rot_g
-        ai = -oxi * acy + oyi * acx
-        for j in range(i, s0):
-            aj = -Jo[0, j] * acy + Jo[1, j] * acx
-            M[i, j] += (m * (oxi * Jo[0, j] + oyi * Jo[1, j]) + Jpsi[j] * ai + pi * aj
-                        + pi * Jpsi[j] * inertia)
+    _rigid_block(s0, Jo, Jpsi, m, inertia, acx, acy, cmx, cmy, rot_h, rot_g, g, has_g,
+                 M, h, Qg)
     for a in range(nk):
         ia = s0 + a
         aex = c * V[0, a] - s * V[1, a]

@@ -387,3 +387,15 @@ def test_a_scenes_fixed_step_goes_with_its_model():
     # a model too stiff for 3.3 ms runs at its own automatic step instead of being refused
     res = simulate(sc.with_fidelity(rung="rod", refine=8), 0.05)
     assert 0 < res.run.dt < 0.0033
+
+
+def test_a_tolerance_with_lawson4_is_refused_naming_the_fix(capsys):
+    """The seed 001 scenes step lawson4, which has no step chosen for a tolerance: one
+    line naming the key, the value, the integrator and what to do, exit 2."""
+    code = main(["simulate", "link", "--tolerance", "1e-5", "--duration", "0.01", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith("flexarm: error: fidelity.tolerance: got 1e-05 m with "
+                             "integrator 'lawson4'")
+    assert "expected integrator rk4, rkn4 or trapezoid" in err[0]
+    assert "--integrator rk4" in err[0] and "--estimate" in err[0]

@@ -9,7 +9,7 @@ at 4 kHz batched four samples per message, wall, recorder on):
    subscriber) — the floor of a realtime tick before any other node runs — with the
    former path (message dicts, then ``encode_cdr``) timed beside it;
 2. ``lockstep`` through ROS, all nodes on one executor: ticks per second, with and
-   without the recorder, with the twin's executor (``DrainExecutor``) and the nodes'
+   without the recorder, with the twin's executor (``TwinExecutor``) and the nodes'
    messages through the intra-process bus (the default) or through DDS, and with rclpy's
    SingleThreadedExecutor (DDS), measured in one run;
 3. ``realtime`` with the recorder for ``--seconds`` of simulated time in each layout
@@ -131,7 +131,7 @@ def simulator_tick_budget(scene_name: str, ticks: int) -> dict:
 
 
 def lockstep_run(scene_name: str, duration: float, record: Path | None,
-                 executor: str = "drain", intraprocess: bool = True) -> dict:
+                 executor: str = "twin", intraprocess: bool = True) -> dict:
     """One in-process lockstep run of ``duration`` simulated s: ticks per wall second
     (``intraprocess``: the nodes' messages through the process's bus, else DDS)."""
     from flexarm_ros.run import InProcessGraph
@@ -147,7 +147,7 @@ def lockstep_run(scene_name: str, duration: float, record: Path | None,
             g.spin_until(g.recorded_all, 30)
         wall = sim.t_wall_end - sim.t_wall0
         return {"mode": "lockstep", "executor": executor, "record": bool(record),
-                "intraprocess": intraprocess and executor == "drain",
+                "intraprocess": intraprocess and executor == "twin",
                 "sim_s": sim.core.t, "ticks": sim.core.k, "wall_s": wall,
                 "ticks_per_s": sim.core.k / wall, "real_time_factor": sim.core.t / wall}
     finally:
@@ -264,7 +264,7 @@ def main(argv=None) -> int:
         plant = plant_only(args.scene, int(args.lockstep_seconds * 1000))
         budget = simulator_tick_budget(args.scene, int(args.lockstep_seconds * 1000))
         for executor, bus in (() if args.no_lockstep else
-                              (("drain", True), ("drain", False), ("single", False))):
+                              (("twin", True), ("twin", False), ("single", False))):
             for rec in (None, tmp / "lockstep.mcap"):
                 lockstep.append(lockstep_run(args.scene, args.lockstep_seconds, rec, executor,
                                              bus))

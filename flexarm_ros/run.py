@@ -335,10 +335,12 @@ def _scene_arg(scene) -> str:
 class InProcessGraph:
     """All nodes in this process on one executor and a private context.
 
-    ``executor="drain"`` (default): :class:`~flexarm_ros.nodes.executor.DrainExecutor`,
-    and with ``intraprocess`` (default) the nodes exchange their messages through an
+    ``executor="twin"`` (default): :class:`~flexarm_ros.nodes.executor.TwinExecutor`
+    (rclpy's SingleThreadedExecutor that also runs the bus), and with ``intraprocess``
+    (default; ``flexarm run --transport bus``) the nodes exchange their messages through an
     intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`; DDS still carries every
-    message to other processes). ``"single"``: rclpy's SingleThreadedExecutor; ``"events"``: the
+    message to other processes); without it every message goes by DDS (``--transport
+    dds``). ``"single"``: rclpy's SingleThreadedExecutor; ``"events"``: the
     experimental EventsExecutor, whose C++ event queue spends less time per lockstep tick,
     but it still dispatches events queued for a node that was removed or destroyed (used by
     ``bench/bench_realtime.py --executor events`` only). ``progress``: the simulator's
@@ -347,7 +349,7 @@ class InProcessGraph:
     def __init__(self, scene=DEFAULT_SCENE, mode="lockstep", duration=None, record=None,
                  namespace=DEFAULT_NAMESPACE, progress=False, nodes=("simulator", "motor_driver",
                                                                        "controller"),
-                 executor="drain", fidelity=None, simulator=None, intraprocess=True,
+                 executor="twin", fidelity=None, simulator=None, intraprocess=True,
                  writer_process=True, remote=(), sets=None, enclave=None):
         import rclpy
         from rclpy.context import Context
@@ -368,7 +370,7 @@ class InProcessGraph:
         self.nodes = {}
         names = list(nodes) + (["recorder"] if record else [])
         self.bus = None
-        if intraprocess and executor == "drain":
+        if intraprocess and executor == "twin":
             from flexarm_ros.nodes.intraprocess import install
             # ``remote``: members in another process, joined by SplitGraph's bridge
             self.bus = install(self.context, [(namespace, n) for n in names + list(remote)])
@@ -732,7 +734,7 @@ def recover_killed_bag(path: Path, returncode) -> str | None:
 def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
         fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
-        layout=None, sets=None) -> RunResult:
+        layout=None, sets=None, transport="bus") -> RunResult:
     """:func:`_run`, and a bag already at ``record`` is not lost to a run that never
     ticked (a twin whose controller never came, a bad argument, Ctrl-C before the start):
     it is set aside as ``<name>.previous.mcap`` while the graph runs and put back when the
@@ -747,7 +749,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     res = None
     try:
         res = _run(scene, duration, mode, record, processes, namespace, progress, fidelity,
-                   simulator, nodes, pin, layout, sets)
+                   simulator, nodes, pin, layout, sets, transport)
         return res
     finally:
         if previous is not None and previous.exists():
@@ -763,7 +765,7 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
 def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
          processes=False, namespace=DEFAULT_NAMESPACE, progress=True,
          fidelity=None, simulator=None, nodes=GRAPH_NODES, pin=None,
-         layout=None, sets=None) -> RunResult:
+         layout=None, sets=None, transport="bus") -> RunResult:
     """Run the graph for ``duration`` s of simulated time (None: the scene's) or until
     SIGINT/SIGTERM; with ``record`` the MCAP is finalized in every case but SIGKILL.
     ``fidelity``: ``Scene.with_fidelity`` keywords for every node (None values: the
@@ -775,7 +777,10 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     alone on one CPU and the other nodes on the rest (:func:`cpu_placement`; None: in
     ``realtime`` only); ``layout``: ``"one"`` process, ``"split"`` (the simulator in a
     process of its own, :class:`SplitGraph`) or ``"processes"`` (one per node; also
-    ``processes=True``); None: :func:`default_layout`."""
+    ``processes=True``); None: :func:`default_layout`. ``transport``: ``"bus"``, the nodes
+    of one process exchange their messages in-process (:mod:`~flexarm_ros.nodes.intraprocess`,
+    DDS still carries them to everyone else); ``"dds"``, every message by DDS on rclpy's
+    stock path (layouts one and processes; split is joined by the bus's socket)."""
     t0 = time.monotonic()                    # the summary's "with start-up" counts from here
     from flexarm_ros.scene import load_scene
     from flexarm_ros.nodes.common import StopFlag
@@ -787,6 +792,12 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
     if layout not in LAYOUTS:
         raise ValueError(f"layout: got {layout!r}, expected one of {LAYOUTS}")
     processes = layout == "processes"
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport: got {transport!r}, expected one of {TRANSPORTS}")
+    if transport == "dds" and layout == "split":
+        raise ValueError("transport 'dds' with layout 'split': the split layout joins its "
+                         "two processes by the bus's socket; use layout 'one' or "
+                         "'processes' with transport 'dds'")
     # fails early on a bad scene, set or override (SceneError, an InputError: exit 2)
     from flexarm_ros.scene.overrides import apply_sets
     sets = dict(sets or {})
@@ -854,7 +865,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         with CompileNotice(enabled=progress):   # a scene's first use of other kernels
             g = InProcessGraph(scene, mode, duration, record, namespace, progress,
                                nodes=nodes, fidelity=fidelity, simulator=simulator,
-                               sets=sets)
+                               sets=sets, intraprocess=transport == "bus")
         roles = _roles(g.nodes)
         sampler = _cpu_sampler(roles)
         try:
@@ -895,6 +906,7 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
 
 
 LAYOUTS = ("one", "split", "processes")
+TRANSPORTS = ("bus", "dds")
 
 #: the graph's share of the CPUs above which the summary says why ticks are late: with
 #: the busiest CPU at load u a stall of the host of S seconds makes S/(T·(1 − u)) late

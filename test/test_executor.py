@@ -17,7 +17,7 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from std_msgs.msg import Float64MultiArray, Int32  # noqa: E402
 
 from flexarm_ros.nodes.common import QOS  # noqa: E402
-from flexarm_ros.nodes.executor import DrainExecutor  # noqa: E402
+from flexarm_ros.nodes.executor import TwinExecutor  # noqa: E402
 
 
 @pytest.fixture
@@ -66,7 +66,7 @@ def _received(ctx, executor_cls, n=500):
 
 @pytest.mark.ros
 def test_every_message_in_order_to_every_kind_of_callback(ctx):
-    got = _received(ctx, DrainExecutor)
+    got = _received(ctx, TwinExecutor)
     ref = list(range(500))
     assert got["obj"] == ref and got["raw"] == ref
     assert [d for d, _ in got["info"]] == ref
@@ -77,7 +77,7 @@ def test_every_message_in_order_to_every_kind_of_callback(ctx):
 
 @pytest.mark.ros
 def test_the_same_as_rclpys_executor(ctx):
-    ours = _received(ctx, DrainExecutor, 200)
+    ours = _received(ctx, TwinExecutor, 200)
     c2 = Context()
     rclpy.init(context=c2)
     try:
@@ -93,7 +93,7 @@ def test_timers_fire_at_their_period_and_stop_when_cancelled(ctx):
     node = rclpy.create_node("t", context=ctx)
     calls = []
     timer = node.create_timer(0.01, lambda: calls.append(time.monotonic()))
-    exe = DrainExecutor(ctx)
+    exe = TwinExecutor(ctx)
     exe.add_node(node)
     t0 = time.monotonic()
     while time.monotonic() - t0 < 0.5:
@@ -120,7 +120,7 @@ def test_a_node_destroyed_by_a_callback_is_not_called_again(ctx):
 
     node.create_subscription(Int32, "x", cb, QOS)
     pub = pub_node.create_publisher(Int32, "x", QOS)
-    exe = DrainExecutor(ctx)
+    exe = TwinExecutor(ctx)
     exe.add_node(node)
     t0 = time.monotonic()
     while pub.get_subscription_count() < 1 and time.monotonic() - t0 < 30:

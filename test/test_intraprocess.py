@@ -297,6 +297,38 @@ def test_a_message_goes_on_dds_only_while_a_dds_reader_is_there(monkeypatch):
     assert sent == [b"c", b"d"]
 
 
+def test_the_bus_keeps_each_subscriptions_qos_depth_and_counts_what_it_drops():
+    """KEEP_LAST as DDS keeps it (issue 38: the bus's queue had been unbounded where the
+    QoS said KEEP_LAST(depth)): a subscription of depth 3 that is not served while five
+    messages arrive gets the newest three, in order, and counts two dropped; one of depth
+    10 on the same topic gets all five; deliveries run in arrival order across topics; a
+    post from another thread wakes the executor (rclpy's public Executor.wake)."""
+    from types import SimpleNamespace
+    from flexarm_ros.nodes import intraprocess as ip
+    warned = []
+    node = SimpleNamespace(get_logger=lambda: SimpleNamespace(warning=warned.append))
+    bus = ip.Bus(None, [])
+    woken = []
+    bus.waker = lambda: woken.append(1)
+    got = []
+    a = ip.BusSubscription(bus, node, object, "/t", lambda m, i: got.append(("a", m)), True,
+                           SimpleNamespace(depth=3), None)
+    b = ip.BusSubscription(bus, node, object, "/t", lambda m, i: got.append(("b", m)), True,
+                           SimpleNamespace(depth=10), None)
+    c = ip.BusSubscription(bus, node, object, "/u", lambda m, i: got.append(("c", m)), True,
+                           SimpleNamespace(depth=10), None)
+    for k in range(5):
+        bus.post("/t", bytes([k]), {})
+    bus.post("/u", b"u", {})
+    assert woken == [1]                   # the first post woke it; the queue was not empty
+    assert (a.dropped, b.dropped, c.dropped) == (2, 0, 0) and len(warned) == 1
+    assert "/t: 3 messages waiting (the QoS depth)" in warned[0]
+    bus.deliver()
+    assert [m for w, m in got if w == "a"] == [bytes([2]), bytes([3]), bytes([4])]
+    assert [m for w, m in got if w == "b"] == [bytes([k]) for k in range(5)]
+    assert got[-1] == ("c", b"u") and not bus.queue
+
+
 def test_a_subscription_counts_matched_publishers_not_the_graphs():
     """BusSubscription.get_publisher_count means what rclpy's does: publishers matched
     with it. A foreign publisher the graph shows is not matched before the DDS reader is

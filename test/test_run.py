@@ -246,6 +246,19 @@ def test_flexarm_run_refuses_two_layouts_at_once(capsys):
     assert "--processes and --layout split" in err
 
 
+def test_flexarm_run_refuses_the_dds_transport_with_the_split_layout(capsys):
+    """--transport dds (every message by DDS on rclpy's stock path) needs a layout without
+    the bus's socket; the split layout is joined by it: refused naming both and the fix."""
+    from flexarm_ros.cli import main
+    assert main(["run", "link_motor", "--transport", "dds", "--layout", "split",
+                 "--no-record", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--transport dds with --layout split" in err and "--layout one" in err
+    from flexarm_ros.run import run
+    with pytest.raises(ValueError, match=r"transport: got 'udp', expected one of"):
+        run("link_motor", 0.01, "lockstep", record=None, transport="udp", progress=False)
+
+
 def test_run_refuses_an_unknown_layout():
     from flexarm_ros.run import run
     with pytest.raises(ValueError, match=r"layout: got 'two', expected one of"):

@@ -38,6 +38,11 @@ def add_parser(sub) -> None:
                         "process of its own, the other nodes in this one, joined by a "
                         "socket (the plant's tick on one core, the rest on the other); "
                         "processes: one per node (default: one)")
+    r.add_argument("--transport", choices=("bus", "dds"), default="bus",
+                   help="bus: the nodes of one process hand their messages over in-process "
+                        "(DDS still carries them to every other reader; default); dds: "
+                        "every message by DDS on rclpy's stock executor path (layouts one "
+                        "and processes)")
     r.add_argument("--pin", action=argparse.BooleanOptionalAction, default=None,
                    help="with --processes or --layout split: the simulator alone on the "
                         "last CPU, the other nodes on the rest (default: on in realtime, off "
@@ -130,7 +135,13 @@ def main(args):
     if args.processes and args.layout not in (None, "processes"):
         from flexarm_ros.errors import InputError
         raise InputError(f"--processes and --layout {args.layout}: choose one layout")
+    if args.transport == "dds" and args.layout == "split":
+        from flexarm_ros.errors import InputError
+        raise InputError("--transport dds with --layout split: the split layout joins its "
+                         "two processes by the bus's socket; use --layout one or "
+                         "--processes with --transport dds")
     kw = dict(duration=args.duration, mode=args.mode, processes=args.processes, pin=args.pin,
+              transport=args.transport,
               layout="processes" if args.processes else args.layout,
               nodes=tuple(n for n in nodes if n != "recorder"),
               namespace=namespace, progress=not args.quiet,

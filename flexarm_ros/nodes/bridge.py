@@ -166,13 +166,13 @@ class Bridge:
                 del buf[:pos]
                 if posted:
                     # always: a post while the executor delivers does not wake it
-                    bus.guard.trigger_guard_condition()
+                    bus.wake()
         except (OSError, ValueError):
             pass
         finally:
             self.closed = True
             try:
-                bus.guard.trigger_guard_condition()
+                bus.wake()
             except Exception:                   # the context is already shut down
                 pass
 

@@ -79,8 +79,38 @@ def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
         if bus.routes(node, name):
             return BusSubscription(bus, node, msg_class(msgtype), name, callback, raw, QOS,
                                    events)
-    return node.create_subscription(msg_class(msgtype), topic, callback, QOS,
-                                    event_callbacks=events, raw=raw)
+    taken: list = []
+    sub = node.create_subscription(msg_class(msgtype), topic, _draining(callback, taken),
+                                   QOS, event_callbacks=events, raw=raw)
+    taken.append(sub)
+    return sub
+
+
+def _draining(callback, holder: list):
+    """``callback`` as a (message, info) callback that, after the message rclpy's executor
+    took, takes and handles every further message queued on its subscription
+    (``holder[0]``) — with ``take_message``, the call rclpy's executor itself makes per
+    message. One executor round per topic and wake-up instead of one per message: the
+    recorder takes a batch per wake-up (docs/decisions/0007-realtime-on-two-cores.md), and
+    rclpy's executor builds a wait set and a task per round."""
+    from rclpy.exceptions import InvalidHandle
+
+    from flexarm_ros.nodes.intraprocess import with_info
+    call = with_info(callback)
+
+    def on_message(msg, info):
+        call(msg, info)
+        sub = holder[0] if holder else None
+        while sub is not None:
+            try:
+                with sub.handle:
+                    more = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:              # destroyed by the callback (a crash)
+                return
+            if more is None:
+                return
+            call(*more)
+    return on_message
 
 
 def _decoded(node, msgtype: str, topic: str, callback, undecodable=None):
@@ -460,17 +490,20 @@ def stopped_from_outside(stop: StopFlag, node) -> str | None:
     return signal.Signals(stop.signum).name
 
 
-def make_executor(context, kind="drain"):
-    """The executor of the twin's nodes: ``"drain"`` (default), the lean
-    :class:`~flexarm_ros.nodes.executor.DrainExecutor`; ``"single"``, rclpy's
+def make_executor(context, kind="twin"):
+    """The executor of the twin's nodes: ``"twin"`` (default),
+    :class:`~flexarm_ros.nodes.executor.TwinExecutor` (rclpy's SingleThreadedExecutor that
+    also runs the intra-process bus, where one is installed); ``"single"``, rclpy's
     SingleThreadedExecutor; ``"events"``, rclpy's experimental EventsExecutor (fails on
     callbacks that take a MessageInfo, i.e. on the twin's nodes: kept for measurements)."""
-    if kind == "drain":
-        from flexarm_ros.nodes.executor import DrainExecutor
-        return DrainExecutor(context)
+    if kind == "twin":
+        from flexarm_ros.nodes.executor import TwinExecutor
+        return TwinExecutor(context)
     if kind == "events":
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
+    if kind != "single":
+        raise ValueError(f"executor: got {kind!r}; expected 'twin', 'single' or 'events'")
     from rclpy.executors import SingleThreadedExecutor
     return SingleThreadedExecutor(context=context)
 
@@ -572,9 +605,11 @@ def _node_main(cls, args=None) -> int:
         with profiled(cls.EXECUTABLE):
             while ctx.ok() and not stop.set and not getattr(node, "finished", False) \
                     and not getattr(node, "conflict", None):
-                exe.spin_once(timeout_sec=0.1)
                 if pause > 0:
+                    exe.spin_ready(timeout_sec=0.1)     # the batch, then the pause
                     time.sleep(pause)
+                else:
+                    exe.spin_once(timeout_sec=0.1)
         # the node's work is done: from here its exit is bounded (the recorder's from
         # when its bag is finalized, below)
         if not hasattr(node, "close"):

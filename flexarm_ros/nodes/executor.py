@@ -1,216 +1,115 @@
-"""A lean executor for the twin's nodes: one rcl wait, then every queued message.
+"""The executor of the twin's nodes: rclpy's SingleThreadedExecutor, plus the intra-process bus.
 
-rclpy's SingleThreadedExecutor hands out one callback per ``spin_once``: for each
-message it rebuilds the generator state, wraps the callback in a Task and checks every
-entity's callback group, and it waits again whenever its generator runs dry. Profiled on
-a lockstep run of ``two_link_case1`` with the recorder (18 receptions per control tick),
-that machinery took about half of the tick
-(docs/decisions/0005-a-lean-executor-and-raw-cdr.md). rclpy's
-EventsExecutor would avoid it, but (rclpy 9.1) it fails with ``SystemError`` on
-subscriptions whose callback takes a ``MessageInfo`` — which the source rule
-(:mod:`~flexarm_ros.nodes._wire`) and the recorder's stamps need.
+Built on rclpy's public API only (issue 38: the former lean executor waited on its own
+``_rclpy.WaitSet``, which tied the package to rclpy 9.1's private bindings; a test greps
+the source for private rclpy names). :class:`TwinExecutor` *is* a
+``SingleThreadedExecutor``: subscriptions, timers, services (every node's parameter
+services: ``ros2 param list/get/set/describe`` answer as from any node), guard conditions
+and waitables are waited on and called by rclpy's own code, one callback per
+``spin_once``. What it adds, when the process's nodes share an intra-process bus
+(:mod:`~flexarm_ros.nodes.intraprocess`, the one-process and split graphs):
 
-:class:`DrainExecutor` does only what the twin's nodes use: subscriptions (message
-objects or raw bytes, with or without ``MessageInfo``), timers and services (every rclpy
-node's parameter services: ``ros2 param list/get/set/describe`` answer as from any node),
-all in the one default callback group, called from the spinning thread. ``spin_once`` builds one wait set of
-every subscription and timer, waits, then calls each ready timer and *drains* each ready
-subscription — takes and handles every message queued on it, in arrival order per
-topic — before waiting again. Per topic the order is the DDS order, as with any
-executor; across topics the twin's nodes never relied on more (lockstep pairs messages
-by count per topic and the recorder by source timestamps).
+* ``spin_once`` first runs the bus's queued deliveries (round after round for up to
+  :attr:`TwinExecutor.BUS_SLICE_S`: a lockstep tick is three — state → command → effort —
+  and a wait per round cost ~0.1 ms, cProfile on two_link_case1), then waits on the nodes'
+  entities with the condition "the bus has work", so a delivery queued meanwhile returns
+  it at once — or, while deliveries are still queued, looks at them without blocking, so
+  timers and services run between slices of a lockstep cascade that never empties the bus;
+* the bus wakes a waiting executor through rclpy's public :meth:`Executor.wake` (a post
+  from the realtime pacing thread or the split layout's socket reader);
+* a callback runs holding the bus's lock: the realtime pacing thread runs node callbacks
+  too (its tick's deliveries), one thread at a time, so a node's callbacks never
+  interleave.
 
-A subscription marked ``taken_elsewhere`` is left to the thread that takes from it
-(the realtime simulator's pacing thread takes its efforts itself).
+Draining a subscription — taking every message queued on it in one callback, which the
+recorder relies on to take a batch per wake-up — is done by the subscription's callback
+itself (:func:`flexarm_ros.nodes.common.subscription`), with the same ``take_message``
+call rclpy's executor makes; so it holds with the stock executor too.
 
-When the nodes share an intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`, the
-one-process graph), the bus's guard condition is in the wait set, ``spin_once`` does
-not block while deliveries are queued, and runs those queued before it returns (the
-ones they queue in turn wait for the next call, so a lockstep run never recurses and
-the caller's stop conditions are checked every call).
-
-Not supported (and not used by the nodes): clients, waitables, other guard conditions,
-coroutine callbacks, other callback groups.
+``kind="single"`` in :func:`flexarm_ros.nodes.common.make_executor` is rclpy's
+SingleThreadedExecutor unchanged (no bus: every message by DDS), the path CI keeps green
+beside the default (``flexarm run --transport dds``).
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from contextlib import ExitStack, nullcontext
+from contextlib import nullcontext
 
-from rclpy.exceptions import InvalidHandle
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.subscription import Subscription
+from rclpy.executors import (ConditionReachedException, ExternalShutdownException,
+                             ShutdownException, SingleThreadedExecutor, TimeoutException)
 
 from flexarm_ros.nodes.intraprocess import bus_of
 
 
-def _enter(stack: ExitStack, entities) -> list:
-    """The entities whose handles are still valid, each held open by ``stack``."""
-    live = []
-    for e in entities:
-        try:
-            stack.enter_context(e.handle)
-            live.append(e)
-        except InvalidHandle:                      # destroyed since it was listed
-            pass
-    return live
-
-
-class DrainExecutor:
-    """``add_node``, ``remove_node``, ``spin_once(timeout_sec)``, ``shutdown`` — the part of
-    the rclpy executor interface the twin uses (:func:`flexarm_ros.nodes.common.node_main`,
-    :class:`flexarm_ros.run.InProcessGraph`)."""
+class TwinExecutor(SingleThreadedExecutor):
+    """rclpy's SingleThreadedExecutor that also runs the intra-process bus's deliveries
+    (module docstring). The interface is rclpy's: ``add_node``, ``remove_node``,
+    ``spin_once(timeout_sec)``, ``wake``, ``shutdown``."""
 
     BUS_SLICE_S = 0.005
     """Wall time ``spin_once`` may spend on intra-process deliveries before it looks at
-    DDS (timers, foreign messages) and returns."""
+    DDS (timers, services, foreign messages) and returns."""
 
-    def __init__(self, context):
-        self.context = context
-        self._nodes: list = []
-        self._shutdown = False
-        self._key = None          # the entities of the cached wait set (ids, held alive)
-        self._cache = None        # (ExitStack holding their handles, subs, timers, WaitSet)
+    def __init__(self, context=None):
+        super().__init__(context=context)
 
-    def add_node(self, node) -> bool:
-        if node not in self._nodes:
-            self._nodes.append(node)
-        return True
+    def _bus_has_work(self) -> bool:
+        bus = bus_of(self.context)
+        return bus is not None and bool(bus.queue)
 
-    def remove_node(self, node) -> None:
-        if node in self._nodes:
-            self._nodes.remove(node)
-        self._release()
+    READY_SLICE_S = 0.05
+    """Wall time :meth:`spin_ready` may spend calling what is ready before it returns (the
+    caller's stop conditions are looked at between calls)."""
 
-    def get_nodes(self) -> list:
-        return list(self._nodes)
+    def spin_ready(self, timeout_sec: float | None = None) -> int:
+        """Wait up to ``timeout_sec`` for work, then call everything ready now (every
+        entity one wait found ready, each subscription drained by its callback), for at
+        most :attr:`READY_SLICE_S`: the number of callbacks run. A node that pauses
+        between wake-ups (the recorder) takes a batch per wake-up so (rclpy's
+        ``spin_once`` calls one entity)."""
+        n = int(self.spin_once(timeout_sec))
+        end = time.monotonic() + self.READY_SLICE_S
+        while n and time.monotonic() < end and self.spin_once(0.0):
+            n += 1
+        return n
 
-    def shutdown(self, timeout_sec=None) -> bool:
-        self._shutdown = True
-        self._nodes = []
-        self._release()
-        return True
-
-    def _release(self) -> None:
-        """Let go of the cached wait set and the handles it holds (a destroyed entity's
-        handle is freed when released)."""
-        if self._cache is not None:
-            self._cache[0].close()
-        self._key = self._cache = None
-
-    def spin_once(self, timeout_sec: float | None = None) -> None:
-        """Wait up to ``timeout_sec`` (None: forever) for work; do all of it.
-
-        The wait set and the entered handles are kept from one call to the next while the
-        nodes' subscriptions and timers stay the same (entering ~20 handles per call cost
-        about 0.15 ms per lockstep tick, measured with cProfile on two_link_case1)."""
-        if self._shutdown or not self.context.ok():
-            self._release()
+    def spin_once(self, timeout_sec: float | None = None) -> bool:
+        """Run the bus's queued deliveries, then wait up to ``timeout_sec`` (None: forever)
+        for one ready entity (or a new delivery) and call it; True if an entity's callback
+        ran (rclpy's returns None)."""
+        ran = False
+        if not self.context.ok():
             if timeout_sec:
                 time.sleep(min(timeout_sec, 0.01))
-            return
+            return ran
         bus = bus_of(self.context)
         if bus is not None:
+            bus.waker = self.wake
             bus.spinning_thread = threading.current_thread()
             bus.poll_graph()
-            # in-process deliveries first, round after round (a lockstep tick is three:
-            # state → command → effort), for up to BUS_SLICE_S; an rcl wait per round
-            # cost ~0.1 ms (cProfile, lockstep two_link_case1)
             bus.deliver_all(self.BUS_SLICE_S)
-        subs = [s for n in self._nodes for s in n.subscriptions
-                if not getattr(s, "taken_elsewhere", False)]
-        timers = [t for n in self._nodes for t in n.timers if not t.is_canceled()]
-        services = [v for n in self._nodes for v in n.services]
-        if not subs and not timers and not services and bus is None:
-            self._release()
-            if timeout_sec:
-                time.sleep(timeout_sec)
-            return
-        key = (tuple(map(id, subs)), tuple(map(id, timers)), tuple(map(id, services)))
-        if key != self._key:
-            self._release()
-            stack = ExitStack()
-            live_subs, live_timers = _enter(stack, subs), _enter(stack, timers)
-            live_services = _enter(stack, services)
-            stack.enter_context(self.context.handle)
-            ws = _rclpy.WaitSet(len(live_subs), int(bus is not None), len(live_timers),
-                                0, len(live_services), 0, self.context.handle)
-            self._key = key
-            self._cache = (stack, live_subs, live_timers, live_services, ws)
-        _, live_subs, live_timers, live_services, ws = self._cache
-        timeout_ns = -1 if timeout_sec is None else int(max(timeout_sec, 0.0) * 1e9)
-        if bus is not None and bus.queue:
-            timeout_ns = 0
-        ws.clear_entities()
-        for s in live_subs:
-            ws.add_subscription(s.handle)
-        for t in live_timers:
-            ws.add_timer(t.handle)
-        for v in live_services:
-            ws.add_service(v.handle)
-        if bus is not None:
-            ws.add_guard_condition(bus.guard)
-        ws.wait(timeout_ns)
-        ready_subs = set(ws.get_ready_entities("subscription"))
-        ready_timers = set(ws.get_ready_entities("timer"))
-        ready_services = set(ws.get_ready_entities("service"))
-        # with a bus, the realtime pacing thread runs node callbacks too: one thread at a
-        # time (the bus's lock), so a node's callbacks never interleave
-        with (bus.lock if bus is not None else nullcontext()):
-            for t in live_timers:
-                if t.handle.pointer in ready_timers:
-                    try:
-                        with t.handle:
-                            if not t.handle.is_timer_ready():
-                                continue
-                            t.handle.call_timer()
-                    except InvalidHandle:
-                        continue
-                    t.callback()
-            for s in live_subs:
-                if s.handle.pointer in ready_subs:
-                    self._drain(s)
-            for v in live_services:
-                if v.handle.pointer in ready_services:
-                    self._serve(v)
+        # deliveries still queued (the slice ran out: a lockstep run's cascade never
+        # empties the bus): look at the entities without blocking, so timers and services
+        # run between slices; else block, returning as soon as a delivery is queued. The
+        # same arguments in a row keep rclpy's generator of the entities one wait found
+        # ready: the next calls take them without waiting again
+        busy = bus is not None and bool(bus.queue)
+        args = (0.0,) if busy else (timeout_sec, None, self._bus_has_work)
+        try:
+            handler, _entity, _node = self.wait_for_ready_callbacks(*args)
+        except (TimeoutException, ShutdownException, ConditionReachedException,
+                ExternalShutdownException):
+            pass
+        else:
+            ran = True
+            with (bus.lock if bus is not None else nullcontext()):
+                handler()
+            exc = handler.exception()
+            if exc is not None:
+                raise exc
         if bus is not None:
             bus.deliver()
             bus.flush()             # what the callbacks sent the other process, if any
-
-    @staticmethod
-    def _serve(srv) -> None:
-        """Answer every request queued on ``srv`` as rclpy's executor does: take the
-        request, call the service's callback with a fresh response, send it back."""
-        while True:
-            try:
-                with srv.handle:
-                    taken = srv.handle.service_take_request(srv.srv_type.Request)
-            except InvalidHandle:                 # destroyed by an earlier callback
-                return
-            if not taken or taken[1] is None:
-                return
-            request, header = taken
-            response = srv.callback(request, srv.srv_type.Response())
-            try:
-                srv.send_response(response, header)
-            except InvalidHandle:
-                return
-
-    @staticmethod
-    def _drain(sub) -> None:
-        """Take and handle every message queued on ``sub``."""
-        with_info = sub._callback_type is not Subscription.CallbackType.MessageOnly
-        while True:
-            try:
-                with sub.handle:
-                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            except InvalidHandle:                 # destroyed by an earlier callback
-                return
-            if taken is None:
-                return
-            if with_info:
-                sub.callback(*taken)
-            else:
-                sub.callback(taken[0])
+        return ran

@@ -26,10 +26,10 @@ message is still taken, refused or rejected exactly as before (checked every
 :data:`GRAPH_POLL_S` of wall time; like any late-joining DDS reader it misses what the
 foreign node sent before the match).
 
-Deliveries are queued and run by :class:`~flexarm_ros.nodes.executor.DrainExecutor`
+Deliveries are queued and run by :class:`~flexarm_ros.nodes.executor.TwinExecutor`
 (never inside ``publish``: a lockstep tick would otherwise recurse through the whole
 run), first in, first out across topics; a publish from another thread (the realtime
-pacing thread) wakes the executor through a guard condition.
+pacing thread) wakes the executor (rclpy's public ``Executor.wake``).
 """
 
 from __future__ import annotations
@@ -81,15 +81,15 @@ class Bus:
     deliveries :meth:`deliver` runs."""
 
     def __init__(self, context, members):
-        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
         self.context = context
         self.members = {(("/" + ns.strip("/")) if ns.strip("/") else "/", name)
                         for ns, name in members}
         self.subs: dict = {}            # absolute topic -> [BusSubscription]
         self.pubs: dict = {}            # absolute topic -> [BusPublisher]
-        self.queue: deque = deque()     # (subscription, bytes, info)
-        with context.handle:
-            self.guard = _rclpy.GuardCondition(context.handle)
+        # the order of deliveries: one entry per message queued, naming its subscription;
+        # the message waits in that subscription's inbox (bounded by its QoS depth)
+        self.queue: deque = deque()
+        self.waker = None               # the executor's wake (rclpy's public Executor.wake)
         self.spinning_thread = None     # set by the executor
         self.lock = threading.RLock()    # held by deliveries and the executor's callbacks
         self.self_delivering: set = set()   # threads that run deliver_all after publishing
@@ -128,9 +128,16 @@ class Bus:
         wake = not self.queue and not self._delivering and \
             me is not self.spinning_thread and me not in self.self_delivering
         for s in subs:
-            self.queue.append((s, data, info))
+            if s.enqueue(data, info):
+                self.queue.append(s)
         if wake:
-            self.guard.trigger_guard_condition()
+            self.wake()
+
+    def wake(self) -> None:
+        """Wake the executor that runs the deliveries (a post from another thread)."""
+        waker = self.waker
+        if waker is not None:
+            waker()
 
     def deliver(self, limit: int | None = None) -> int:
         """Run up to ``limit`` queued deliveries (all queued now: None); the number run.
@@ -141,9 +148,9 @@ class Bus:
                 n = len(self.queue) if limit is None else min(limit, len(self.queue))
                 q = self.queue
                 for _ in range(n):
-                    sub, data, info = q.popleft()
-                    if not sub.destroyed:
-                        sub.receive(data, info)
+                    sub = q.popleft()
+                    if sub.inbox and not sub.destroyed:
+                        sub.receive(*sub.inbox.popleft())
             finally:
                 self._delivering = False
         return n
@@ -272,6 +279,11 @@ class BusSubscription:
         self.qos, self.event_callbacks = qos, event_callbacks
         self.destroyed = False
         self.dds = None
+        # KEEP_LAST as DDS keeps it: at most ``depth`` messages wait; a newer one drops
+        # the oldest, counted in ``dropped`` (decision 0026 sets the twin's depth)
+        self.inbox: deque = deque()
+        self.depth = max(1, int(getattr(qos, "depth", 0) or 1))
+        self.dropped = 0
         bus.subs.setdefault(topic_abs, []).append(self)
         if bus.bridge is not None:
             bus.bridge.announce_sub(self)
@@ -293,6 +305,20 @@ class BusSubscription:
         if self.dds is not None:
             n = max(n, self.dds.get_publisher_count())
         return n
+
+    def enqueue(self, data: bytes, info) -> bool:
+        """Queue a message; False when the inbox was full (its oldest was dropped, and
+        the message takes its place in the order of deliveries)."""
+        full = len(self.inbox) >= self.depth
+        if full:
+            self.inbox.popleft()
+            self.dropped += 1
+            if self.dropped == 1:
+                self.node.get_logger().warning(
+                    f"{self.topic}: {self.depth} messages waiting (the QoS depth): the "
+                    f"oldest dropped (KEEP_LAST; counted in the subscription's `dropped`)")
+        self.inbox.append((data, info))
+        return not full
 
     def receive(self, data: bytes, info) -> None:
         if self.raw:

@@ -88,7 +88,7 @@ from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, che
 from flexarm_ros.twin.validation import FOREIGN
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes.markers import ArmMarkers
-from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
+from flexarm_ros.nodes.intraprocess import bus_of
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
 
@@ -187,7 +187,7 @@ class SimulatorNode(Node):
                              undecodable=lambda data, info, exc: reject_undecodable(
                                  self, self.core.validator, self.source, "effort", data, exc,
                                  info))
-        self._effort_sub, self._effort_ws = sub, None
+        self._effort_sub = sub
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         self.rejections = Rejections(self)
         self.diverged: SimulationDiverged | None = None
@@ -437,41 +437,15 @@ class SimulatorNode(Node):
             self._poll_efforts(min(left, 0.005))
 
     def _poll_efforts(self, wait_s: float) -> None:
-        """Realtime, in the pacing thread: wait up to ``wait_s`` for an effort, then take
-        and handle every effort queued. The executor leaves the subscription to this
-        thread (``taken_elsewhere``): no executor round trip and no hand-over between
-        threads per tick (measured: the executor thread took 0.12 of a core at 1 kHz for
-        this one message)."""
-        from rclpy.exceptions import InvalidHandle
-        sub = self._effort_sub
-        if isinstance(sub, BusSubscription):
-            # intra-process (one process): the executor thread hands the efforts over
-            # through _on_effort, which notifies this condition
-            if wait_s > 0:
-                with self._answer:
-                    answered = self.answered
-                    self._answer.wait_for(lambda: self.answered != answered, wait_s)
-            return
-        try:
-            if wait_s > 0:
-                with sub.handle, self.context.handle:
-                    if self._effort_ws is None:
-                        from rclpy.impl.implementation_singleton import \
-                            rclpy_implementation as _rclpy
-                        self._effort_ws = _rclpy.WaitSet(1, 0, 0, 0, 0, 0,
-                                                         self.context.handle)
-                    ws = self._effort_ws
-                    ws.clear_entities()
-                    ws.add_subscription(sub.handle)
-                    ws.wait(int(wait_s * 1e9))
-            while True:
-                with sub.handle:
-                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                if taken is None:
-                    return
-                sub.callback(*taken)        # _on_effort behind the CDR reader
-        except InvalidHandle:                       # destroyed while shutting down
-            return
+        """Realtime, in the pacing thread: wait up to ``wait_s`` for an effort. The
+        executor's thread takes it (``_on_effort``, which notifies this condition): by
+        the bus in one process (or the pacing thread itself, running its tick's
+        deliveries), by DDS in another layout. (Until session 22 the pacing thread took a
+        DDS effort itself on a wait set of its own: rclpy's private bindings, issue 38.)"""
+        if wait_s > 0:
+            with self._answer:
+                answered = self.answered
+                self._answer.wait_for(lambda: self.answered != answered, wait_s)
 
     def _pace(self):
         """The realtime loop (its own thread): sleep to each tick's deadline, step with the
@@ -606,7 +580,6 @@ class SimulatorNode(Node):
             # default switch interval (5 ms) would hand it over 5 ticks late
             sys.setswitchinterval(min(sys.getswitchinterval(), self.period / 10))
             self.pacer.start(self.t_wall0)
-            self._effort_sub.taken_elsewhere = True     # by the pacing thread
             self._thread = threading.Thread(target=self._pace, name="realtime-pacer",
                                             daemon=True)
             self._thread.start()

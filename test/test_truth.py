@@ -112,6 +112,23 @@ def test_a_closed_loop_is_checked_with_its_controller_in_the_loop():
     import dataclasses
     still = run_scene(dataclasses.replace(ref_sc, control=None), T, open_loop=True).columns
     assert _distance(res.columns, still, links)[0] > 100 * chk.estimate.position_m
+    # --tolerance of a closed loop (refused until session 22): certified by this check
+    # alone — met where it shows it (and the distance to rod 12 agrees), else said not met
+    # with what to change, never claimed
+    met = []
+    for tol in (1e-3, 1e-5):
+        r = run_scene(sc.with_fidelity(tolerance=tol), T)
+        s = r.summary()
+        met.append(s["tolerance_met"])
+        assert s["tolerance_m"] == tol and "checked after the run" in s["tolerance_source"]
+        p, d = _distance(r.columns, ref, links)
+        if s["tolerance_met"]:
+            assert max(p, d) <= tol and "warning" not in s, (tol, p, d, s)
+        else:
+            assert s["tolerance_met"] is False and max(p, d) > tol, (tol, p, d, s)
+            assert "not met" in s["warning"] and "--rung rod" in s["warning"]
+            assert "--rung auto" not in s["warning"]       # auto refuses this closed loop
+    assert met == [True, False]          # both verdicts seen: the test can fail either way
 
 
 def test_explain_shows_the_model_form_error(capsys):

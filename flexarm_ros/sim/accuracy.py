@@ -538,7 +538,8 @@ def truth_summary(res, out: dict) -> dict:
                f"own bound {own:.2g} m); loosen --tolerance")
     elif res.chain.fidelity.rung != "rod":
         fix = ("the floating-frame rungs keep the beam's shortening to second order only; "
-               "run the geometrically exact rung (--rung rod) or --rung auto")
+               "run the geometrically exact rung (--rung rod)"
+               + ("" if getattr(res, "closed_loop", False) else " or --rung auto"))
     else:
         fix = "add curvature terms (--refine) or shorten the step (--dt)"
     new["warning"] = (f"the tolerance {tol:.2g} m is not met: {short} against the top rung "

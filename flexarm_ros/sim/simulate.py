@@ -55,8 +55,13 @@ class SimResult:
                # the refinement the model has (fidelity.refine 0 takes the rung's default;
                # flexarm explain names the same number)
                "refine": self.chain.links[0].beam.refine, "step_s": r.dt,
-               "tolerance_m": self.accuracy.tolerance_m if self.accuracy else None,
-               "tolerance_source": self.accuracy.source if self.accuracy else None,
+               # a closed loop has no a-priori step choice: its tolerance is certified
+               # by the check after the run alone (twin/batch.simulate_closed_loop)
+               "tolerance_m": (self.accuracy.tolerance_m if self.accuracy else
+                               self.chain.fidelity.tolerance or None),
+               "tolerance_source": (self.accuracy.source if self.accuracy else
+                                    "checked after the run (closed loop: the scene's step)"
+                                    if self.chain.fidelity.tolerance else None),
                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
                                          if self.accuracy else None)}
         if self.accuracy:

@@ -8,6 +8,11 @@
   ``heavy`` (a numerical study or long run, over ~2 s on a 2-core host), ``slow`` (long
   studies CI leaves out). A test carrying none of them is marked ``quick``:
   ``python -m pytest -m quick`` is the inner loop.
+* ``extended``: the tests listed in ``test/extended.txt`` (3 s or more each, measured):
+  the README's test command (``-m "not slow and not extended"``) leaves them out to stay
+  within 5 minutes on 2 cores beside other work, and ``.ci/run`` runs them after it. A
+  file whose every test is listed, or an entry that names no collected test of its file,
+  stops the collection.
 * The ``ros`` and ``subprocess`` markers are kept true: a test that opens a ROS context or
   starts a process without its marker fails and says which marker to add, so the inner
   loop never grows a ROS graph or a child process unnoticed.
@@ -45,14 +50,46 @@ def pytest_configure(config):
             "subprocess: starts a child process (a twin in processes, a CLI, a build)",
             "heavy: a numerical study or long run (over ~2 s on a 2-core host)",
             "quick: none of ros, subprocess, heavy, slow (added by conftest): the inner "
-            "loop"):
+            "loop",
+            "extended: listed in test/extended.txt (added by conftest): 3 s or more; the "
+            "README's test command leaves them out, .ci/run runs them after it"):
         config.addinivalue_line("markers", line)
 
 
+EXTENDED_LIST = os.path.join(os.path.dirname(__file__), "extended.txt")
+
+
+def _extended() -> set:
+    """The node ids of test/extended.txt (its comments and the figures after ``#`` left)."""
+    with open(EXTENDED_LIST) as f:
+        return {line.split("#")[0].strip() for line in f
+                if line.split("#")[0].strip()}
+
+
+@pytest.hookimpl(tryfirst=True)      # before -m deselects: every collected test is seen
 def pytest_collection_modifyitems(items):
+    extended = _extended()
+    seen, files = set(), {}
     for item in items:
         if not any(item.get_closest_marker(m) for m in SET_UP):
             item.add_marker(pytest.mark.quick)
+        nodeid = item.nodeid
+        fast = True
+        if nodeid in extended:
+            item.add_marker(pytest.mark.extended)
+            seen.add(nodeid)
+            fast = False
+        if not item.get_closest_marker("slow"):
+            path = nodeid.split("::")[0]
+            files[path] = files.get(path, False) or fast
+    stale = sorted(n for n in extended - seen if n.split("::")[0] in files)
+    starved = sorted(f for f, has_fast in files.items() if not has_fast)
+    if stale or starved:
+        raise pytest.UsageError(
+            "test/extended.txt: " + "; ".join(
+                ([f"names no collected test: {', '.join(stale)}"] if stale else []) +
+                ([f"leaves no test of {', '.join(starved)} in the fast suite (keep its "
+                  f"cheapest one there)"] if starved else [])))
 
 
 class _Seen:

@@ -118,7 +118,7 @@ class InProcessGraph:
         from flexarm_ros.nodes.common import make_executor, new_run_enclave
         environment.private_graph()
         self.context = Context()
-        # the run's enclave tells its nodes from another run's (nodes/common.other_twin)
+        # the run's enclave tells its nodes from another run's (nodes/run_enclave.other_twin)
         self.enclave = enclave or new_run_enclave()
         rclpy.init(args=["flexarm", "--ros-args", "--enclave", self.enclave],
                    context=self.context, domain_id=environment.domain_id(),
@@ -357,7 +357,7 @@ class ProcessGraph:
 
     def conflict(self) -> str | None:
         """The first node's word that another twin shares the namespace and domain (a
-        node that found one at its start exits 3 and writes it: nodes/common.tell_the_run),
+        node that found one at its start exits 3 and writes it: nodes/lifecycle.tell_the_run),
         once read; None if none did."""
         path = Path(str(self.stop_file) + ".conflict")
         try:

@@ -139,8 +139,8 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    from flexarm_ros.run import ros_environment
-    ros_environment()
+    from flexarm_ros.nodes import environment
+    environment.private_graph()           # loopback, a private domain (was a stale import)
     from flexarm_ros.scene import load_scene
     from flexarm_ros.twin import topics as T
     from flexarm_ros.twin.cosim import cosimulate

@@ -149,6 +149,9 @@ def test_bytes_that_are_not_a_message_change_nothing(tmp_path, capfd):
         for junk in (b"\x00\x01\x00\x00\xff\xff\xff\x7f", b"\x00\x01", b"\x00\x01\x00\x00"):
             pub.publish(junk)
         assert g.spin_until(lambda: getattr(sim, "undecodable", 0) >= 3, 30)
+        # and the recorder, which records them in diagnostics/rejected, has taken them
+        rec = g["recorder"]
+        assert g.spin_until(lambda: rec.rejections.total() >= 3, 30)
         assert g.spin_until(lambda: sim.finished, 120)
         sim.finish(g.executor)
         assert g.spin_until(g.recorded_all, 30)

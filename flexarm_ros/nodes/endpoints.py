@@ -55,7 +55,7 @@ def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
     process whose nodes share an intra-process bus (:mod:`~flexarm_ros.nodes.intraprocess`)
     a topic published by a member node is delivered in-process."""
     from flexarm_ros.nodes._msgconv import msg_class
-    from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of
+    from flexarm_ros.nodes.intraprocess import BusSubscription, bus_of, draining
     events = SubscriptionEventCallbacks(use_default_callbacks=False)
     if plain and not raw:
         callback, raw = _decoded(node, msgtype, topic, callback, undecodable), True
@@ -66,37 +66,10 @@ def subscription(node, msgtype: str, topic: str, callback, raw: bool = False,
             return BusSubscription(bus, node, msg_class(msgtype), name, callback, raw, QOS,
                                    events)
     taken: list = []
-    sub = node.create_subscription(msg_class(msgtype), topic, _draining(callback, taken),
+    sub = node.create_subscription(msg_class(msgtype), topic, draining(callback, taken),
                                    QOS, event_callbacks=events, raw=raw)
     taken.append(sub)
     return sub
-
-
-def _draining(callback, holder: list):
-    """``callback`` as a (message, info) callback that, after the message rclpy's executor
-    took, takes and handles every further message queued on its subscription
-    (``holder[0]``) — with ``take_message``, the call rclpy's executor itself makes per
-    message. One executor round per topic and wake-up instead of one per message: the
-    recorder takes a batch per wake-up (docs/decisions/0007-realtime-on-two-cores.md), and
-    rclpy's executor builds a wait set and a task per round."""
-    from rclpy.exceptions import InvalidHandle
-
-    from flexarm_ros.nodes.intraprocess import with_info
-    call = with_info(callback)
-
-    def on_message(msg, info):
-        call(msg, info)
-        sub = holder[0] if holder else None
-        while sub is not None:
-            try:
-                with sub.handle:
-                    more = sub.handle.take_message(sub.msg_type, sub.raw)
-            except InvalidHandle:              # destroyed by the callback (a crash)
-                return
-            if more is None:
-                return
-            call(*more)
-    return on_message
 
 
 def _decoded(node, msgtype: str, topic: str, callback, undecodable=None):

@@ -334,9 +334,37 @@ class BusSubscription:
         def on_dds(m, info):
             if gid_of(info) not in self.bus.local_gids(self.topic):
                 self.callback(m, info)
+        taken: list = []
         self.dds = self.node.create_subscription(
-            self.msg_type, self.topic, on_dds, self.qos,
+            self.msg_type, self.topic, draining(on_dds, taken), self.qos,
             event_callbacks=self.event_callbacks, raw=self.raw)
+        taken.append(self.dds)
+
+
+def draining(callback, holder: list):
+    """``callback`` as a (message, info) callback that, after the message rclpy's executor
+    took, takes and handles every further message queued on its subscription
+    (``holder[0]``) — with ``take_message``, the call rclpy's executor itself makes per
+    message. One executor round per topic and wake-up instead of one per message: the
+    recorder takes a batch per wake-up (docs/decisions/0007-realtime-on-two-cores.md), and
+    rclpy's executor builds a wait set and a task per round."""
+    from rclpy.exceptions import InvalidHandle
+
+    call = with_info(callback)
+
+    def on_message(msg, info):
+        call(msg, info)
+        sub = holder[0] if holder else None
+        while sub is not None:
+            try:
+                with sub.handle:
+                    more = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:              # destroyed by the callback (a crash)
+                return
+            if more is None:
+                return
+            call(*more)
+    return on_message
 
 
 def with_info(callback):

@@ -8,7 +8,7 @@
   ``heavy`` (a numerical study or long run, over ~2 s on a 2-core host), ``slow`` (long
   studies CI leaves out). A test carrying none of them is marked ``quick``:
   ``python -m pytest -m quick`` is the inner loop.
-* ``extended``: the tests listed in ``test/extended.txt`` (3 s or more each, measured):
+* ``extended``: the tests listed in ``test/extended.txt`` (1.5 s or more each, measured):
   the README's test command (``-m "not slow and not extended"``) leaves them out to stay
   within 5 minutes on 2 cores beside other work, and ``.ci/run`` runs them after it. A
   file whose every test is listed, or an entry that names no collected test of its file,
@@ -51,7 +51,7 @@ def pytest_configure(config):
             "heavy: a numerical study or long run (over ~2 s on a 2-core host)",
             "quick: none of ros, subprocess, heavy, slow (added by conftest): the inner "
             "loop",
-            "extended: listed in test/extended.txt (added by conftest): 3 s or more; the "
+            "extended: listed in test/extended.txt (added by conftest): 1.5 s or more; the "
             "README's test command leaves them out, .ci/run runs them after it"):
         config.addinivalue_line("markers", line)
 

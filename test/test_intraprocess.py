@@ -243,7 +243,9 @@ def test_a_publisher_announced_over_the_bridge_is_the_expected_source_before_dds
         pass
 
     context = Context()
-    intraprocess._BUSES[context] = SimpleNamespace(bridge=receiving)
+    bus = SimpleNamespace(bridge=receiving, pubs={})
+    bus.local_publishers = lambda *a: intraprocess.Bus.local_publishers(bus, *a)
+    intraprocess._BUSES[context] = bus
     dds_asked = threading.Event()
 
     class Driver:                                # a subscriber whose DDS graph is empty

@@ -452,6 +452,56 @@ def test_one_source_per_topic_the_latest_wins_and_a_successor_takes_over():
         g.close()
 
 
+@pytest.mark.parametrize("in_process", [True, False])
+def test_the_expected_node_of_another_run_is_refused_as_another_run(in_process):
+    """Two twin runs on one domain and namespace show two nodes named ``controller`` on
+    the graph (issue 39). The driver's source rule takes only its own run's: in one
+    process the bus's own publisher (known without discovery), one node per process the
+    one it saw first (after its start condition, with no other twin on the graph).
+    Another run's is refused with the reason ``another run``; a user's node of another
+    name stays a second publisher."""
+    from types import SimpleNamespace
+    from flexarm_ros.nodes import _wire, intraprocess
+    from flexarm_ros.twin.validation import ANOTHER_RUN
+    topic = f"{NS}/{T.COMMANDS}"
+    mine, theirs, user = bytes([1] * 16), bytes([2] * 16), bytes([3] * 16)
+    shown = {mine: "controller"}
+
+    class Context:
+        pass
+
+    context = Context()
+    node = SimpleNamespace(
+        context=context, get_namespace=lambda: NS,
+        count_publishers=lambda t: len(shown),
+        get_publishers_info_by_topic=lambda t: [
+            SimpleNamespace(endpoint_gid=g, node_name=n, node_namespace=NS)
+            for g, n in shown.items()])
+    if in_process:
+        intraprocess._BUSES[context] = SimpleNamespace(
+            bridge=None, local_publishers=lambda t, name, ns:
+            {mine} if (t, name, ns) == (topic, "controller", NS) else set())
+    try:
+        src = _wire.Source(node, topic, expected="controller")
+        if not in_process:
+            assert src.verdict({"publisher_gid": {"data": mine}}) is None   # pinned
+        shown[theirs] = "controller"           # the newer run's controller appears
+        if in_process:                          # the bus knows its own at once
+            assert src.verdict({"publisher_gid": {"data": theirs}}) == \
+                "controller of another run"
+            assert src.reason == ANOTHER_RUN
+        assert src.verdict({"publisher_gid": {"data": mine}}) is None
+        assert src.trusted({"publisher_gid": {"data": mine}})
+        assert src.verdict({"publisher_gid": {"data": theirs}}) == "controller of another run"
+        assert src.reason == ANOTHER_RUN
+        shown[user] = "my_controller"
+        assert src.verdict({"publisher_gid": {"data": user}}) == "my_controller"
+        assert src.reason == FOREIGN
+        assert src.verdict({"publisher_gid": {"data": mine}}) is None
+    finally:
+        intraprocess._BUSES.pop(context, None)
+
+
 # ================================================================= divergence
 def _diverging_scene(tmp_path):
     """link with fidelity.max_deflection_ratio 1e-4: the 0.55 N·m pulse bends the beam

@@ -11,6 +11,16 @@ Rule, the same in every time mode and for every input of the twin's nodes:
   graph; then the next one may take over (a user's own controller in place of ours).
 * A message from any other publisher is refused: it is counted and logged (throttled) and
   changes nothing — in ``lockstep`` it does not step the plant.
+* The expected node is this run's (issue 39): a second publisher of that name in the
+  namespace — the same node of another twin run on the domain — is refused with the reason
+  ``another run``. Which GIDs are this run's: in one process (and the split layout) those
+  of the bus's own publishers (:mod:`~flexarm_ros.nodes.intraprocess`, the bridge's
+  announced ones), known without discovery; one node per process (``--processes``, or
+  nodes started by hand) pins the expected node's GIDs when it first sees them, which is
+  after its start condition let it start with no other twin on the graph
+  (:mod:`~flexarm_ros.nodes.run_enclave`). Without this, the window before a newer twin
+  sees the older one and stops (docs/decisions/0027) let the older twin's driver take the
+  newer one's commands — seen diverging a clean CI run.
 
 This guards against a second publisher by mistake (a stray ``ros2 topic pub``, a replay
 into a live twin); it is not a security boundary (a node may take any name). A publisher
@@ -27,7 +37,7 @@ from __future__ import annotations
 import time
 
 from flexarm_ros.nodes.intraprocess import bus_of, gid_of
-from flexarm_ros.twin.validation import FOREIGN, NOT_CDR
+from flexarm_ros.twin.validation import ANOTHER_RUN, FOREIGN, NOT_CDR
 
 RESOLVE_S = 0.5
 UNKNOWN = "_NODE_NAME_UNKNOWN_"
@@ -46,6 +56,8 @@ class Source:
         self._snap: dict = {}                  # GID -> (node name, namespace)
         self._count = -1                       # publishers when _snap was taken
         self._waited: set = set()              # GIDs already waited for
+        self.mine: set | None = None           # the expected node's GIDs of this run
+        self.reason = FOREIGN                  # why the last refused message was refused
 
     def _graph(self) -> dict:
         """GID -> (node name, namespace) of the topic's publishers now: the DDS graph's,
@@ -85,8 +97,13 @@ class Source:
         if gid is None or gid in self.owner:
             return None
         graph = self._snapshot(gid)
-        expected = {g for g, (name, ns) in graph.items()
-                    if self.expected and name == self.expected and ns == self.ns}
+        named = {g for g, (name, ns) in graph.items()
+                 if self.expected and name == self.expected and ns == self.ns}
+        expected = self._this_run(named, graph)
+        if gid in named and gid not in expected:
+            self.reason = ANOTHER_RUN
+            return f"{self.expected} of another run"
+        self.reason = FOREIGN
         if expected:
             self.owner = expected
         else:
@@ -100,6 +117,20 @@ class Source:
             return None
         return graph.get(gid, ("an unknown node",))[0]
 
+
+    def _this_run(self, named: set, graph: dict) -> set:
+        """Of the GIDs of publishers named like the expected node, those of this run."""
+        if not named:
+            return set()
+        bus = bus_of(self.node.context)
+        if bus is not None:
+            local = bus.local_publishers(self.topic, self.expected, self.ns)
+            if local:
+                self.mine = local
+                return named & local
+        if self.mine is None or not (self.mine & set(graph)):
+            self.mine = set(named)     # first seen, or ours left the graph: pinned again
+        return named & self.mine
 
     def trusted(self, info) -> bool:
         """The message (already given a ``None`` verdict) comes from the twin's own node
@@ -126,11 +157,15 @@ class Rejections:
             self.node.get_logger().warning(f"{topic}: rejected {text}; {total} rejected on "
                                            f"this topic so far, nothing changed")
 
-    def refused(self, topic: str, what: str, data, who: str, source: str | None) -> None:
-        """A message from a second publisher."""
+    def refused(self, topic: str, what: str, data, who: str, source: str | None,
+                reason: str = FOREIGN) -> None:
+        """A message from a second publisher (``reason``: :data:`FOREIGN`, or
+        :data:`ANOTHER_RUN` for the expected node of another twin run)."""
         what = what if data is None else f"{what} {show(data)}"
-        self.add(topic, FOREIGN, f"{what} from {who} (a second publisher; the source is "
-                                 f"{source or 'the first publisher'})")
+        why = ("another twin run's node of that name; the source is this run's"
+               if reason == ANOTHER_RUN else "a second publisher; the source is "
+               f"{source or 'the first publisher'}")
+        self.add(topic, reason, f"{what} from {who} ({why})")
 
     def invalid(self, topic: str, what: str, data, why: str, expected: str) -> None:
         """A message that failed validation."""
@@ -167,8 +202,9 @@ def reject_undecodable(node, validator, source: Source, what: str, data: bytes, 
     type``); counted by the validator and logged (throttled) like any rejection."""
     who = source.verdict(info, valid=False)
     if who is not None:
-        validator.refuse(FOREIGN)
-        node.rejections.refused(source.topic, what, None, who, source.expected)
+        validator.refuse(source.reason)
+        node.rejections.refused(source.topic, what, None, who, source.expected,
+                                source.reason)
     else:
         validator.refuse(NOT_CDR)
         node.rejections.add(source.topic, NOT_CDR, f"{len(data)} bytes that are not a "

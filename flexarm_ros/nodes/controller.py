@@ -76,7 +76,7 @@ class ControllerNode(Node):
         who = self.sources[topic].verdict(info)
         if who is not None:
             self.rejections.refused(self.sources[topic].topic, "a message", None, who,
-                                    self.sources[topic].expected)
+                                    self.sources[topic].expected, self.sources[topic].reason)
             return
         if topic == T.TOOL_CONTACT:
             m = bool(m.data)

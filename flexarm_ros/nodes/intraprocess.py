@@ -197,6 +197,18 @@ class Bus:
             gids |= self.bridge.remote_gids.get(topic_abs, set())
         return gids
 
+    def local_publishers(self, topic_abs: str, name: str, ns: str) -> set:
+        """GIDs of this run's publishers of ``topic_abs`` in node ``ns``/``name``: the
+        bus's own and those the bridge's other process announced (the source rule's
+        "this run", :mod:`~flexarm_ros.nodes._wire`)."""
+        gids = {p.gid for p in self.pubs.get(topic_abs, ())
+                if p.gid is not None and p.node.get_name() == name
+                and p.node.get_namespace() == ns}
+        if self.bridge is not None:
+            gids |= {g for g, who in self.bridge.remote_publisher_names(topic_abs).items()
+                     if who == (name, ns)}
+        return gids
+
 
 class BusPublisher:
     """A DDS publisher whose messages also go to the in-process subscribers of its topic."""

@@ -45,7 +45,6 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes._wire import Rejections, Source, reject_undecodable
-from flexarm_ros.twin.validation import FOREIGN
 
 
 class MotorDriverNode(Node):
@@ -121,9 +120,9 @@ class MotorDriverNode(Node):
         why = v.reason(data)
         who = self.source.verdict(info, valid=why is None)
         if who is not None:
-            v.refuse(FOREIGN)
+            v.refuse(self.source.reason)
             self.rejections.refused(self.source.topic, "command", data, who,
-                                    self.source.expected)
+                                    self.source.expected, self.source.reason)
             return
         if why is not None:
             v.check(data)
@@ -142,7 +141,7 @@ class MotorDriverNode(Node):
         who = self.state_source.verdict(info)
         if who is not None:
             self.rejections.refused(self.state_source.topic, "a state", None, who,
-                                    self.state_source.expected)
+                                    self.state_source.expected, self.state_source.reason)
             return
         self.states.append(m)
         self._drain()

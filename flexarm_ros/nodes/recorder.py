@@ -73,7 +73,7 @@ from flexarm_ros.scene import resolve_scene_path
 from flexarm_ros.scene.overrides import decode_sets
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.recording import missing_messages
-from flexarm_ros.twin.validation import FOREIGN, NON_FINITE, NOT_CDR, Validator
+from flexarm_ros.twin.validation import NON_FINITE, NOT_CDR, Validator
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes._msgconv import msg_class, to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
@@ -256,7 +256,7 @@ class RecorderNode(Node):
             why = None
         who = src.verdict(info, valid=why is None)
         if who is not None:
-            self._reject(topic, FOREIGN, _text(m if m is not None else _decode(tp, raw), raw),
+            self._reject(topic, src.reason, _text(m if m is not None else _decode(tp, raw), raw),
                          ts, who)
             return
         if why is not None:

@@ -85,7 +85,7 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, check_settings,
                                      ground_truth_rate, name_thread, realtime_scheduling)
-from flexarm_ros.twin.validation import FOREIGN
+
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes.markers import ArmMarkers
 from flexarm_ros.nodes.intraprocess import bus_of
@@ -487,9 +487,9 @@ class SimulatorNode(Node):
         why = v.reason(data)
         who = self.source.verdict(info, valid=why is None)
         if who is not None:
-            v.refuse(FOREIGN)
+            v.refuse(self.source.reason)
             self.rejections.refused(self.source.topic, "effort", data, who,
-                                    self.source.expected)
+                                    self.source.expected, self.source.reason)
             return
         if why is not None:
             v.check(data)

@@ -20,6 +20,7 @@ LENGTH = "wrong length"
 NON_FINITE = "non-finite"
 BEYOND = "beyond the limit"
 FOREIGN = "second publisher"
+ANOTHER_RUN = "another run"
 NOT_CDR = "not a CDR message of its type"
 
 

@@ -89,6 +89,9 @@ class Model(NamedTuple):
     rod_T: np.ndarray           # (nl, P+1, ne): ∂θ/∂η at the points and the tip
     rod_C: np.ndarray           # (nl, P+1, ne): ∂ε/∂η
     rod_W: np.ndarray           # (nl, P+1, P): the integration matrix
+    # air bearings on the table (model/bearings.py): friction at a body's bearing point
+    bearing_idx: np.ndarray     # (nb, 3) int: link, body (0 hub, 1 tip), loading actuator or −1
+    bearing_par: np.ndarray     # (nb, 5): p_x, p_y (m), μ m g₀ (N), v_s (m/s), μ b (1/m)
 
 
 class Workspace(NamedTuple):

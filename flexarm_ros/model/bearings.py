@@ -12,12 +12,17 @@ float free.
 
 The law, for a bearing at point r_b of a body with mass m, velocity v_b = J_b q̇:
 
-    F = −μ N v_b / √(|v_b|² + v_s²),     N = m g₀ + b |τ|,     Q = J_bᵀ F,
+    F = −μ(r_b) N v_b / √(|v_b|² + v_s²),     N = m g₀ + b |τ|,     Q = J_bᵀ F,
+    μ(r_b) = μ + Σ_i μ_i exp(−|r_b − c_i|²/ρ_i²),
 
 with g₀ = 9.81 m/s² (:data:`~flexarm_ros.scene.STANDARD_GRAVITY`: the table is
 horizontal, the scene's in-plane ``gravity`` is zero and says nothing about the weight), τ
 the torque of the drive whose housing the body carries (the next joint's; b = 0 elsewhere)
-and v_s the regularization speed.
+v_s the regularization speed, and the sum runs over the bearing's high spots (centre c_i
+on the table, size ρ_i): the source's friction is "random, present only at certain high
+points" (lines 4000-4001), and only a friction that depends on where the body is can move
+the oscillation centre of Case 3 for good — a uniform μ is symmetric in the swing and
+settles the centre where the first cycles leave it.
 
 Why this regularization: it is smooth (C∞) in the planar velocity and isotropic, so the
 force turns with the direction of sliding, |F| < μN always, and F → −(μN/v_s) v_b near rest
@@ -46,10 +51,12 @@ import numpy as np
 from flexarm_ros.model.compiled import jit
 from flexarm_ros.scene import STANDARD_GRAVITY, housed_drive
 
-#: slots of a bearing's parameter row (:func:`encode`): bearing point in the body frame,
-#: μ m g₀ (N), v_s (m/s), μ b (1/m)
-PX, PY, MU_WEIGHT, V_SLIP, MU_BINDING = range(5)
-N_PAR = 5
+#: slots of a bearing's parameter row (:func:`encode`): bearing point in the body frame
+#: (m), weight m g₀ (N), v_s (m/s), binding b (1/m), μ
+PX, PY, WEIGHT, V_SLIP, BINDING, MU = range(6)
+N_PAR = 6
+#: slots of a high spot's row: its bearing, centre (m), radius ρ (m), μ_i
+SPOT_BEARING, SPOT_X, SPOT_Y, SPOT_RADIUS, SPOT_MU = range(5)
 
 
 @jit
@@ -60,15 +67,28 @@ def friction_force(vx, vy, mu_load, v_slip):
     return -k * vx, -k * vy
 
 
-def encode(scene, actuators) -> tuple[np.ndarray, np.ndarray]:
+@jit
+def friction_coefficient(b, x, y, mu, spots):
+    """μ(r_b) = μ + Σ_i μ_i exp(−|r_b − c_i|²/ρ_i²) of bearing ``b`` at (x, y) (m) over the
+    rows of ``spots`` that belong to it."""
+    for i in range(spots.shape[0]):
+        if int(spots[i, 0]) == b:
+            dx = x - spots[i, 1]
+            dy = y - spots[i, 2]
+            mu += spots[i, 4] * math.exp(-(dx * dx + dy * dy) / (spots[i, 3] * spots[i, 3]))
+    return mu
+
+
+def encode(scene, actuators) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scene's bearings as the kernel's arrays: ``idx`` (nb, 3) int — link, body (0
-    hub, 1 tip), the actuator (index into ``actuators``) whose torque loads it, or −1 —
-    and ``par`` (nb, :data:`N_PAR`) float (slots :data:`PX` … :data:`MU_BINDING`).
-    Bearings with μ = 0 are left out: they float free and cost nothing."""
+    hub, 1 tip), the actuator (index into ``actuators``) whose torque loads it, or −1 —,
+    ``par`` (nb, :data:`N_PAR`) float (slots :data:`PX` … :data:`MU`) and ``spots`` (ns, 5)
+    (slots :data:`SPOT_BEARING` … :data:`SPOT_MU`). Bearings with μ = 0 and no high spot
+    are left out: they float free and cost nothing."""
     names = [lk.name for lk in scene.links]
-    rows, pars = [], []
+    rows, pars, spots = [], [], []
     for br in scene.bearings:
-        if br.friction == 0.0:
+        if br.friction == 0.0 and not any(sp.friction > 0.0 for sp in br.high_spots):
             continue
         k = names.index(br.link)
         body = getattr(scene.links[k], br.body)
@@ -77,11 +97,13 @@ def encode(scene, actuators) -> tuple[np.ndarray, np.ndarray]:
         j = housed_drive(scene, k, br.body)
         if br.binding > 0.0 and j is not None:
             ja = next((i for i, a in enumerate(actuators) if a.link == j), -1)
+        spots += [(len(rows), sp.point[0], sp.point[1], sp.radius, sp.friction)
+                  for sp in br.high_spots if sp.friction > 0.0]
         rows.append((k, 0 if br.body == "hub" else 1, ja))
-        pars.append((p[0], p[1], br.friction * body.mass * STANDARD_GRAVITY,
-                     br.slip_velocity, br.friction * br.binding))
+        pars.append((p[0], p[1], body.mass * STANDARD_GRAVITY, br.slip_velocity,
+                     br.binding if ja >= 0 else 0.0, br.friction))
     return (np.array(rows, dtype=np.int64).reshape(-1, 3),
-            np.array(pars, float).reshape(-1, N_PAR))
+            np.array(pars, float).reshape(-1, N_PAR), np.array(spots, float).reshape(-1, 5))
 
 
 def bearing_point(frame_o, frame_Jo, psi, frame_Jpsi, px, py):
@@ -93,21 +115,27 @@ def bearing_point(frame_o, frame_Jo, psi, frame_Jpsi, px, py):
     return frame_o + np.array([ax, ay]), J
 
 
+def _one(chain, b, kin, qd, torques):
+    """(r, v, F, J) of bearing b at the frames ``kin``: its point, velocity, force, Jacobian."""
+    k, j, ja = chain.bearing_idx[b]
+    par = chain.bearing_par[b]
+    fr = (kin.hub_frames if j == 0 else kin.tip_frames)[k]
+    r, J = bearing_point(fr.o, fr.Jo, fr.psi, fr.Jpsi, par[PX], par[PY])
+    v = J @ qd
+    load = par[WEIGHT] + (par[BINDING] * abs(torques[ja]) if ja >= 0 else 0.0)
+    mu = friction_coefficient(b, r[0], r[1], par[MU], chain.bearing_spots)
+    F = np.array(friction_force(v[0], v[1], mu * load, par[V_SLIP]))
+    return r, v, F, J
+
+
 def generalized_forces(chain, kin, qd, torques) -> np.ndarray:
     """Q = Σ_b J_bᵀ F_b (n,) of every bearing of ``chain`` (the numpy reference lane) at
     the frames ``kin`` and rates q̇; ``torques`` the actuators' torques (N·m) for the
     binding load."""
     Q = np.zeros(chain.n)
-    idx, par = chain.bearing_idx, chain.bearing_par
-    for b in range(len(idx)):
-        k, j, ja = idx[b]
-        fr = (kin.hub_frames if j == 0 else kin.tip_frames)[k]
-        _, J = bearing_point(fr.o, fr.Jo, fr.psi, fr.Jpsi, par[b, PX], par[b, PY])
-        v = J @ qd
-        load = par[b, MU_WEIGHT] + (par[b, MU_BINDING] * abs(torques[ja]) if ja >= 0
-                                    else 0.0)
-        fx, fy = friction_force(v[0], v[1], load, par[b, V_SLIP])
-        Q += J.T @ np.array([fx, fy])
+    for b in range(len(chain.bearing_idx)):
+        _, _, F, J = _one(chain, b, kin, qd, torques)
+        Q += J.T @ F
     return Q
 
 
@@ -117,12 +145,7 @@ def bearing_states(chain, q, qd, z, t) -> list[dict]:
     kin = chain.kinematics(q, qd, frames_only=True)
     torques = chain.actuator_torques(t, qd, z)
     out = []
-    for b, (k, j, ja) in enumerate(chain.bearing_idx):
-        par = chain.bearing_par[b]
-        fr = (kin.hub_frames if j == 0 else kin.tip_frames)[k]
-        r, J = bearing_point(fr.o, fr.Jo, fr.psi, fr.Jpsi, par[PX], par[PY])
-        v = J @ qd
-        load = par[MU_WEIGHT] + (par[MU_BINDING] * abs(torques[ja]) if ja >= 0 else 0.0)
-        F = np.array(friction_force(v[0], v[1], load, par[V_SLIP]))
+    for b in range(len(chain.bearing_idx)):
+        r, v, F, _ = _one(chain, b, kin, qd, torques)
         out.append({"point": r, "velocity": v, "force": F, "power": -float(F @ v)})
     return out

@@ -227,7 +227,8 @@ class RungChain:
         self.presc_idx = np.array(presc, dtype=int)
         self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
         # air bearings rubbing the table (model/bearings.py): link, body, loading actuator
-        self.bearing_idx, self.bearing_par = bearings.encode(scene, self.actuators)
+        self.bearing_idx, self.bearing_par, self.bearing_spots = bearings.encode(
+            scene, self.actuators)
         self.model = self._pack()                   # the compiled kernel's data, by name
         self.kernel_args = tuple(self.model)        # ... as its entry points take it
         self._ws = kchain.workspace(self.model)
@@ -324,7 +325,8 @@ class RungChain:
             act_coord=tidx, prog_code=tcode, prog_par=tpar, prog_times=ttimes,
             prog_values=tvalues, prog_len=tlen, act_kind=akind, act_par=apar, act_state=azi,
             z_lo=zlo, z_hi=zhi, backlash_idx=bidx, backlash_par=bpar, rod=ROD, rod_T=RT,
-            rod_C=RC, rod_W=RW, bearing_idx=self.bearing_idx, bearing_par=self.bearing_par)
+            rod_C=RC, rod_W=RW, bearing_idx=self.bearing_idx, bearing_par=self.bearing_par,
+            bearing_spots=self.bearing_spots)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:

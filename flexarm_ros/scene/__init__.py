@@ -11,7 +11,7 @@ from flexarm_ros.scene.loading import (DEFAULT_SCENE, config_dir, load_scene, lo
                                        resolve_scene_path, shipped_scenes)
 from flexarm_ros.scene.sections import (DRIVE_TYPES, INPUT_KINDS, INTEGRATORS, MOTION_PROGRAMS,
                                         RUNG_CHOICES, RUNGS, SENSOR_KINDS, STANDARD_GRAVITY,
-                                        TORQUE_PROGRAMS, Assumption, Backlash, Bearing, Beam, BeamDamping, Control, Drive, Fidelity,
+                                        TORQUE_PROGRAMS, Assumption, Backlash, Bearing, Beam, BeamDamping, Control, Drive, Fidelity, HighSpot,
                                         Initial, Input, Joint, JointFlexibility, Link, Program,
                                         RigidBody, Sanding, Scene, Sensor, TipBody, Tool, Wall,
                                         housed_drive, program_range)
@@ -21,7 +21,7 @@ __all__ = [
     "shipped_scenes", "DRIVE_TYPES", "INPUT_KINDS", "INTEGRATORS", "MOTION_PROGRAMS", "RUNGS",
     "RUNG_CHOICES",
     "SENSOR_KINDS", "STANDARD_GRAVITY", "TORQUE_PROGRAMS", "Assumption", "Backlash", "Bearing", "Beam", "BeamDamping",
-    "Control", "Drive", "Fidelity", "Initial", "Input", "Joint", "JointFlexibility", "Link",
+    "Control", "Drive", "Fidelity", "HighSpot", "Initial", "Input", "Joint", "JointFlexibility", "Link",
     "Program", "RigidBody", "Sanding", "Scene", "Sensor", "TipBody", "Tool", "Wall",
     "housed_drive", "program_range",
 ]

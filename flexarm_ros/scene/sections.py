@@ -454,12 +454,25 @@ STANDARD_GRAVITY = 9.81
 
 
 @dataclass(frozen=True, kw_only=True)
+class HighSpot:
+    """A high spot of the table where a bearing touches it: the friction coefficient grows
+    by μ_i exp(−|r_b − c_i|²/ρ_i²) around the point c_i (seed 000 lines 3857-3859, 4000-4001:
+    the bearings touch the table only at a few high spots)."""
+    point: tuple[float, float] = param(unit="m", doc="c_i: the spot's centre on the table "
+                                                     "(world frame)")
+    radius: float = param(unit="m", gt=0.0, doc="ρ_i: its size (1/e radius)")
+    friction: float = param(ge=0.0, le=1.0, doc="μ_i: the friction coefficient at its "
+                                                "centre, added to the bearing's")
+
+
+@dataclass(frozen=True, kw_only=True)
 class Bearing:
     """An air bearing under a hub or tip body, rubbing the table it floats on.
 
     Regularized Coulomb friction at the bearing point r_b against its planar velocity v_b:
-    F = −μ N v_b/√(|v_b|² + v_s²), N = m g₀ + b |τ| (m the body's mass, g₀ = 9.81 m/s², τ
-    the torque of the drive housed on the body), entered as Q = J_bᵀF (docs/physics.md
+    F = −μ(r_b) N v_b/√(|v_b|² + v_s²), N = m g₀ + b |τ| (m the body's mass, g₀ = 9.81
+    m/s², τ the torque of the drive housed on the body), μ(r_b) = μ + Σ_i μ_i
+    exp(−|r_b − c_i|²/ρ_i²) over the high spots, entered as Q = J_bᵀF (docs/physics.md
     §8.5; seed 000 lines 3853-3860, 3936-3938, 3990-4003: the bearings touch the table at a
     few high spots, the middle one tips and binds under an uneven load).
     """
@@ -478,6 +491,9 @@ class Bearing:
                                "housed on the body (the next joint's), N = m g₀ + b|τ|: a "
                                "bearing that tips and binds under the load the arm puts on "
                                "it (0: none)")
+    high_spots: tuple[HighSpot, ...] = param((), doc="high spots of the table where this "
+                                                     "bearing's friction grows (none: μ "
+                                                     "everywhere)")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -2,7 +2,7 @@
 predicted (issue 40 items 2 and 3).
 
     python tools/bearing_friction_seed000.py            # every study (about 2 min here)
-    python tools/bearing_friction_seed000.py case3      # one of: case1 case3 case2
+    python tools/bearing_friction_seed000.py case3      # one of: case1 case3 case2 take
 
 Prints the numbers docs/calibration_seed000.md §5 quotes, as Markdown.
 
@@ -18,6 +18,8 @@ Prints the numbers docs/calibration_seed000.md §5 quotes, as Markdown.
 * case2 — Case 2 (two_link_case2) predicted with the identified friction: f_A, f_C beside
   the experiment's 9.31-9.71 Hz, and with the binding term, which no record but Case 2
   identifies (shown as what it would take, not a fit).
+* take — what moves Case 2's frequencies: RB4's inertia and the beams' stiffness move Cases
+  1 and 2 together (friction off).
 """
 
 from __future__ import annotations
@@ -90,7 +92,19 @@ def study_case1() -> dict:
                 0.02, xtol=1e-6)
     out["reconciled"] = {"factor": f, "mu": mu}
     print(f"\nreconciled: resistance × {f:.4f} (friction-free impact {early:.2f} s), "
-          f"μ = {mu:.5f} (impact {IMPACT_EXPERIMENT:.2f} s)", flush=True)
+          f"μ = {mu:.5f} (impact {IMPACT_EXPERIMENT:.2f} s)\n", flush=True)
+    mu1 = out["two_link_case1"]["mu"][DELAYS[1]]
+    metrics = ["impact_time", "bounce_height", "frequency:acc_A_true",
+               "frequency:acc_C_true"]
+    print("| Case 1 arm | impact (s) | bounce within 0.2 s (mm) | f_A (Hz) | f_C (Hz) |\n"
+          "|---|---|---|---|---|")
+    for label, sc in (("shipped, friction off", base),
+                      (f"shipped, μ = {mu1:.5f}", with_bearings(base, mu1)),
+                      (f"reconciled, μ = {mu:.5f}", with_bearings(arm, mu))):
+        m = evaluate(simulate(sc, CASE2_DURATION), resolve_metrics(metrics, sc))
+        print(f"| {label} | {m['impact_time_s']:.3f} | {1e3 * m['bounce_height_m']:.1f} | "
+              f"{m['frequency_acc_A_true_hz']:.2f} | {m['frequency_acc_C_true_hz']:.2f} |",
+              flush=True)
     return out
 
 
@@ -167,6 +181,43 @@ def study_case3(mu: float) -> dict:
     return out
 
 
+def study_case3_amplitudes(mus=(0.0, 0.002, 0.0045, 0.01, 0.02, 0.05)) -> dict:
+    """Case 3's amplitudes under a uniform μ: the source's "very close" amplitudes (its
+    friction-free simulation against the experiment) bound μ from above."""
+    base = load_scene("two_link_case3_backlash")
+    out = {}
+    print("| uniform μ | q1 amplitude (deg) | q2 amplitude (deg) | q1 / friction-free | "
+          "q2 / friction-free |\n|---|---|---|---|---|")
+    for mu in mus:
+        r = case3_run(with_bearings(base, mu) if mu else base)
+        out[mu] = (r["q1"]["amplitude"], r["q2"]["amplitude"])
+        a0 = out[mus[0]]
+        print(f"| {mu:g} | {out[mu][0]:.3f} | {out[mu][1]:.3f} | {out[mu][0] / a0[0]:.3f} | "
+              f"{out[mu][1] / a0[1]:.3f} |", flush=True)
+    return out
+
+
+def what_it_would_take() -> None:
+    """Cases 1 and 2 ring at frequencies that move together with the arm's inertia and
+    stiffness: RB4's inertia ×1.5 or both beams' EI ×0.8, friction off."""
+    metrics = ["impact_time", "frequency:acc_A_true", "frequency:acc_C_true"]
+    print("| change (friction off) | Case 1 f_A / f_C (Hz) | Case 2 f_A / f_C (Hz) |\n"
+          "|---|---|---|")
+    for label, edit in (("none", lambda l0, l1: (l0, l1)),
+                        ("RB4 inertia × 1.5", lambda l0, l1: (l0, dataclasses.replace(
+                            l1, tip=dataclasses.replace(l1.tip, inertia=1.5 * l1.tip.inertia)))),
+                        ("beams' EI × 0.8", lambda l0, l1: tuple(dataclasses.replace(
+                            lk, beam=dataclasses.replace(lk.beam, EI=0.8 * lk.beam.EI))
+                            for lk in (l0, l1)))):
+        row = []
+        for name in ("two_link_case1", "two_link_case2"):
+            sc = load_scene(name)
+            sc = dataclasses.replace(sc, links=tuple(edit(*sc.links)))
+            m = evaluate(simulate(sc, CASE2_DURATION), resolve_metrics(metrics, sc))
+            row.append(f"{m['frequency_acc_A_true_hz']:.2f} / {m['frequency_acc_C_true_hz']:.2f}")
+        print(f"| {label} | {row[0]} | {row[1]} |", flush=True)
+
+
 def study_case2(mu: float, factor: float = 1.0) -> dict:
     base = scale_resistance(load_scene("two_link_case2"), factor)
     metrics = ["impact_time", "frequency:acc_A_true", "frequency:acc_C_true"]
@@ -194,23 +245,29 @@ def _versus(f) -> str:
 
 
 def main(argv):
-    which = argv[1:] or ["case1", "case3", "case2"]
-    mu, factor = 0.0045, 1.0
+    which = argv[1:] or ["case1", "case3", "case2", "take"]
+    mu, factor, mu_rec = 0.00446, 1.0, 0.0050
     if "case1" in which:
         print("| arm | impact without friction | μ for 0.065 s | 0.07 s | 0.075 s |\n"
               "|---|---|---|---|---|")
         c1 = study_case1()
         mu = c1["two_link_case1"]["mu"][0.07]
         factor = c1["reconciled"]["factor"]
+        mu_rec = c1["reconciled"]["mu"]
     if "case3" in which:
         print()
         study_case3(mu)
+        print()
+        study_case3_amplitudes()
     if "case2" in which:
         print()
         study_case2(mu)
         if factor != 1.0:
             print(f"\nreconciled arm (resistance × {factor:.4f}):")
-            study_case2(mu, factor)
+            study_case2(mu_rec, factor)
+    if "take" in which:
+        print()
+        what_it_would_take()
 
 
 if __name__ == "__main__":

@@ -216,3 +216,51 @@ def test_the_friction_law_is_bounded_and_opposes_the_motion():
         assert math.hypot(fx, fy) < 2.0 and fx * vx + fy * vy < 0.0
     assert friction_force(1e-6, 0.0, 2.0, 1e-3)[0] == pytest.approx(-2.0e-3, rel=1e-6)
     assert friction_force(0.0, -10.0, 2.0, 1e-3)[1] == pytest.approx(2.0, rel=1e-8)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("tau0", [3.0, -3.0])
+def test_the_binding_load_grows_with_the_housed_drives_torque(backend, tau0):
+    """RB2-like body on link 1's tip, the next joint's ideal torque τ₀ housed on it: with
+    only joint 1 turning at ω (straight arm, undeformed), the bearing point slides at
+    v = ω r and the generalized friction forces are Q_joint1 = −μ(m g₀ + b|τ₀|) r s and
+    Q_β = −μ(m g₀ + b|τ₀|)(L + c) s, s = v/√(v² + v_s²) (rigid rung: the spring angle β
+    moves the tip by L and turns the body by 1); joint 2 feels none."""
+    from flexarm_ros.model.compiled import chain as kchain
+    from flexarm_ros.model.compiled.layout import Workspace
+    m, hub_r, length, c, mu, b, vs, omega = 2.0, 0.04, 0.6, 0.05, 0.1, 2.0, 1e-3, 0.3
+    link = {"beam": {"length": length, "EI": 50.0, "mass_per_length": 0.3,
+                     "hub_radius": hub_r}, "hub": {"inertia": 1e-3}}
+    data = {"name": "binding", "links": [
+        dict(link, name="l1", tip={"mass": m, "cg": [c, 0.0], "joint_offset": [c, 0.0]}),
+        dict(link, name="l2", tip={"mass": 1.0})],
+        "inputs": [{"joint": 2, "torque": {"type": "constant", "value": tau0}}],
+        "bearings": [{"link": "l1", "friction": mu, "binding": b, "slip_velocity": vs}],
+        "fidelity": {"rung": "rigid"}}
+    on = Chain(load_scene_dict(data), backend=backend)
+    off = Chain(load_scene_dict(dict(data, bearings=[])), backend=backend)
+    if on.backend != backend:
+        pytest.skip("numba not in use")
+    q, qd = on.initial_q()
+    qd[on.names.index("l1_joint")] = omega
+    z = np.zeros(on.nz)
+
+    def forces(ch):
+        if backend == "numpy":
+            kin = ch.kinematics(q, qd)
+            Qin, _ = ch.input_forces(0.0, qd, z)
+            return Qin + kin.Qg - kin.h - ch.K @ q - ch.D @ qd + ch.bearing_forces(
+                0.0, qd, z, kin)
+        ws = kchain.workspace(ch.kernel_args)
+        kchain.forces(0.0, q.copy(), qd.copy(), z, ch.kernel_args, ws)
+        return Workspace._make(ws).f[:ch.n].copy()
+
+    dQ = forces(on) - forces(off)
+    r = hub_r + length + c
+    v = omega * r
+    load = mu * (m * STANDARD_GRAVITY + b * abs(tau0)) * v / math.hypot(v, vs)
+    assert dQ[on.names.index("l1_joint")] == pytest.approx(-load * r, rel=1e-12)
+    beta = next(i for i, nm in enumerate(on.names) if nm.startswith("l1_") and
+                nm != "l1_joint")
+    assert dQ[beta] == pytest.approx(-load * (length + c), rel=1e-12)
+    assert abs(dQ[on.names.index("l2_joint")]) < 1e-12 * load

@@ -18,8 +18,8 @@ Prints the numbers docs/calibration_seed000.md §5 quotes, as Markdown.
 * case2 — Case 2 (two_link_case2) predicted with the identified friction: f_A, f_C beside
   the experiment's 9.31-9.71 Hz, and with the binding term, which no record but Case 2
   identifies (shown as what it would take, not a fit).
-* take — what moves Case 2's frequencies: RB4's inertia and the beams' stiffness move Cases
-  1 and 2 together (friction off).
+* take — what moves Case 2's frequencies: v_s and a slower approach without friction; RB4's
+  inertia and the beams' stiffness, which move Cases 1 and 2 together (friction off).
 """
 
 from __future__ import annotations
@@ -218,6 +218,26 @@ def what_it_would_take() -> None:
         print(f"| {label} | {row[0]} | {row[1]} |", flush=True)
 
 
+def case2_sensitivity(mu: float) -> None:
+    """What sets Case 2's ringing under friction: the regularization speed v_s (0.1-10
+    mm/s), and a slower approach without friction (both resistances × 1.1, × 1.2)."""
+    metrics = ["impact_time", "frequency:acc_A_true", "frequency:acc_C_true"]
+    print("| Case 2 run | impact (s) | f_A (Hz) | f_C (Hz) |\n|---|---|---|---|")
+    base = load_scene("two_link_case2")
+    runs = []
+    for vs in (1e-4, 1e-3, 1e-2):
+        sc = with_bearings(base, mu)
+        runs.append((f"μ = {mu:.4f}, v_s = {vs * 1e3:g} mm/s", dataclasses.replace(
+            sc, bearings=tuple(dataclasses.replace(b, slip_velocity=vs)
+                               for b in sc.bearings))))
+    runs += [(f"friction off, resistances × {f:g}", scale_resistance(base, f))
+             for f in (1.0, 1.1, 1.2)]
+    for label, sc in runs:
+        m = evaluate(simulate(sc, CASE2_DURATION), resolve_metrics(metrics, sc))
+        print(f"| {label} | {m['impact_time_s']:.3f} | {m['frequency_acc_A_true_hz']:.2f} | "
+              f"{m['frequency_acc_C_true_hz']:.2f} |", flush=True)
+
+
 def study_case2(mu: float, factor: float = 1.0) -> dict:
     base = scale_resistance(load_scene("two_link_case2"), factor)
     metrics = ["impact_time", "frequency:acc_A_true", "frequency:acc_C_true"]
@@ -266,6 +286,8 @@ def main(argv):
             print(f"\nreconciled arm (resistance × {factor:.4f}):")
             study_case2(mu_rec, factor)
     if "take" in which:
+        print()
+        case2_sensitivity(mu)
         print()
         what_it_would_take()
 

@@ -264,3 +264,40 @@ def test_the_binding_load_grows_with_the_housed_drives_torque(backend, tau0):
                 nm != "l1_joint")
     assert dQ[beta] == pytest.approx(-load * (length + c), rel=1e-12)
     assert abs(dQ[on.names.index("l2_joint")]) < 1e-12 * load
+
+
+@pytest.mark.heavy
+def test_the_lockstep_twin_and_the_batch_run_carry_the_same_friction():
+    """two_link_position (the joint PD in the loop) with bearings under RB2 (binding on the
+    middle drive's torque, a high spot at its start) and RB4: every coordinate of the
+    twin's ground truth (the simulator, motor-driver and controller cores in lockstep)
+    equals the batch closed-loop run on both lanes within 1e-9, and the friction moves
+    the arm away from the run without it."""
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.batch import simulate_closed_loop
+    from flexarm_ros.twin.cosim import cosimulate
+    base = load_scene("two_link_position")
+    ch = Chain(base)
+    q0, _ = ch.initial_q()
+    rb2 = ch.point_kinematics(q0, 0 * q0, 0, "tip", base.links[0].tip.cg)[0]
+    scene = dataclasses.replace(base, bearings=(
+        Bearing(link="link1", friction=0.05, binding=0.5,
+                high_spots=(HighSpot(point=tuple(rb2), radius=0.02, friction=0.1),)),
+        Bearing(link="link2", friction=0.05)))
+    duration = 0.3
+    gt = cosimulate(scene, duration).topic(T.GT_COORDINATES)
+    t_ns = np.array([m.t_ns for m in gt], dtype=np.int64)
+    names = gt[0].data["name"]
+    q = np.array([m.data["position"] for m in gt])
+    moved = 0.0
+    free = simulate_closed_loop(base, duration, lane="reference")
+    for lane in ("reference", "compiled"):
+        res = simulate_closed_loop(scene, duration, lane=lane)
+        ns = np.round(np.asarray(res.columns["t"]) * 1e9).astype(np.int64)
+        idx = np.searchsorted(ns, t_ns)
+        assert np.array_equal(ns[idx], t_ns)
+        for j, n in enumerate(names):
+            assert np.max(np.abs(np.asarray(res.columns[n])[idx] - q[:, j])) <= 1e-9, (lane, n)
+            moved = max(moved, np.max(np.abs(np.asarray(res.columns[n])[idx]
+                                             - np.asarray(free.columns[n])[idx])))
+    assert moved > 1e-4

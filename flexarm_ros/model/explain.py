@@ -127,6 +127,18 @@ def explain(scene, chain=None) -> str:
                         f"within steps")
     else:
         omitted.append("contact (no wall in this scene)")
+    if len(chain.bearing_idx):
+        for k, j, ja in chain.bearing_idx:
+            br = next(b for b in scene.bearings
+                      if b.link == chain.links[k].name and b.body == ("hub", "tip")[j])
+            kept.append(f"air bearing under {br.link} {br.body} on the table: regularized "
+                        f"Coulomb friction μ {br.friction:g} (v_s {br.slip_velocity:g} m/s)"
+                        + (f", {len(br.high_spots)} high spot(s)" if br.high_spots else "")
+                        + (f", binding {br.binding:g} 1/m on the housed drive's torque"
+                           if ja >= 0 else ""))
+    else:
+        omitted.append("air-bearing friction (no bearings: the bodies float free on the "
+                       "table)")
     if scene.sensors:
         kept.append("sensors: " + ", ".join(f"{s.name} ({s.kind}, {s.rate_hz:g} Hz)"
                                              for s in scene.sensors))

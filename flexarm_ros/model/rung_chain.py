@@ -38,7 +38,7 @@ import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled.layout import Model
-from flexarm_ros.model import beams, drives
+from flexarm_ros.model import bearings, beams, drives
 from flexarm_ros.errors import SceneError
 from flexarm_ros.model.programs import encode, eval_motion, eval_torque
 
@@ -226,6 +226,9 @@ class RungChain:
         self.free = np.array([i for i in range(n) if i not in presc], dtype=int)
         self.presc_idx = np.array(presc, dtype=int)
         self._motion_enc = [encode(prog, th0) for _, prog, th0 in self.prescribed]
+        # air bearings rubbing the table (model/bearings.py): link, body, loading actuator
+        self.bearing_idx, self.bearing_par, self.bearing_spots = bearings.encode(
+            scene, self.actuators)
         self.model = self._pack()                   # the compiled kernel's data, by name
         self.kernel_args = tuple(self.model)        # ... as its entry points take it
         self._ws = kchain.workspace(self.model)
@@ -322,7 +325,8 @@ class RungChain:
             act_coord=tidx, prog_code=tcode, prog_par=tpar, prog_times=ttimes,
             prog_values=tvalues, prog_len=tlen, act_kind=akind, act_par=apar, act_state=azi,
             z_lo=zlo, z_hi=zhi, backlash_idx=bidx, backlash_par=bpar, rod=ROD, rod_T=RT,
-            rod_C=RC, rod_W=RW)
+            rod_C=RC, rod_W=RW, bearing_idx=self.bearing_idx, bearing_par=self.bearing_par,
+            bearing_spots=self.bearing_spots)
 
     # ----------------------------------------------------------------------------- state
     def initial_q(self) -> tuple[np.ndarray, np.ndarray]:
@@ -373,6 +377,20 @@ class RungChain:
             if a.state >= 0:
                 zd[a.state] = drives.actuator_rate(a.kind, a.par, u, w, zj)
         return Q, zd
+
+    def actuator_torques(self, t, qd, z) -> np.ndarray:
+        """Each actuator's torque on its drive coordinate (N·m) at (t, q̇, z)."""
+        z = np.zeros(self.nz) if z is None else z
+        return np.array([drives.actuator_torque(a.kind, a.par, u, qd[a.coord],
+                                                z[a.state] if a.state >= 0 else 0.0)
+                         for a, u in zip(self.actuators, self.actuator_inputs(t))])
+
+    def bearing_forces(self, t, qd, z, kin) -> np.ndarray:
+        """Generalized friction forces of the air bearings on the table (n,) at the frames
+        ``kin`` (model/bearings.py; zero without bearings)."""
+        if not len(self.bearing_idx):
+            return np.zeros(self.n)
+        return bearings.generalized_forces(self, kin, qd, self.actuator_torques(t, qd, z))
 
     def static_forces(self, q) -> np.ndarray:
         """Generalized forces at rest without inputs, Q_grav − h − K q + Q_coupling (n,):
@@ -527,6 +545,8 @@ class RungChain:
         Qin, zd = self.input_forces(t, qd, z)
         f = (Qin + self.coupling_forces(q, qd) + kin.Qg - kin.h - self.K @ q
              - self.D @ qd)
+        if len(self.bearing_idx):
+            f = f + self.bearing_forces(t, qd, z, kin)
         qdd = np.zeros(self.n)
         fr = self.free
         if len(self.presc_idx):

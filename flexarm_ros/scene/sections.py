@@ -447,6 +447,55 @@ class Wall:
         return self.friction if self.static_friction is None else self.static_friction
 
 
+#: standard gravity (m/s²) for the normal load of an air bearing on a horizontal table: the
+#: scene's ``gravity`` is the in-plane vector (zero on a horizontal table), so the weight a
+#: bearing carries comes from the body's mass and this value (docs/physics.md §8.5)
+STANDARD_GRAVITY = 9.81
+
+
+@dataclass(frozen=True, kw_only=True)
+class HighSpot:
+    """A high spot of the table where a bearing touches it: the friction coefficient grows
+    by μ_i exp(−|r_b − c_i|²/ρ_i²) around the point c_i (seed 000 lines 3857-3859, 4000-4001:
+    the bearings touch the table only at a few high spots)."""
+    point: tuple[float, float] = param(unit="m", doc="c_i: the spot's centre on the table "
+                                                     "(world frame)")
+    radius: float = param(unit="m", gt=0.0, doc="ρ_i: its size (1/e radius)")
+    friction: float = param(ge=0.0, le=1.0, doc="μ_i: the friction coefficient at its "
+                                                "centre, added to the bearing's")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Bearing:
+    """An air bearing under a hub or tip body, rubbing the table it floats on.
+
+    Regularized Coulomb friction at the bearing point r_b against its planar velocity v_b:
+    F = −μ(r_b) N v_b/√(|v_b|² + v_s²), N = m g₀ + b |τ| (m the body's mass, g₀ = 9.81
+    m/s², τ the torque of the drive housed on the body), μ(r_b) = μ + Σ_i μ_i
+    exp(−|r_b − c_i|²/ρ_i²) over the high spots, entered as Q = J_bᵀF (docs/physics.md
+    §8.5; seed 000 lines 3853-3860, 3936-3938, 3990-4003: the bearings touch the table at a
+    few high spots, the middle one tips and binds under an uneven load).
+    """
+    link: str = param(doc="the link whose body stands on the bearing (a links[].name)")
+    body: str = param("tip", choices=("hub", "tip"), doc="which body of that link")
+    position: Optional[tuple[float, float]] = param(
+        None, unit="m", doc="bearing point in the body's frame (none: the body's CG)")
+    friction: float = param(0.0, ge=0.0, le=1.0,
+                            doc="Coulomb coefficient μ between bearing and table (0: floats "
+                                "free)")
+    slip_velocity: float = param(1e-3, unit="m/s", gt=0.0,
+                                 doc="regularization speed v_s: below it the friction "
+                                     "grows linearly with the speed (the stick)")
+    binding: float = param(0.0, unit="1/m", ge=0.0,
+                           doc="b: extra normal load per N·m of the torque of the drive "
+                               "housed on the body (the next joint's), N = m g₀ + b|τ|: a "
+                               "bearing that tips and binds under the load the arm puts on "
+                               "it (0: none)")
+    high_spots: tuple[HighSpot, ...] = param((), doc="high spots of the table where this "
+                                                     "bearing's friction grows (none: μ "
+                                                     "everywhere)")
+
+
 @dataclass(frozen=True, kw_only=True)
 class Tool:
     """The tool point that touches walls, fixed in the last link's tip-body frame."""
@@ -610,6 +659,9 @@ class Scene:
     walls: tuple[Wall, ...] = param((), doc="walls the tool can touch (none: no contact "
                                            "model)")
     tool: Tool = param(default_factory=Tool, doc="the tool point on the last body")
+    bearings: tuple[Bearing, ...] = param((), doc="air bearings rubbing the table under hub "
+                                                  "or tip bodies (none: the bodies float "
+                                                  "free)")
     control: Optional[Control] = param(
         None, doc="the bench's controller and motor driver. Declared: every run of the scene "
                   "— the ROS twin and every batch command — runs them in the loop at "
@@ -681,6 +733,7 @@ class Scene:
             raise SceneError(f"walls: got {len(self.walls)} walls, expected at most one "
                              f"(one contact constraint at a time)")
         names = [lk.name for lk in self.links]
+        self._check_bearings(names)
         sensor_names = set()
         for k, sn in enumerate(self.sensors):
             where = f"sensors[{k}]"
@@ -723,6 +776,31 @@ class Scene:
             raise SceneError(f"fidelity.output_dt: got {self.fidelity.output_dt} s, expected "
                              f"at most the duration {self.duration} s (the output would hold "
                              f"the start sample only)")
+
+    def _check_bearings(self, names):
+        """Each bearing on an existing link's body with mass (its weight is the normal
+        load), one bearing per body; binding only where a drive is housed on the body."""
+        seen = {}
+        for k, br in enumerate(self.bearings):
+            where = f"bearings[{k}]"
+            if br.link not in names:
+                raise SceneError(f"{where}.link: got {br.link!r}, expected one of "
+                                 f"{', '.join(names)}")
+            i = names.index(br.link)
+            body = getattr(self.links[i], br.body)
+            if body.mass <= 0.0:
+                raise SceneError(f"{where}.body: got {br.body!r} on link {br.link!r}, whose "
+                                 f"mass is 0 (links[{i}].{br.body}.mass); expected a body "
+                                 f"with mass (its weight is the bearing's normal load)")
+            if (i, br.body) in seen:
+                raise SceneError(f"{where}.link: got {br.link!r} {br.body} again (also "
+                                 f"bearings[{seen[(i, br.body)]}]), expected one bearing "
+                                 f"per body")
+            seen[(i, br.body)] = k
+            if br.binding > 0.0 and housed_drive(self, i, br.body) is None:
+                raise SceneError(f"{where}.binding: got {br.binding} on link {br.link!r} "
+                                 f"{br.body}, which houses no drive (the next joint's); "
+                                 f"expected 0 or a tip body carrying the next link's drive")
 
     def _check_encoder_range(self, k, sn, drive):
         """Counts per output revolution × ENCODER_REVOLUTIONS must fit int32."""
@@ -806,6 +884,18 @@ class Scene:
         data.update(changes)
         fid = from_mapping(Fidelity, data, "fidelity")
         return dataclasses.replace(self, fidelity=fid)
+
+
+def housed_drive(scene, link: int, body: str):
+    """The 0-based joint whose drive's housing the body carries — the next joint's for a
+    tip body (the gearbox stands on it and turns the next link), none for a hub (it turns
+    with its own joint's output) or the last tip — or None when that joint has no drive
+    and no input."""
+    if body != "tip" or link + 1 >= len(scene.links):
+        return None
+    j = link + 1
+    has_input = any(inp.joint == j + 1 and inp.motion is None for inp in scene.inputs)
+    return j if (scene.links[j].joint.drive is not None or has_input) else None
 
 
 def program_fields(prog: Program, where: str) -> str:

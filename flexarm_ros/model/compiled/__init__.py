@@ -11,7 +11,7 @@ from pathlib import Path
 
 #: files outside this package whose functions numba compiles (the programs are compiled
 #: in chain.py); every module of this package counts as well (:func:`compiled_sources`)
-_OTHER_SOURCES = ("drives.py", "programs.py")
+_OTHER_SOURCES = ("bearings.py", "drives.py", "programs.py")
 
 
 def compiled_sources() -> list[Path]:

@@ -21,6 +21,7 @@ from flexarm_ros.model.compiled import (  # noqa: F401
     HAVE_NUMBA, jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw)
 from flexarm_ros.model.compiled.layout import named, workspace  # noqa: F401  (kchain.workspace)
 from flexarm_ros.model.drives import actuator_rate, actuator_torque, backlash_torque
+from flexarm_ros.model.bearings import friction_coefficient, friction_force
 
 eval_torque_c = _jit(eval_torque)
 eval_motion_c = _jit(eval_motion)
@@ -726,9 +727,51 @@ def fill_forces(t, q, qd, z, model, ws):
                                 qd[im] - qd[jl])
         f[im] -= tau
         f[jl] += tau
+    _bearing_forces(t, qd, z, model, ws, f)
     for j in range(npr):
         for i in range(n):
             f[i] -= M[i, presc[j]] * pdd[j]
+
+
+@_jit_inline
+def _bearing_forces(t, qd, z, model, ws, f):
+    """f += J_bᵀF_b of every air bearing on the table (model/bearings.py, the numpy
+    reference): F_b = −μ(r_b)N v_b/√(|v_b|² + v_s²) at the bearing point p of a body frame
+    kept by chain_terms, r_b = o + A p, v_b = J_b q̇, J_b = J_o + (E A p) J_ψ,
+    N = m g₀ + b|τ| (τ: the loading actuator's torque)."""
+    bix = model.bearing_idx
+    bpr = model.bearing_par
+    fr = ws.frames
+    fj = ws.frame_jac
+    n = model.n
+    for b in range(bix.shape[0]):
+        k = bix[b, 0]
+        j = bix[b, 1]
+        ja = bix[b, 2]
+        c = math.cos(fr[k, j, 4])
+        s = math.sin(fr[k, j, 4])
+        ax = c * bpr[b, 0] - s * bpr[b, 1]
+        ay = s * bpr[b, 0] + c * bpr[b, 1]
+        vx = 0.0
+        vy = 0.0
+        for i in range(n):
+            vx += (fj[k, j, 0, i] - ay * fj[k, j, 2, i]) * qd[i]
+            vy += (fj[k, j, 1, i] + ax * fj[k, j, 2, i]) * qd[i]
+        load = bpr[b, 2]
+        if ja >= 0:
+            Lj = model.prog_len[ja]
+            u = eval_torque_c(model.prog_code[ja], model.prog_par[ja],
+                              model.prog_times[ja, :Lj], model.prog_values[ja, :Lj], t)
+            zj = z[model.act_state[ja]] if model.act_state[ja] >= 0 else 0.0
+            tau = actuator_torque_c(model.act_kind[ja], model.act_par[ja], u,
+                                    qd[model.act_coord[ja]], zj)
+            load += bpr[b, 4] * abs(tau)
+        mu = friction_coefficient(b, fr[k, j, 0] + ax, fr[k, j, 1] + ay, bpr[b, 5],
+                                  model.bearing_spots)
+        fx, fy = friction_force(vx, vy, mu * load, bpr[b, 3])
+        for i in range(n):
+            f[i] += (fj[k, j, 0, i] - ay * fj[k, j, 2, i]) * fx + (
+                fj[k, j, 1, i] + ax * fj[k, j, 2, i]) * fy
 
 
 @_jit_raw

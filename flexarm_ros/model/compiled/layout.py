@@ -89,6 +89,10 @@ class Model(NamedTuple):
     rod_T: np.ndarray           # (nl, P+1, ne): ∂θ/∂η at the points and the tip
     rod_C: np.ndarray           # (nl, P+1, ne): ∂ε/∂η
     rod_W: np.ndarray           # (nl, P+1, P): the integration matrix
+    # air bearings on the table (model/bearings.py): friction at a body's bearing point
+    bearing_idx: np.ndarray     # (nb, 3) int: link, body (0 hub, 1 tip), loading actuator or −1
+    bearing_par: np.ndarray     # (nb, 6): p_x, p_y (m), m g₀ (N), v_s (m/s), b (1/m), μ
+    bearing_spots: np.ndarray   # (ns, 5): bearing, centre x, y (m), radius (m), μ_i
 
 
 class Workspace(NamedTuple):

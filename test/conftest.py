@@ -7,7 +7,7 @@
   ``subprocess`` (it starts a child process: a twin in processes, a CLI, a build),
   ``heavy`` (a numerical study or long run, over ~2 s on a 2-core host), ``slow`` (long
   studies CI leaves out). A test carrying none of them is marked ``quick``:
-  ``python -m pytest -m quick`` is the inner loop.
+  ``python -m pytest -m "quick and not extended"`` is the inner loop.
 * ``extended``: the tests listed in ``test/extended.txt`` (1.5 s or more each, measured):
   the README's test command (``-m "not slow and not extended"``) leaves them out to stay
   within 5 minutes on 2 cores beside other work, and ``.ci/run`` runs them after it. A

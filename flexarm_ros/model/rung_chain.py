@@ -349,6 +349,18 @@ class RungChain:
             out[:, j] = eval_motion(code, p, t)
         return out
 
+    def prescribed_series(self, ts) -> np.ndarray:
+        """:meth:`prescribed_state` at every time of ``ts``: (len(ts), 3, prescribed),
+        the same floats (one compiled loop per prescribed coordinate)."""
+        from flexarm_ros.model.compiled.chain import motion_series
+        ts = np.ascontiguousarray(ts, dtype=float)
+        out = np.empty((len(ts), 3, len(self._motion_enc)))
+        col = np.empty((len(ts), 3))
+        for j, (code, p, _, _) in enumerate(self._motion_enc):
+            motion_series(code, np.asarray(p, dtype=float), ts, col)
+            out[:, :, j] = col
+        return out
+
     def actuator_inputs(self, t) -> np.ndarray:
         """Program values u(t) of the actuators (N·m, V or A)."""
         return np.array([eval_torque(a.enc[0], a.enc[1], a.enc[2], a.enc[3], t)

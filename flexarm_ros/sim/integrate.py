@@ -80,10 +80,10 @@ class Integration:
         nf = len(chain.free)
         q[:, chain.free] = xs[:, :nf]
         qd[:, chain.free] = xs[:, nf:2 * nf]
-        for k, tk in enumerate(t if len(chain.presc_idx) else ()):
-            p = chain.prescribed_state(tk)
-            q[k, chain.presc_idx] = p[0]
-            qd[k, chain.presc_idx] = p[1]
+        if len(chain.presc_idx):
+            p = chain.prescribed_series(t)
+            q[:, chain.presc_idx] = p[:, 0]
+            qd[:, chain.presc_idx] = p[:, 1]
         return cls(t, q, qd, xs[:, 2 * len(chain.free):].copy(), 0,
                    "integration reached the end time", rhs_evaluations, steps, wall_time_s, dt)
 

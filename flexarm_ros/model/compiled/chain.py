@@ -39,6 +39,14 @@ def motion_series(code, p, ts, out):
         out[k, 2] = thdd
 
 
+@_jit
+def torque_series(code, p, times, values, ts, out):
+    """out[k] = the program's value at ts[k] (:func:`eval_torque` per sample in one
+    compiled loop)."""
+    for k in range(ts.shape[0]):
+        out[k] = eval_torque_c(code, p, times, values, ts[k])
+
+
 actuator_torque_c = actuator_torque      # compiled in drives (they call each other)
 actuator_rate_c = actuator_rate
 backlash_torque_c = backlash_torque

@@ -352,12 +352,11 @@ class RungChain:
     def prescribed_series(self, ts) -> np.ndarray:
         """:meth:`prescribed_state` at every time of ``ts``: (len(ts), 3, prescribed),
         the same floats (one compiled loop per prescribed coordinate)."""
-        from flexarm_ros.model.compiled.chain import motion_series
         ts = np.ascontiguousarray(ts, dtype=float)
         out = np.empty((len(ts), 3, len(self._motion_enc)))
         col = np.empty((len(ts), 3))
         for j, (code, p, _, _) in enumerate(self._motion_enc):
-            motion_series(code, np.asarray(p, dtype=float), ts, col)
+            kchain.motion_series(code, np.asarray(p, dtype=float), ts, col)
             out[:, :, j] = col
         return out
 
@@ -370,13 +369,12 @@ class RungChain:
         """:meth:`actuator_inputs` at every time of ``ts``: (len(ts), actuators), the same
         floats (one compiled loop per actuator: a Python call per sample was 8 % of a 1 s
         two_link_free's whole call)."""
-        from flexarm_ros.model.compiled.chain import torque_series
         ts = np.ascontiguousarray(ts, dtype=float)
         u = np.empty((len(ts), len(self.actuators)))
         col = np.empty(len(ts))
         for j, a in enumerate(self.actuators):
             code, p, times, values = a.enc
-            torque_series(code, p, times, values, ts, col)
+            kchain.torque_series(code, p, times, values, ts, col)
             u[:, j] = col
         return u
 

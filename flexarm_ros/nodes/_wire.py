@@ -56,7 +56,7 @@ class Source:
         self._snap: dict = {}                  # GID -> (node name, namespace)
         self._count = -1                       # publishers when _snap was taken
         self._waited: set = set()              # GIDs already waited for
-        self.mine: set | None = None           # the expected node's GIDs of this run
+        self.mine: set | None = None           # the expected node's GIDs, pinned (no bus)
         self.reason = FOREIGN                  # why the last refused message was refused
 
     def _graph(self) -> dict:
@@ -117,7 +117,6 @@ class Source:
             return None
         return graph.get(gid, ("an unknown node",))[0]
 
-
     def _this_run(self, named: set, graph: dict) -> set:
         """Of the GIDs of publishers named like the expected node, those of this run."""
         if not named:
@@ -126,7 +125,6 @@ class Source:
         if bus is not None:
             local = bus.local_publishers(self.topic, self.expected, self.ns)
             if local:
-                self.mine = local
                 return named & local
         if self.mine is None or not (self.mine & set(graph)):
             self.mine = set(named)     # first seen, or ours left the graph: pinned again
@@ -157,15 +155,15 @@ class Rejections:
             self.node.get_logger().warning(f"{topic}: rejected {text}; {total} rejected on "
                                            f"this topic so far, nothing changed")
 
-    def refused(self, topic: str, what: str, data, who: str, source: str | None,
-                reason: str = FOREIGN) -> None:
-        """A message from a second publisher (``reason``: :data:`FOREIGN`, or
-        :data:`ANOTHER_RUN` for the expected node of another twin run)."""
+    def refused(self, source: "Source", what: str, data, who: str) -> None:
+        """A message that ``source`` (its topic's rule) refused from ``who``, for the
+        reason it gives: :data:`FOREIGN`, or :data:`ANOTHER_RUN` for the expected node of
+        another twin run."""
         what = what if data is None else f"{what} {show(data)}"
         why = ("another twin run's node of that name; the source is this run's"
-               if reason == ANOTHER_RUN else "a second publisher; the source is "
-               f"{source or 'the first publisher'}")
-        self.add(topic, reason, f"{what} from {who} ({why})")
+               if source.reason == ANOTHER_RUN else "a second publisher; the source is "
+               f"{source.expected or 'the first publisher'}")
+        self.add(source.topic, source.reason, f"{what} from {who} ({why})")
 
     def invalid(self, topic: str, what: str, data, why: str, expected: str) -> None:
         """A message that failed validation."""
@@ -203,8 +201,7 @@ def reject_undecodable(node, validator, source: Source, what: str, data: bytes, 
     who = source.verdict(info, valid=False)
     if who is not None:
         validator.refuse(source.reason)
-        node.rejections.refused(source.topic, what, None, who, source.expected,
-                                source.reason)
+        node.rejections.refused(source, what, None, who)
     else:
         validator.refuse(NOT_CDR)
         node.rejections.add(source.topic, NOT_CDR, f"{len(data)} bytes that are not a "

@@ -75,8 +75,7 @@ class ControllerNode(Node):
     def _on(self, topic, m, info=None):
         who = self.sources[topic].verdict(info)
         if who is not None:
-            self.rejections.refused(self.sources[topic].topic, "a message", None, who,
-                                    self.sources[topic].expected, self.sources[topic].reason)
+            self.rejections.refused(self.sources[topic], "a message", None, who)
             return
         if topic == T.TOOL_CONTACT:
             m = bool(m.data)

@@ -121,8 +121,7 @@ class MotorDriverNode(Node):
         who = self.source.verdict(info, valid=why is None)
         if who is not None:
             v.refuse(self.source.reason)
-            self.rejections.refused(self.source.topic, "command", data, who,
-                                    self.source.expected, self.source.reason)
+            self.rejections.refused(self.source, "command", data, who)
             return
         if why is not None:
             v.check(data)
@@ -140,8 +139,7 @@ class MotorDriverNode(Node):
     def _on_state(self, m, info):
         who = self.state_source.verdict(info)
         if who is not None:
-            self.rejections.refused(self.state_source.topic, "a state", None, who,
-                                    self.state_source.expected, self.state_source.reason)
+            self.rejections.refused(self.state_source, "a state", None, who)
             return
         self.states.append(m)
         self._drain()

@@ -85,7 +85,6 @@ from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import SimulatorCore
 from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, check_settings,
                                      ground_truth_rate, name_thread, realtime_scheduling)
-
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes.markers import ArmMarkers
 from flexarm_ros.nodes.intraprocess import bus_of
@@ -488,8 +487,7 @@ class SimulatorNode(Node):
         who = self.source.verdict(info, valid=why is None)
         if who is not None:
             v.refuse(self.source.reason)
-            self.rejections.refused(self.source.topic, "effort", data, who,
-                                    self.source.expected, self.source.reason)
+            self.rejections.refused(self.source, "effort", data, who)
             return
         if why is not None:
             v.check(data)

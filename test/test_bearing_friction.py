@@ -7,9 +7,7 @@ bit-identical, bad keys refused, and Case 3's centre drifting only with friction
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -181,21 +179,13 @@ def test_two_bearings_under_one_body_are_refused():
         load_scene_dict(data)
 
 
-def _study():
-    path = Path(__file__).resolve().parents[1] / "tools" / "bearing_friction_seed000.py"
-    spec = importlib.util.spec_from_file_location("bearing_friction_seed000", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.mark.heavy
 def test_case3_centre_drifts_with_a_high_spot_and_not_without_friction():
     """Case 3 (backlash, ±0.5 V square waves): the angles swing at the drive's 0.667 Hz
     with or without friction; the oscillation centre (per-cycle means) drifts — a slope
     beyond three standard errors — with friction that depends on where the bearing is
     (a high spot on RB2's path), and not without friction. Ten periods."""
-    st = _study()
+    from flexarm_ros.studies import bearings_seed000 as st
     base = load_scene("two_link_case3_backlash")
     T = 10 / st.DRIVE_HZ
     off = st.case3_run(base, T)
@@ -206,6 +196,46 @@ def test_case3_centre_drifts_with_a_high_spot_and_not_without_friction():
             assert 0.5 < r[q]["amplitude"] < 3.0          # degrees: a few, as the source
     assert all(abs(off[q]["drift"]) < 2.0 * off[q]["drift_se"] for q in ("q1", "q2"))
     assert all(abs(on[q]["drift"]) > 3.0 * on[q]["drift_se"] for q in ("q1", "q2"))
+
+
+@pytest.mark.heavy
+@pytest.mark.subprocess
+def test_the_study_runs_its_batches_on_the_runner_alike_here_and_on_dask():
+    """The seed-000 study runs a batch of simulations as one call of the ensemble runner,
+    not a loop of its own: Case 3's amplitudes for μ = 0 and 0.0045 (two and a half drive
+    periods: two whole ones) are one batch of one task per μ; in this process and on a
+    Dask local cluster of two workers they are the same numbers (the printed table to the
+    digit, the values to round-off — bit-identical when measured, but the workers run
+    numpy's BLAS single-threaded); and each is the amplitude a direct ``simulate`` of the
+    same scene gives, read here from its joint angles (half the range over the second
+    period)."""
+    pytest.importorskip("distributed")
+    from flexarm_ros.ensemble.runner import SerialExecutor, open_executor
+    from flexarm_ros.studies import bearings_seed000 as st
+
+    class Counting(SerialExecutor):
+        def __init__(self):
+            self.batches = []
+
+        def map(self, fn, items, *args, **kwargs):
+            self.batches.append((fn, len(items)))
+            return super().map(fn, items, *args, **kwargs)
+
+    mus, per = (0.0, 0.0045), 1.0 / st.DRIVE_HZ
+    serial_ex = Counting()
+    serial = st.case3_amplitudes(mus, serial_ex, 2.5 * per)
+    assert serial_ex.batches == [(st.case3_variant, len(mus))]
+    with open_executor(2) as ex:
+        dask = st.case3_amplitudes(mus, ex, 2.5 * per)
+    assert st.case3_amplitudes_table(dask) == st.case3_amplitudes_table(serial)
+    base = load_scene("two_link_case3_backlash")
+    for mu in mus:
+        assert dask[mu] == pytest.approx(serial[mu], rel=1e-12, abs=0.0)
+        c = simulate(st.with_bearings(base, mu) if mu else base, 2.5 * per).columns
+        second = (c["t"] >= per) & (c["t"] < 2 * per)
+        truth = [0.5 * np.ptp(np.degrees(c[f"{lk.name}_joint"][second])) for lk in base.links]
+        assert serial[mu] == pytest.approx(truth, rel=1e-12, abs=0.0)
+    assert serial[0.0045][0] < 0.99 * serial[0.0][0]     # the friction is there
 
 
 def test_the_friction_law_is_bounded_and_opposes_the_motion():

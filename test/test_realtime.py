@@ -213,6 +213,18 @@ def test_cpu_placement_puts_the_simulator_alone():
     assert cpu_placement(["recorder"], cpus={0, 1}) == {}
 
 
+def test_realtime_in_processes_on_few_cpus_is_told_it_falls_behind():
+    """Decision 0031: five processes need ~2.2 ms of CPU per 1 ms tick on 2 cores; the run
+    says so before it starts, and nothing where the layout keeps the clock."""
+    from flexarm_ros.run.supervision import PROCESSES_REALTIME_CPUS, layout_note
+    note = layout_note("processes", "realtime", 2)
+    assert "2 CPUs" in note and "0031" in note and "--layout one" in note
+    assert layout_note("processes", "realtime", PROCESSES_REALTIME_CPUS) is None
+    for layout, mode in (("processes", "lockstep"), ("processes", "fast"),
+                         ("one", "realtime"), ("split", "realtime")):
+        assert layout_note(layout, mode, 1) is None
+
+
 def test_a_stalled_effort_source_is_waited_for_again_once_it_speaks():
     """The realtime plant's bound on running ahead of the efforts: after one timed-out
     wait the source counts as silent (no wait per tick while it is dead), but the first

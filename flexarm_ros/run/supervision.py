@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -145,6 +146,9 @@ def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
                                                   "start_timeout_s", "marker_rate_hz")})
     record = Path(record) if record else None
     cpus = len(os.sched_getaffinity(0))       # before a split graph pins this process
+    note = layout_note(layout, mode, cpus)
+    if progress and note:
+        print(note, file=sys.stderr, flush=True)
     stop = StopFlag()
     try:
         if processes:
@@ -287,11 +291,27 @@ def _compile_once(scene, progress: bool) -> None:
         DriverCore(scene)
 
 
+#: CPUs below which ``--processes`` in realtime is told it will fall behind (five
+#: processes at 2.2 ms of CPU per 1 ms tick on 2 cores; decision 0031)
+PROCESSES_REALTIME_CPUS = 4
+
+
+def layout_note(layout: str, mode: str, cpus: int) -> str | None:
+    """The line a run prints before it starts when its layout cannot keep the clock on
+    this many CPUs (None: nothing to say)."""
+    if layout == "processes" and mode == "realtime" and cpus < PROCESSES_REALTIME_CPUS:
+        return (f"note: realtime with one process per node on {cpus} CPUs: measured at "
+                f"1 kHz on 2 cores it needs ~2.2 ms of CPU per 1 ms tick and falls behind "
+                f"(docs/decisions/0031-three-layouts-kept.md); --layout one or split keep "
+                f"the clock here")
+    return None
+
+
 def default_layout(mode: str) -> str:
-    """One process in every mode: on the 2-core host "split" did not keep the wall clock
-    measurably better in realtime
-    (docs/decisions/0009-the-bag-writer-process-and-the-split-layout.md);
-    bench/bench_realtime.py compares the layouts on the machine at hand."""
+    """One process in every mode: the only layout that keeps the wall clock beside other
+    work; split starts a few more ticks on time on an idle host
+    (docs/decisions/0031-three-layouts-kept.md); bench/bench_realtime.py compares the
+    layouts on the machine at hand."""
     return "one"
 
 

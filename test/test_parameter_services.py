@@ -1,8 +1,8 @@
 """The twin's nodes answer their parameter services as any rclpy node does (issue 38).
 
-A twin runs in a child process (``flexarm run``, realtime, in each layout; in one
-process also with every message by DDS, ``--transport dds``, and in lockstep, whose
-cascade of deliveries never empties the intra-process bus); this process
+A twin runs in a child process (``flexarm run``, realtime, in each layout — one, split,
+processes; in one process also with every message by DDS, ``--transport dds``, and in
+lockstep, whose cascade of deliveries never empties the intra-process bus); this process
 is a plain ROS 2 user with rclpy's own service clients — what ``ros2 param list/get/set/
 describe`` sends. Every node lists its parameters, gives their values (the scene the twin
 runs), describes them (read-only, with a description), and refuses a set with the reason
@@ -47,7 +47,7 @@ def _call(node, executor, srv_type, name, request, timeout=30.0):
         node.destroy_client(client)
 
 
-@pytest.fixture(params=["one", "processes", "one-dds", "one-lockstep"])
+@pytest.fixture(params=["one", "split", "processes", "one-dds", "one-lockstep"])
 def twin(request):
     """A twin long enough for the queries: realtime in the given layout (and transport),
     or lockstep in one process."""
@@ -58,6 +58,8 @@ def twin(request):
             "--namespace", NS]
     if request.param == "processes":
         argv.append("--processes")
+    if request.param == "split":
+        argv += ["--layout", "split"]
     if request.param == "one-dds":
         argv += ["--transport", "dds"]
     proc = subprocess.Popen(argv, env=child_environment(), stdout=subprocess.DEVNULL,

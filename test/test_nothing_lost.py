@@ -175,6 +175,7 @@ def test_a_second_twin_in_the_namespace_stops_and_the_first_runs_on(tmp_path, la
                    and (tmp_path / "a.mcap").stat().st_size > 200_000):
             assert first.poll() is None, first.communicate()
             time.sleep(0.02)
+        (tmp_path / "b.mcap").write_bytes(b"a bag the user keeps")    # must survive
         second = subprocess.Popen(cmd + args + ["--record", str(tmp_path / "b.mcap")],
                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                   start_new_session=True)
@@ -192,6 +193,9 @@ def test_a_second_twin_in_the_namespace_stops_and_the_first_runs_on(tmp_path, la
     assert "of the run in enclave /flexarm_run_" in s2["conflict"], s2["conflict"]
     assert "give one of them another --namespace or ROS_DOMAIN_ID" in s2["conflict"]
     assert "Traceback" not in err2
+    if s2["ticks"] == 0:          # refused before its first tick: the old bag put back
+        assert (tmp_path / "b.mcap").read_bytes() == b"a bag the user keeps", s2["recorded"]
+        assert s2["record_kept_previous"]
     s1 = json.loads(out1)
     assert first.returncode == 130 and s1["conflict"] is None, (first.returncode, err1)
     # whatever the first run took was its own; the second's was refused

@@ -597,3 +597,35 @@ def test_a_run_that_never_started_keeps_the_bag_already_there(tmp_path, capsys):
     assert main(["run", "link", "--duration", "0.03", "--record", str(path), "--quiet"]) == 0
     assert path.read_bytes() != good and len(read_bag(path)[f"{NS}/{T.JOINT_STATES}"]) == 31
     assert not (tmp_path / "run.previous.mcap").exists()
+
+
+def test_a_run_refused_before_its_first_tick_keeps_the_bag_already_there(tmp_path,
+                                                                         monkeypatch):
+    """A run refused before it ticked (another twin on the graph) records only its
+    refusals on diagnostics/rejected: the bag that was at --record is put back (a new-user
+    trial lost a 12.6 MB bag to 182 rejections); a run that recorded data replaces it."""
+    from types import SimpleNamespace
+
+    from flexarm_ros.run import supervision
+    path = tmp_path / "b.mcap"
+    mine = b"the user's good bag"
+
+    def refused(*args, **kwargs):            # what the graph leaves: its rejections only
+        path.write_bytes(b"a new bag of rejections")
+        return SimpleNamespace(ticks=0, kept_previous=False,
+                               recorded={f"{NS}/{T.REJECTED}": 182})
+
+    def recorded(*args, **kwargs):           # a graph without the simulator that recorded
+        path.write_bytes(b"a new bag of data")
+        return SimpleNamespace(ticks=0, kept_previous=False,
+                               recorded={f"{NS}/{T.REJECTED}": 3, f"{NS}/{T.COMMANDS}": 5})
+
+    path.write_bytes(mine)
+    monkeypatch.setattr(supervision, "_run", refused)
+    res = supervision.run("link", record=str(path))
+    assert path.read_bytes() == mine and res.kept_previous
+    assert not (tmp_path / "b.previous.mcap").exists()
+    monkeypatch.setattr(supervision, "_run", recorded)
+    res = supervision.run("link", record=str(path))
+    assert path.read_bytes() == b"a new bag of data" and not res.kept_previous
+    assert not (tmp_path / "b.previous.mcap").exists()

@@ -471,21 +471,38 @@ def test_the_expected_node_of_another_run_is_refused_as_another_run(in_process):
         pass
 
     context = Context()
-    node = SimpleNamespace(
-        context=context, get_namespace=lambda: NS,
-        count_publishers=lambda t: len(shown),
-        get_publishers_info_by_topic=lambda t: [
-            SimpleNamespace(endpoint_gid=g, node_name=n, node_namespace=NS)
-            for g, n in shown.items()])
+    context.get_domain_id = lambda: 0
+    import os
+    from flexarm_ros.nodes.run_enclave import RUN_ENCLAVE_PREFIX
+    my_run = f"{RUN_ENCLAVE_PREFIX}1000_{os.getpid()}_aaaaaa"
+    their_run = f"{RUN_ENCLAVE_PREFIX}2000_{os.getpid()}_bbbbbb"
+    enclaves = [("controller", NS, my_run)]          # the graph's nodes with enclaves
+
+    def fake_node():
+        return SimpleNamespace(
+            context=context, get_namespace=lambda: NS, p={"run_enclave": my_run},
+            count_publishers=lambda t: len(shown),
+            get_publishers_info_by_topic=lambda t: [
+                SimpleNamespace(endpoint_gid=g, node_name=n, node_namespace=NS)
+                for g, n in shown.items()],
+            get_node_names_and_namespaces_with_enclaves=lambda: list(enclaves))
+    node = fake_node()
     if in_process:
         intraprocess._BUSES[context] = SimpleNamespace(
-            bridge=None, local_publishers=lambda t, name, ns:
+            bridge=None, members={(NS, "controller")}, local_publishers=lambda t, name, ns:
             {mine} if (t, name, ns) == (topic, "controller", NS) else set())
     try:
         src = _wire.Source(node, topic, expected="controller")
         if not in_process:
             assert src.verdict({"publisher_gid": {"data": mine}}) is None   # pinned
         shown[theirs] = "controller"           # the newer run's controller appears
+        enclaves.append(("controller", NS, their_run))
+        if not in_process:        # a rule that saw neither yet: it cannot tell, takes none
+            late = _wire.Source(fake_node(), topic, expected="controller")
+            for gid in (theirs, mine):
+                assert late.verdict({"publisher_gid": {"data": gid}}) == \
+                    "controller of another run"
+            assert late.mine is None
         if in_process:                          # the bus knows its own at once
             assert src.verdict({"publisher_gid": {"data": theirs}}) == \
                 "controller of another run"

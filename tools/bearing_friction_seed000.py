@@ -83,7 +83,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     bad = [p for p in args.parts if p not in PARTS]
     if bad:        # checked here: argparse's choices refuse an empty list for nargs="*"
-        ap.error(f"part: got {bad[0]!r}, expected one of {', '.join(PARTS)}")
+        print(f"error: part: got {bad[0]!r}, expected one of {', '.join(PARTS)}",
+              file=sys.stderr)
+        return 2
     try:
         with open_executor(args.workers, args.scheduler, timeout_s=args.timeout) as ex:
             print(f"bearing friction: {ex.description}"

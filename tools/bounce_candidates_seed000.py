@@ -30,6 +30,11 @@ def main(argv=None) -> int:
     ap.add_argument("--only", help="rows whose group contains this text")
     executor_args(ap, "the simulations")
     args = ap.parse_args(argv)
+    groups = sorted({c[0] for c in bs.CANDIDATES})
+    if args.only and not any(args.only in g for g in groups):
+        print(f"error: --only: got {args.only!r}, which no group contains; expected part of "
+              f"one of: {', '.join(groups)}", file=sys.stderr)
+        return 2
     try:
         with open_executor(args.workers, args.scheduler, timeout_s=args.timeout) as ex:
             print(f"bounce candidates: {ex.description}", file=sys.stderr, flush=True)

@@ -37,6 +37,7 @@ from __future__ import annotations
 import time
 
 from flexarm_ros.nodes.intraprocess import bus_of, gid_of
+from flexarm_ros.nodes.run_enclave import other_twin
 from flexarm_ros.twin.validation import ANOTHER_RUN, FOREIGN, NOT_CDR
 
 RESOLVE_S = 0.5
@@ -124,10 +125,20 @@ class Source:
         bus = bus_of(self.node.context)
         if bus is not None:
             local = bus.local_publishers(self.topic, self.expected, self.ns)
-            if local:
+            if local or (self.ns, self.expected) in bus.members:
+                # a member of this run (this process's or, split, the other's): only its
+                # own GIDs, none until it announced them — never pinned at first sight
+                # (a split run refused at start had pinned the other run's simulator,
+                # whose messages came before its own process did, and recorded them)
                 return named & local
         if self.mine is None or not (self.mine & set(graph)):
-            self.mine = set(named)     # first seen, or ours left the graph: pinned again
+            # first seen, or ours left the graph: pinned again — but not while another
+            # run's twin shows in this namespace: their nodes' names are ours, so nothing
+            # tells which is this run's (a refused run's recorder, one node per process,
+            # had pinned the running twin's simulator and recorded its messages)
+            if other_twin(self.node) is not None:
+                return set()
+            self.mine = set(named)
         return named & self.mine
 
     def trusted(self, info) -> bool:

@@ -524,8 +524,8 @@ class SimulatorNode(Node):
             self.halt()
         elif self.twin_seen is None:             # a newer twin: it stops itself
             self.twin_seen = (f"{self.where()}: a newer {other[len('another '):]}; it "
-                              f"stops itself, but until it did its messages and this "
-                              f"run's may have mixed")
+                              f"stops itself, and this run takes none of its messages "
+                              f"(refused as 'another run', counted in rejected)")
             self.get_logger().warning(self.twin_seen)
 
     def _on_timer(self):

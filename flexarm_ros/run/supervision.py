@@ -84,13 +84,23 @@ def run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
         return res
     finally:
         if previous is not None and previous.exists():
-            if res is not None and (res.ticks or sum((res.recorded or {}).values())):
+            if res is not None and (res.ticks or recorded_data(res.recorded)):
                 previous.unlink()
             elif res is not None or not path.exists():
                 os.replace(previous, path)
                 if res is not None:
                     res.kept_previous = True
             # else: an error after a new bag began: both stay
+
+
+def recorded_data(recorded: dict | None) -> int:
+    """Messages a bag holds besides the twin's diagnostics: a run refused before its first
+    tick (another twin on the graph) records its refusals on ``diagnostics/rejected``
+    and nothing else, and must not cost the bag that was there (a new-user trial lost a
+    12.6 MB bag that way)."""
+    from flexarm_ros.twin.topics import REJECTED
+    return sum(n for topic, n in (recorded or {}).items()
+               if not topic.endswith("/" + REJECTED))
 
 
 def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",
@@ -302,8 +312,8 @@ def layout_note(layout: str, mode: str, cpus: int) -> str | None:
     if layout == "processes" and mode == "realtime" and cpus < PROCESSES_REALTIME_CPUS:
         return (f"note: realtime with one process per node on {cpus} CPUs: measured at "
                 f"1 kHz on 2 cores it needs ~2.2 ms of CPU per 1 ms tick and falls behind "
-                f"(docs/decisions/0031-three-layouts-kept.md); --layout one or split keep "
-                f"the clock here")
+                f"(docs/decisions/0031-three-layouts-kept.md); --layout one keeps the "
+                f"clock best here (split only on an otherwise idle machine)")
     return None
 
 

@@ -217,3 +217,14 @@ def test_unreachable_scheduler_is_one_line_and_nothing_after(tmp_path):
     assert p.returncode == 2, p.stderr
     assert p.stderr.count("\n") == 1, p.stderr
     assert f"--scheduler: got '{addr}', no Dask scheduler answered within 1 s" in p.stderr
+
+
+@pytest.mark.parametrize("timeout", [-1.0, 0.0, float("nan"), float("inf")])
+def test_a_timeout_that_is_not_a_positive_finite_number_is_refused_by_the_runner(timeout):
+    """open_executor checks --timeout for every caller (the CLI, the seed 000 tools): a
+    new-user trial saw a tool take -1 and wait for "no scheduler within -1 s"."""
+    from flexarm_ros.ensemble.runner import open_executor
+    with pytest.raises(InputError, match=r"--timeout: got .*expected a finite number > 0 s"):
+        open_executor(0, None, timeout_s=timeout)
+    with open_executor(0, None, timeout_s=10.0) as ex:        # a good one: no error
+        assert ex.description

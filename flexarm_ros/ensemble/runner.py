@@ -192,7 +192,11 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
                   warm_up: Callable | None = None, timeout_s: float = 10.0):
     """``workers=0`` → :class:`SerialExecutor`; otherwise a Dask executor on a new local
     cluster (``workers`` processes, default one per core, at most
-    :data:`~flexarm_ros.ensemble.limits.WORKERS_PER_CORE` per core) or on ``scheduler``."""
+    :data:`~flexarm_ros.ensemble.limits.WORKERS_PER_CORE` per core) or on ``scheduler``;
+    ``timeout_s`` (``--timeout``) a finite number > 0 for every executor (a bad one is the
+    caller's mistake whichever executor it asked for)."""
+    if not (timeout_s > 0 and math.isfinite(timeout_s)):
+        raise InputError(f"--timeout: got {timeout_s}, expected a finite number > 0 s")
     if scheduler is None and workers == 0:
         return SerialExecutor()
     if scheduler is None:

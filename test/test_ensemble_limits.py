@@ -170,10 +170,16 @@ def test_ensemble_inputs_refused_in_one_line_before_any_work(argv, pattern, caps
                                                              monkeypatch):
     # before any work: a model run would be a probe of the scene; none may happen
     import flexarm_ros.twin.batch as batch
+    # the studies bind run_scene at their import: imported here, before the patch, and
+    # patched too (imported first under the patch, they had kept the stand-in for good and
+    # failed test_ensemble's study rows later in the same process)
+    import flexarm_ros.studies.contact as contact_study
+    import flexarm_ros.studies.ladder as ladder_study
 
     def no_run(*a, **k):
         raise AssertionError("a simulation ran before the inputs were checked")
-    monkeypatch.setattr(batch, "run_scene", no_run)
+    for module in (batch, contact_study, ladder_study):
+        monkeypatch.setattr(module, "run_scene", no_run)
     _one_line_2(argv + ["--quiet"], capsys, pattern)
 
 

@@ -198,9 +198,8 @@ def have_exudyn() -> bool:
 #: stiffness EA/ℓ: the spin-up's 64 elements failed at 1e-6 and 2e-6 N, ran at 4e-6 N;
 #: the link's 32 elements failed at 1e-6 N, 64 ran at 4e-5 N); with Exudyn's adaptive step
 #: the run had instead halved its steps for minutes and left the comparison grid (session
-#: 22). The tolerance each run needed is logged and kept in :data:`ANCF_NEWTON_USED`.
+#: 22). A run that needed more than the first says so in the log.
 ANCF_NEWTON_LADDER = (1.0, 10.0, 100.0)
-ANCF_NEWTON_USED: dict = {}
 
 
 def ancf_run(d, n_el, h, T, grid):
@@ -217,7 +216,6 @@ def ancf_run(d, n_el, h, T, grid):
         except exu.SolverError as exc:   # Newton failed at this tolerance: the next one
             err = exc
             continue
-        ANCF_NEWTON_USED[(d["name"], n_el, h)] = tol
         if factor != 1.0:
             print(f"  (ANCF {n_el} el at {1e3 * h:g} ms: Newton absolute tolerance {tol:g} N)",
                   flush=True)

@@ -133,9 +133,8 @@ def _check_out(args):
         check_output_dir("--png", args.png)
     if getattr(args, "markdown", None):
         check_output_file("--markdown", args.markdown, (".md",))
-    if not (args.timeout > 0 and math.isfinite(args.timeout)):
-        raise InputError(f"--timeout: got {args.timeout}, expected a finite number > 0 s")
-    from flexarm_ros.ensemble.limits import check_ensemble
+    from flexarm_ros.ensemble.limits import check_ensemble, check_timeout
+    check_timeout(args.timeout)
     # --samples >= 1, --seed in [0, 2**32 - 1], --workers within the cores and memory,
     # before a scene is loaded or a channel probed (the memory of the runs: per command)
     check_ensemble(samples=args.samples, seed=args.seed, workers=args.workers)

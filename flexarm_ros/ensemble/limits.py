@@ -170,6 +170,12 @@ SCHEDULER_EXPECT = ("expected the address of a running Dask scheduler, e.g. "
                     "`dask worker ADDRESS`; docs/ensembles.md)")
 
 
+def check_timeout(timeout_s, flag: str = "--timeout") -> None:
+    """``timeout_s`` (the wait for a scheduler and its first worker) a finite number > 0."""
+    if not (timeout_s > 0 and math.isfinite(timeout_s)):
+        raise InputError(f"{flag}: got {timeout_s}, expected a finite number > 0 s")
+
+
 def check_scheduler_address(address) -> None:
     """``[SCHEME://]HOST:PORT`` with a Dask scheme and a port in 1..65535, else
     InputError (before any connection is tried)."""

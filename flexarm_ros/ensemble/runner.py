@@ -195,8 +195,8 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
     :data:`~flexarm_ros.ensemble.limits.WORKERS_PER_CORE` per core) or on ``scheduler``;
     ``timeout_s`` (``--timeout``) a finite number > 0 for every executor (a bad one is the
     caller's mistake whichever executor it asked for)."""
-    if not (timeout_s > 0 and math.isfinite(timeout_s)):
-        raise InputError(f"--timeout: got {timeout_s}, expected a finite number > 0 s")
+    from flexarm_ros.ensemble.limits import check_timeout
+    check_timeout(timeout_s)
     if scheduler is None and workers == 0:
         return SerialExecutor()
     if scheduler is None:

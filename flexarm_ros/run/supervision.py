@@ -98,9 +98,8 @@ def recorded_data(recorded: dict | None) -> int:
     tick (another twin on the graph) records its refusals on ``diagnostics/rejected``
     and nothing else, and must not cost the bag that was there (a new-user trial lost a
     12.6 MB bag that way)."""
-    from flexarm_ros.twin.topics import REJECTED
     return sum(n for topic, n in (recorded or {}).items()
-               if not topic.endswith("/" + REJECTED))
+               if not topic.endswith("/" + T.REJECTED))
 
 
 def _run(scene=DEFAULT_SCENE, duration=None, mode="lockstep", record="run.mcap",

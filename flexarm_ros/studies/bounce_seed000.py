@@ -43,6 +43,7 @@ def bearings(mu: float) -> list:
     """``bearings:`` with a uniform μ under RB2 and RB4 (§5.1)."""
     return [{"link": "link1", "friction": mu}, {"link": "link2", "friction": mu}]
 
+
 #: (group, label, sets)
 CANDIDATES = [
     ("shipped", "two_link_case1 as shipped (impulse, e = 0, μ = 0.5)", {}),

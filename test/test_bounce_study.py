@@ -45,3 +45,29 @@ def test_the_shipped_case1_through_the_runner_agrees_with_its_contact_log():
     assert row["impact_s"] == pytest.approx(2.099, abs=2e-3)
     assert 25e-3 < row["bounces_m"][0] < 35e-3          # §6: 30.0 mm, the target missed
     assert row["f_A"] == pytest.approx(10.85, abs=0.1)
+
+
+def _tool(name):
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("tool,argv,words", [
+    ("bounce_candidates_seed000", ["--only", "nosuch"],
+     ["--only", "'nosuch'", "no group contains", "beam damping"]),
+    ("bearing_friction_seed000", ["case9"],
+     ["part", "'case9'", "expected one of case1, case3, case2, take"]),
+    ("bounce_candidates_seed000", ["--workers", "0", "--timeout", "-1"],
+     ["--timeout", "-1.0", "expected a finite number > 0 s"]),
+])
+def test_the_seed000_tools_refuse_bad_input_in_one_line(tool, argv, words, capsys):
+    """Before any run: exit 2 and one line naming the option, the value and what is
+    expected."""
+    assert _tool(tool).main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and all(w in err[0] for w in words), err

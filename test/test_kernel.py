@@ -54,6 +54,22 @@ def test_rhs_matches_numpy_reference(rung, foreshortening):
         assert np.allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
 
 
+def test_a_strided_state_costs_no_second_compile_of_the_kernel():
+    """``Chain.rhs`` of a column of a history (a strided view) gives the contiguous copy's
+    numbers through the kernel's one compiled signature: each other array layout would
+    compile the whole kernel again (a cold suite compiled ``rhs`` and ``rhs_into`` twice,
+    ~25 s of CPU)."""
+    chain = Chain(_scene("modal"), backend="numba")
+    rng = np.random.default_rng(2)
+    history = rng.normal(size=(2 * len(chain.free), 3)) * 0.05
+    want = chain.rhs(0.2, history[:, 1].copy())
+    signatures = list(kchain.rhs.signatures)
+    got = chain.rhs(0.2, history[:, 1])
+    assert not history[:, 1].flags.c_contiguous
+    assert np.array_equal(got, want)
+    assert list(kchain.rhs.signatures) == signatures
+
+
 @pytest.mark.parametrize("rung", ["rigid", "cubic", "modal", "fem", "fd"])
 @pytest.mark.parametrize("foreshortening", [True, False])
 @pytest.mark.parametrize("sums", ["points", "invariants"])
@@ -157,6 +173,59 @@ def test_a_cold_cache_is_told_from_a_warm_one(tmp_path, monkeypatch):
     assert cache_is_cold()
     (tmp_path / "chain.span-1.py311.nbi").write_bytes(b"")
     assert not cache_is_cold()
+
+
+_TWO_COMPILERS = """
+import os, sys, time
+from pathlib import Path
+from flexarm_ros.model.compiled import jit
+
+@jit
+def work(x):
+    s = 0.0
+    for i in range(x.shape[0]):
+        s += x[i] ** 1.5 - i * 0.5
+    return s
+
+go = Path(sys.argv[1])
+Path(sys.argv[2]).touch()                   # imported, ready
+while not go.exists():                      # both processes start compiling at once
+    time.sleep(0.005)
+import numpy as np
+print(work(np.arange(4.0)), sum(work.stats.cache_misses.values()),
+      sum(work.stats.cache_hits.values()))
+"""
+
+
+@pytest.mark.subprocess
+def test_two_processes_on_a_cold_cache_compile_a_function_once(tmp_path):
+    """Two processes that need one function at the same moment on an empty cache: one
+    compiles it, the other waits on its lock and loads it (``compiled._CompileLock``);
+    without the lock both compile (the suite's workers each compiled every kernel)."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from flexarm_ros.model.compiled import HAVE_NUMBA, fcntl
+    if not HAVE_NUMBA or fcntl is None:
+        pytest.skip("numba disabled or no flock here")
+    module = tmp_path / "two_compilers.py"
+    module.write_text(_TWO_COMPILERS)
+    go = tmp_path / "go"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    ready = [tmp_path / f"ready{i}" for i in range(2)]
+    procs = [subprocess.Popen([sys.executable, str(module), str(go), str(r)], env=env,
+                              cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+             for r in ready]
+    deadline = time.monotonic() + 120
+    while not all(r.exists() for r in ready) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    go.touch()                                  # both imported and waiting: go
+    outs = [p.communicate(timeout=300)[0].split() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0]
+    assert outs[0][0] == outs[1][0]             # the same result
+    # (compiled, loaded from the cache) per process: one compiled, the other loaded
+    assert sorted((int(o[1]), int(o[2])) for o in outs) == [(0, 1), (1, 0)], outs
 
 
 @pytest.mark.slow

@@ -630,9 +630,13 @@ class RungChain:
 
     def rhs(self, t, x):
         """First-order right-hand side ẋ = f(t, x), x = [q_free, q̇_free] (compiled kernel
-        when the backend is numba, else the numpy reference below)."""
+        when the backend is numba, else the numpy reference below). ``x`` is copied to
+        a contiguous array when it is a strided view (a column of a history): the kernel
+        is compiled for contiguous ``x`` only, each other layout would be a second compile
+        of the whole kernel (~25 s of CPU on a cold cache)."""
         if self.backend == "numba":
-            return kchain.rhs(float(t), np.asarray(x, float), self.kernel_args, self._ws)
+            return kchain.rhs(float(t), np.ascontiguousarray(x, float), self.kernel_args,
+                              self._ws)
         return self.rhs_numpy(t, x)
 
     def rhs_numpy(self, t, x):

@@ -180,8 +180,11 @@ def sensor_tables(chain, run, sensors: list[SensorModel], q_initial, qdd_free=No
             acc_vals = {sm.name: acc_given[idx, acc_col[sm.name]] for sm in acc}
             acc = []
         if acc:
-            X = np.concatenate([run.q[idx][:, chain.free], run.qd[idx][:, chain.free],
-                                run.z[idx]], axis=1)
+            # C order whatever the run's arrays are (a history transposed from the
+            # kernel's is Fortran): the read-out kernel is compiled for one layout
+            X = np.ascontiguousarray(np.concatenate(
+                [run.q[idx][:, chain.free], run.qd[idx][:, chain.free], run.z[idx]],
+                axis=1))
             QDD = (np.ascontiguousarray(qdd_free[idx]) if qdd_free is not None
                    else np.zeros((len(idx), len(chain.free))))
         if acc and chain.backend == "numba":     # read-out from the kernel's frames

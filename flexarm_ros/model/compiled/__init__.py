@@ -65,6 +65,79 @@ def cache_dir(base: str | None = None) -> Path:
     return path
 
 
+class _CompileLock:
+    """One compile of a function at a time across the processes sharing a cache directory.
+
+    Why: on a cold cache every process that needs a kernel compiles it, the same ~10–40 s
+    of CPU each — the test suite's two xdist workers, the CLI processes its tests start, a
+    Dask cluster's workers, the nodes of a graph. numba looks in its cache only before it
+    compiles, so two processes that start on one function both compile it. Here a
+    function's compile holds an exclusive ``flock`` on ``<cache>/<name>.lock``; a process
+    that finds it held waits, then loads what the other saved (numba reads the cache
+    index again at each compile). Locks are taken caller before callee, along the call
+    graph, which has no cycle: no two processes wait on each other. Inside one process the
+    count makes it reentrant; numba's global compiler lock, taken first, keeps threads in
+    turn."""
+
+    held: dict = {}                     # lock path -> [fd, depth] in this process
+
+    def __init__(self, dispatcher):
+        self.path = Path(numba.config.CACHE_DIR) / f"{dispatcher.py_func.__module__}." \
+                                                  f"{dispatcher.py_func.__qualname__}.lock"
+
+    def __enter__(self):
+        entry = self.held.get(self.path)
+        if entry is not None:
+            entry[1] += 1
+            return self
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError:                 # a read-only cache: compile unlocked, as before
+            self.held[self.path] = [None, 1]
+            return self
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        self.held[self.path] = [fd, 1]
+        return self
+
+    def __exit__(self, *exc):
+        entry = self.held[self.path]
+        entry[1] -= 1
+        if entry[1] == 0:
+            del self.held[self.path]
+            if entry[0] is not None:
+                fcntl.flock(entry[0], fcntl.LOCK_UN)
+                os.close(entry[0])
+
+
+def _one_compile_at_a_time(dispatcher):
+    """``dispatcher`` whose compiles hold its :class:`_CompileLock` (numba calls
+    ``compile`` on the instance, from Python and when typing a caller)."""
+    if fcntl is None:
+        return dispatcher
+    from numba.core.compiler_lock import global_compiler_lock
+    compile_unlocked = dispatcher.compile
+    lock = _CompileLock(dispatcher)
+
+    def compile(sig):
+        with global_compiler_lock, lock:
+            return compile_unlocked(sig)
+    dispatcher.compile = compile
+    return dispatcher
+
+
+def _locked(**options):
+    """``numba.njit(**options)`` whose functions compile one process at a time."""
+    def decorate(f):
+        return _one_compile_at_a_time(numba.njit(**options)(f))
+    return decorate
+
+
+try:  # pragma: no cover - exercised by whichever environment runs the tests
+    import fcntl
+except ImportError:                     # not POSIX: each process compiles for itself
+    fcntl = None
+
 try:  # pragma: no cover - exercised by whichever environment runs the tests
     if os.environ.get("FLEXARM_NO_NUMBA"):
         raise ImportError("disabled by FLEXARM_NO_NUMBA")
@@ -78,9 +151,8 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     # noise (bench/bench_kernel.py; docs/decisions/0016-the-compiled-kernel.md, "Why not
     # 'reassoc'")
     _FLAGS = {"contract", "arcp", "nsz", "afn"}
-    jit = numba.njit(cache=True, error_model="numpy", fastmath=_FLAGS)
-    jit_inline = numba.njit(cache=True, error_model="numpy", inline="always",
-                            fastmath=_FLAGS)
+    jit = _locked(cache=True, error_model="numpy", fastmath=_FLAGS)
+    jit_inline = _locked(cache=True, error_model="numpy", inline="always", fastmath=_FLAGS)
     # the hot loops without numba's reference counting (NRT): every array the kernel
     # reads through the model and workspace tuples is otherwise incref'd and decref'd
     # (an atomic instruction each) at every inlined call, per point, per stage — perf
@@ -91,11 +163,11 @@ try:  # pragma: no cover - exercised by whichever environment runs the tests
     # ``FLEXARM_KERNEL_NRT=1`` compiles them with it, as before (bench/bench_kernel.py's
     # comparison; a fallback should a numba release refuse the option)
     jit_raw = (jit if os.environ.get("FLEXARM_KERNEL_NRT") else
-               numba.njit(cache=True, error_model="numpy", fastmath=_FLAGS, _nrt=False))
+               _locked(cache=True, error_model="numpy", fastmath=_FLAGS, _nrt=False))
     # IEEE arithmetic as numpy and Python do it (no contraction into fused multiply-adds):
     # the closed loop's controller and encoder read-out, which must give the bits the
     # Python cores give — an encoder count is a floor, and one ulp can flip it
-    jit_exact = numba.njit(cache=True, error_model="numpy")
+    jit_exact = _locked(cache=True, error_model="numpy")
 except ImportError:
     HAVE_NUMBA = False
 

@@ -19,7 +19,7 @@ from flexarm_ros.model.programs import eval_motion, eval_torque
 
 from flexarm_ros.model.compiled import (  # noqa: F401
     HAVE_NUMBA, jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw)
-from flexarm_ros.model.compiled.layout import named, workspace  # noqa: F401  (kchain.workspace)
+from flexarm_ros.model.compiled.layout import Model, named, workspace  # noqa: F401  (kchain.workspace)
 from flexarm_ros.model.drives import actuator_rate, actuator_torque, backlash_torque
 from flexarm_ros.model.bearings import friction_coefficient, friction_force
 
@@ -830,12 +830,22 @@ def rhs_into(t, x, out, model, ws):
         out[2 * nf + a] = zd[a]
 
 
-@_jit
 def forces(t, q, qd, z, model_args, ws_args):
     """:func:`fill_forces` for Python callers (the model and workspace as plain tuples, see
-    :mod:`layout`): the workspace then holds M, f, ż and the frames at (t, q, q̇, z)."""
-    model, ws = named(model_args, ws_args)
-    fill_forces(t, q, qd, z, model, ws)
+    :mod:`layout`): the workspace then holds M, f, ż and the frames at (t, q, q̇, z)
+    (prescribed entries of q, q̇ from their programs, as :func:`fill_forces` sets them).
+
+    Through :func:`rhs` (whose solve for q̈ it does not need, ~0.3 µs): a compiled
+    function of its own inlining :func:`fill_forces` was another copy of the whole kernel
+    for numba to type and LLVM to optimize, ~20 s of CPU on a cold cache, for an
+    evaluation whose call from Python costs more than the solve."""
+    free = Model._make(model_args).free
+    nf = free.shape[0]
+    x = np.zeros(2 * nf + max(len(z), Model._make(model_args).nz))
+    x[:nf] = q[free]
+    x[nf:2 * nf] = qd[free]
+    x[2 * nf:2 * nf + len(z)] = z
+    rhs(float(t), x, model_args, ws_args)
 
 
 @_jit

@@ -36,7 +36,7 @@ from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import loops as kloops
 from flexarm_ros.model.compiled import sensors as ksensors
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
-from flexarm_ros.model.compiled.layout import named
+from flexarm_ros.model.compiled.layout import Model, named
 
 FREE, SLIDING, STICKING = 0, 1, 2
 #: return codes of :func:`span` (kchain.OK / NON_FINITE / DEFLECTION shared)
@@ -264,7 +264,6 @@ def _sample(k, tk, xk, mode, s, X, R, QDD, impulse, model, ws, cp, sc, out, acc,
                            acc[4], ACC[k])
 
 
-@_jit
 def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args,
          ts, k, X, R, QDD, impulse0, max_steps, acc, ACC):
     """RK4 steps of at most ``h`` in one contact mode from (t0, x0) towards ``t_target``
@@ -284,12 +283,11 @@ def span(x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, 
     evaluations, largest drift, offending state, next sample index) with code kchain.OK
     (t_target or max_steps reached), EVENT, DRIFT, SINGULAR, kchain.NON_FINITE or
     kchain.DEFLECTION (t, x the last good state; the offending state last). Model,
-    workspace and scratch come as plain tuples (see :mod:`layout`).
+    workspace and scratch come as plain tuples (see :mod:`layout`). Python around the
+    compiled core.
     """
-    m = x0.shape[0]
-    loc = np.empty((4, m))
-    model, _ = named(model_args, ws_args)
-    qdd = np.empty(model.n)
+    loc = np.empty((4, x0.shape[0]))
+    qdd = np.empty(Model._make(model_args).n)
     ind = np.empty((2, 2))
     code, t, impulse, steps, calls, drift_max, bad, k = _span(
         x0, t0, t_target, h, mode, s, max_ratio, tol, model_args, ws_args, cp, sc_args, ts, k,

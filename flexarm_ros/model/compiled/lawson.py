@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
+from flexarm_ros.model.compiled import jit_inline as _jit_inline, jit_raw as _jit_raw
 from flexarm_ros.model.compiled.chain import (
     DEFLECTION, NON_FINITE, OK, STAGE_EPS, deflection_ratio, rhs_into)
 from flexarm_ros.model.compiled.layout import named, workspace
@@ -88,15 +88,14 @@ def _lawson_step(t, h, x, xn, A, E, E2, sc, model, ws):
     return finite
 
 
-@_jit
 def lawson_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, A, E, E2, model_args,
                 ws_args):
     """Fixed-step Lawson RK4 over output intervals k0..n_out−1 (x0 at t = k0·out_dt),
     ``per`` steps each, storing the state into xs[k + 1]. Returns (status, time, steps,
-    last good state, offending state): status OK, NON_FINITE or DEFLECTION."""
-    m = x0.shape[0]
-    x = x0.copy()
-    sc = np.empty((9, m))
+    last good state, offending state): status OK, NON_FINITE or DEFLECTION. Python around
+    the compiled core."""
+    x = np.array(x0, dtype=float)
+    sc = np.empty((9, x.shape[0]))
     status, t, steps = _lawson_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, A, E,
                                     E2, model_args, ws_args)
     return status, t, steps, x, (x if status == OK else sc[8].copy())

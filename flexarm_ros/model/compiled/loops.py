@@ -85,14 +85,13 @@ def _rk4_run(x, t0, h, nsteps, max_ratio, model, ws, xn, tmp, k1, k2, k3, k4, ny
     return OK, nsteps, t0 + nsteps * h
 
 
-@_jit
 def rk4_span(x0, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom):
     """``nsteps`` fixed RK4 steps (RKN4 with ``nystrom``) of size h from (t0, x0): the
     co-simulation plant's advance. Returns (status, time, last good state, offending
-    state)."""
-    m = x0.shape[0]
-    x = x0.copy()
-    sc = np.empty((6, m))
+    state). Python around the compiled core, as every entry point that only allocates
+    (:mod:`flexarm_ros.model.compiled`, "One compile per kernel")."""
+    x = np.array(x0, dtype=float)
+    sc = np.empty((6, x.shape[0]))
     status, t = _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom)
     return status, t, x, (x if status == OK else sc[0].copy())
 
@@ -107,18 +106,16 @@ def _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom):
     return status, t
 
 
-@_jit
 def rk4_loop(x0, h, per, k0, n_out, out_dt, max_ratio, xs, model_args, ws_args, nystrom):
     """Fixed-step RK4 (RKN4 with ``nystrom``) over output intervals k0..n_out−1 (x0 at
     t = k0·out_dt), ``per`` steps each (:func:`_rk4_run` from k·out_dt), storing the state
     into xs[k + 1].
 
     Returns (status, time, steps, last good state, offending state): status OK,
-    NON_FINITE or DEFLECTION.
+    NON_FINITE or DEFLECTION. Python around the compiled core.
     """
-    m = x0.shape[0]
-    x = x0.copy()
-    sc = np.empty((6, m))
+    x = np.array(x0, dtype=float)
+    sc = np.empty((6, x.shape[0]))
     status, t, steps = _rk4_loop(x, sc, h, per, k0, n_out, out_dt, max_ratio, xs, model_args,
                                  ws_args, nystrom)
     return status, t, steps, x, (x if status == OK else sc[0].copy())
@@ -156,7 +153,6 @@ def hermite(theta, h, x0, f0, x1, f1, out):
         out[i] = a0 * x0[i] + b0 * f0[i] + a1 * x1[i] + b1 * f1[i]
 
 
-@_jit
 def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_args,
               nystrom):
     """Fixed-step RK4 (RKN4 with ``nystrom``, :func:`_rk4_step`) from (t0, x0) to ``t_stop``
@@ -166,10 +162,9 @@ def rk4_dense(x0, t0, h, t_stop, out_dt, k_next, max_ratio, xs, model_args, ws_a
     The step may exceed the output period.
 
     Returns (status, time, steps, rhs evaluations, next output index, last good state,
-    offending state)."""
-    m = x0.shape[0]
-    x = x0.copy()
-    sc = np.empty((9, m))
+    offending state). Python around the compiled core."""
+    x = np.array(x0, dtype=float)
+    sc = np.empty((9, x.shape[0]))
     status, t, steps, calls, k = _rk4_dense(x, sc, t0, h, t_stop, out_dt, k_next, max_ratio,
                                             xs, model_args, ws_args, nystrom)
     return status, t, steps, calls, k, x, (x if status == OK else sc[0].copy())
@@ -289,14 +284,12 @@ def _rk4_period(x, k0, g_ns, J, nsteps, max_ratio, model, ws, xs, sc, nystrom):
     return OK, t_end, nsteps, calls
 
 
-@_jit
 def rk4_period(x0, k0, g_ns, J, nsteps, max_ratio, xs, model_args, ws_args, nystrom):
     """:func:`_rk4_period` from a copy of x0: the plant's control period when its model is
     smooth (:meth:`flexarm_ros.sim.plant.Plant.step_rows`). Returns (status, time, steps,
-    rhs evaluations, last good state, offending state)."""
-    m = x0.shape[0]
-    x = x0.copy()
-    sc = np.empty((9, m))
+    rhs evaluations, last good state, offending state). Python around the compiled core."""
+    x = np.array(x0, dtype=float)
+    sc = np.empty((9, x.shape[0]))
     status, t, steps, calls = rk4_period_raw(x, k0, g_ns, J, nsteps, max_ratio, xs, sc,
                                               model_args, ws_args, nystrom)
     return status, t, steps, calls, x, (x if status == OK else sc[0].copy())

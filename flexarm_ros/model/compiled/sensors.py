@@ -25,7 +25,7 @@ import numpy as np
 
 from flexarm_ros.model.compiled import chain as kchain
 from flexarm_ros.model.compiled import jit as _jit, jit_inline as _jit_inline, jit_raw as _jit_raw
-from flexarm_ros.model.compiled.layout import named
+from flexarm_ros.model.compiled.layout import Model, named
 
 HUB, TIP, BEAM, ROD = 0, 1, 2, 3
 
@@ -82,15 +82,14 @@ def readings(q, qd, qdd, model_args, ws_args, ints, flt, phi, slope, S, out):
     fill_readings(q, qd, qdd, model, ws, ints, flt, phi, slope, S, out)
 
 
-@_jit
 def table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out):
     """:func:`readings` of the states X[k] = [q_free, q̇_free, z] at the instants ts[k]
     into out[k] (one kernel evaluation per row for the frames): q̈ of the free coordinates
     from QDD[k] when ``given`` (e.g. the contact stepper's constrained accelerations), else
-    from the chain's right-hand side there; the prescribed ones from their programs."""
-    model, _ = named(model_args, ws_args)
+    from the chain's right-hand side there; the prescribed ones from their programs.
+    Python around the compiled core."""
     _table(ts, X, QDD, given, model_args, ws_args, ints, flt, phi, slope, S, out,
-           np.empty(X.shape[1]), np.empty(model.n))
+           np.empty(X.shape[1]), np.empty(Model._make(model_args).n))
 
 
 @_jit_raw

@@ -839,9 +839,10 @@ def forces(t, q, qd, z, model_args, ws_args):
     function of its own inlining :func:`fill_forces` was another copy of the whole kernel
     for numba to type and LLVM to optimize, ~20 s of CPU on a cold cache, for an
     evaluation whose call from Python costs more than the solve."""
-    free = Model._make(model_args).free
+    model = Model._make(model_args)
+    free = model.free
     nf = free.shape[0]
-    x = np.zeros(2 * nf + max(len(z), Model._make(model_args).nz))
+    x = np.zeros(2 * nf + max(len(z), model.nz))
     x[:nf] = q[free]
     x[nf:2 * nf] = qd[free]
     x[2 * nf:2 * nf + len(z)] = z

@@ -89,7 +89,7 @@ def rk4_span(x0, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom):
     """``nsteps`` fixed RK4 steps (RKN4 with ``nystrom``) of size h from (t0, x0): the
     co-simulation plant's advance. Returns (status, time, last good state, offending
     state). Python around the compiled core, as every entry point that only allocates
-    (:mod:`flexarm_ros.model.compiled`, "One compile per kernel")."""
+    (docs/decisions/0032-each-kernel-compiled-once.md)."""
     x = np.array(x0, dtype=float)
     sc = np.empty((6, x.shape[0]))
     status, t = _rk4_span(x, sc, t0, h, nsteps, max_ratio, model_args, ws_args, nystrom)

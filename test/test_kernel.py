@@ -228,6 +228,35 @@ def test_two_processes_on_a_cold_cache_compile_a_function_once(tmp_path):
     assert sorted((int(o[1]), int(o[2])) for o in outs) == [(0, 1), (1, 0)], outs
 
 
+def test_a_compile_lock_held_too_long_is_waited_for_then_passed(tmp_path, monkeypatch):
+    """A process whose compile lock another holder keeps (stopped, hung) waits its
+    ``patience`` and then compiles anyway, with the same result: a stopped process never
+    stalls the others for good."""
+    import fcntl as _fcntl
+    import os
+    import time
+    numba = pytest.importorskip("numba")
+    from flexarm_ros.model import compiled
+    if not compiled.HAVE_NUMBA or compiled.fcntl is None:
+        pytest.skip("numba disabled or no flock here")
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(compiled._CompileLock, "patience", 0.4)
+
+    def cube(x):
+        return x * x * x
+    f = compiled.jit(cube)
+    path = tmp_path / f"{cube.__module__}.{cube.__qualname__}.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT)
+    try:
+        _fcntl.flock(fd, _fcntl.LOCK_EX)            # another holder
+        t0 = time.monotonic()
+        assert f(3.0) == 27.0
+        assert time.monotonic() - t0 >= 0.4         # it waited its patience first
+    finally:
+        os.close(fd)
+    assert not compiled._CompileLock.held           # nothing left held in this process
+
+
 @pytest.mark.slow
 @pytest.mark.ros
 @pytest.mark.subprocess

@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import time
 from pathlib import Path
 
 #: files outside this package whose functions numba compiles (the programs are compiled
@@ -77,9 +78,14 @@ class _CompileLock:
     index again at each compile). Locks are taken caller before callee, along the call
     graph, which has no cycle: no two processes wait on each other. Inside one process the
     count makes it reentrant; numba's global compiler lock, taken first, keeps threads in
-    turn."""
+    turn. A process waits at most :attr:`patience`, then compiles as it would without
+    the lock."""
 
     held: dict = {}                     # lock path -> [fd, depth] in this process
+    #: s to wait for another process's compile before compiling anyway (a holder that
+    #: was stopped, e.g. SIGSTOP, must not stall every other process for good); the
+    #: longest single compile measured is ~50 s of CPU
+    patience = 600.0
 
     def __init__(self, dispatcher):
         self.path = Path(numba.config.CACHE_DIR) / f"{dispatcher.py_func.__module__}." \
@@ -96,7 +102,17 @@ class _CompileLock:
         except OSError:                 # a read-only cache: compile unlocked, as before
             self.held[self.path] = [None, 1]
             return self
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        deadline = time.monotonic() + self.patience
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except OSError:
+                if time.monotonic() > deadline:     # a holder stopped or hung: go on
+                    os.close(fd)                    # and compile, as without the lock
+                    self.held[self.path] = [None, 1]
+                    return self
+                time.sleep(0.05)
         self.held[self.path] = [fd, 1]
         return self
 

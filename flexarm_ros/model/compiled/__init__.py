@@ -103,6 +103,7 @@ class _CompileLock:
             self.held[self.path] = [None, 1]
             return self
         deadline = time.monotonic() + self.patience
+        pause = 0.0005          # doubling to 50 ms: a cache load holds a lock ~1–20 ms
         while True:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -112,7 +113,8 @@ class _CompileLock:
                     os.close(fd)                    # and compile, as without the lock
                     self.held[self.path] = [None, 1]
                     return self
-                time.sleep(0.05)
+                time.sleep(pause)
+                pause = min(2.0 * pause, 0.05)
         self.held[self.path] = [fd, 1]
         return self
 

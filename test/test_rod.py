@@ -164,3 +164,45 @@ def test_the_spin_up_converges_below_the_second_order_floor():
                   - runs["rod8"]["beam_tip_deflection"]).max() < 2e-6
     assert 1.5e-3 < pos(runs["modal4"], runs["rod8"]) < 3e-3
     assert runs["rod8"]["beam_tip_deflection"].min() == pytest.approx(-0.5738, abs=2e-4)
+
+
+def test_two_link_free_on_its_four_gauss_points_tracks_the_default_six():
+    """The shipped two_link_free carries each rod's mass on 4 Gauss points (fidelity
+    .rod_points) instead of 6: over 0.5 s its tip position stays within 1e-7 m and its
+    tip deflections within 1e-6 m (7.0e-7 measured) of the same rod on the default
+    quadrature; against rod 12 over the 2 s both are 5.9e-7 m tip and 5.4-5.5e-6 m
+    deflection (session 25; test_truth holds the shipped scene against the top rung)."""
+    sc = load_scene("two_link_free")
+    assert sc.fidelity.rod_points == 4
+    six = sc.with_fidelity(rod_points=0, dt=sc.fidelity.dt)
+    a = simulate(sc, duration=0.5).columns
+    b = simulate(six, duration=0.5).columns
+    tip = np.hypot(np.asarray(a["tip_x"]) - b["tip_x"], np.asarray(a["tip_y"]) - b["tip_y"])
+    assert tip.max() < 1e-7
+    for name in ("link1", "link2"):
+        key = f"{name}_tip_deflection"
+        assert np.abs(np.asarray(a[key]) - b[key]).max() < 1e-6
+        assert np.abs(np.asarray(b[key])).max() > 1e-3       # the beams do bend
+
+
+@pytest.mark.parametrize("value, says", [
+    (2, "fidelity.rod_points: got 2 Gauss points for 3 curvature terms, expected 0 "
+        "(the default, 6) or at least 4"),
+    (-1, "fidelity.rod_points"),
+    (65, "fidelity.rod_points")])
+def test_a_rod_quadrature_too_coarse_or_out_of_range_is_refused_by_name(value, says):
+    from flexarm_ros.errors import InputError
+    with pytest.raises(InputError) as exc:
+        sc = set_keys(load_scene("two_link_free"), {"fidelity.rod_points": value})
+        Chain(sc)
+    assert says in str(exc.value)
+
+
+def test_another_rung_or_refinement_leaves_the_scenes_rod_quadrature():
+    """The 4 points were measured for two_link_free's rod 3: rod 5, or another rung, goes
+    back to the default quadrature unless told otherwise."""
+    sc = load_scene("two_link_free")
+    assert sc.with_fidelity(refine=5).fidelity.rod_points == 0
+    assert sc.with_fidelity(rung="modal").fidelity.rod_points == 0
+    assert sc.with_fidelity(refine=5, rod_points=7).fidelity.rod_points == 7
+    assert sc.with_fidelity(dt=0.005).fidelity.rod_points == 4

@@ -548,17 +548,17 @@ def discretize(beam, tip, fidelity, hub_inertia=None) -> BeamDiscretization:
             raise SceneError(f"fidelity.refine: got {n}, expected <= 400 segments")
         return finite_differences(beam, n)
     if rung == "rod":
-        return rod_rung(beam, tip, n)
+        return rod_rung(beam, tip, n, fidelity.rod_points)
     raise SceneError(f"fidelity.rung: got {rung!r}, expected one of rigid, cubic, modal, "
                      f"fem, fd, rod")
 
 
-def rod_rung(beam, tip, terms) -> BeamDiscretization:
+def rod_rung(beam, tip, terms, points: int = 0) -> BeamDiscretization:
     """The geometrically exact rod (:mod:`flexarm_ros.model.rod`) as a discretization:
     its exact kinematics in ``rod``; φ, φ(L), φ′(L) its small-deflection shapes, S zero
     (the chain reads the rod's own kinematics)."""
     from flexarm_ros.model import rod
-    basis, x, mass, K, D, M0, shape, curvature = rod.build(beam, tip, terms)
+    basis, x, mass, K, D, M0, shape, curvature = rod.build(beam, tip, terms, points=points)
     P = len(x)
     phi = basis.W[:P] @ basis.T[:P]          # transverse at η = 0: ∫ θ
     phi_tip = basis.W[P] @ basis.T[:P]

@@ -195,21 +195,27 @@ def curvature_rows(xs, length, terms, axial, transform) -> np.ndarray:
     return K @ transform
 
 
-def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine"):
+def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine",
+          points: int = 0):
     """(RodBasis, x, mass, K, D, M0, linear shape rows function, curvature rows function)
     of one beam: ``terms`` curvature terms, the stretch when the beam declares EA, the
-    coordinates the small-deflection modes carrying ``tip`` (module doc)."""
+    coordinates the small-deflection modes carrying ``tip`` (module doc); ``points``
+    Gauss points (0: :func:`gauss_points`; else at least terms + 1, so that the mass
+    matrix of the raw basis stays regular)."""
     if not 1 <= terms <= MAX_TERMS:
         raise SceneError(f"{fidelity_refine_name}: got {terms} curvature terms for the rod "
                          f"rung, expected 1..{MAX_TERMS}")
-    return _build(beam, tip, terms)
+    if points and points < terms + 1:
+        raise SceneError(f"fidelity.rod_points: got {points} Gauss points for {terms} "
+                         f"curvature terms, expected 0 (the default, {gauss_points(terms)}) "
+                         f"or at least {terms + 1}")
+    return _build(beam, tip, terms, points or gauss_points(terms))
 
 
 @functools.lru_cache(maxsize=32)
-def _build(beam, tip, terms):
+def _build(beam, tip, terms, P):
     L = beam.length
     axial = getattr(beam, "EA", None) is not None
-    P = gauss_points(terms)
     gx, gw = _leg.leggauss(P)
     x = 0.5 * L * (gx + 1.0)
     w = 0.5 * L * gw

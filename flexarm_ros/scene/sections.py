@@ -574,6 +574,12 @@ class Fidelity:
                                  "angles), its tip body only, or nothing; free_hub: as "
                                  "chain_loaded on a hub free to turn with its inertia "
                                  "(the one-link arm's own modes)")
+    rod_points: int = param(0, ge=0, le=64,
+                            doc="rod rung: Gauss points carrying each beam's mass (0 → "
+                                "terms + 3, at least 6; else at least terms + 1). Fewer "
+                                "are cheaper; measure the change against the top rung "
+                                "(two_link_free: 4 for 3 terms, docs/accuracy.md). "
+                                "Another rung or refinement goes back to 0")
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
                                            "(geometric stiffening) terms")
     integrator: str = param("rk4", choices=INTEGRATORS, doc="time integrator")
@@ -876,6 +882,9 @@ class Scene:
             changes.setdefault("dt", 0.0)
             changes.setdefault("integrator", "rk4")
         model = ("rung", "refine", "modal_basis")
+        if any(changes.get(k, data[k]) != data[k] for k in ("rung", "refine")):
+            # the quadrature was measured for the scene's rod and its terms
+            changes.setdefault("rod_points", 0)
         if any(changes.get(k, data[k]) != data[k] for k in model) or changes.get("tolerance"):
             # a scene's fixed step was chosen for the model it names (two_link_free: 7.5 ms
             # for modal 3, above that model's automatic step): another model, or a

@@ -147,6 +147,7 @@ def _reference_scene(scene, terms, closed_loop=False):
     return sc.with_fidelity(rung="rod", refine=terms, dt=0.0, tolerance=0.0,
                             estimate=False, integrator="rk4",
                             modal_basis=defaults.modal_basis,
+                            rod_points=defaults.rod_points,
                             foreshortening=defaults.foreshortening, rtol=defaults.rtol,
                             atol=defaults.atol,
                             tolerance_metric=defaults.tolerance_metric)

@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 from flexarm_ros.scene import load_scene
-from flexarm_ros.sim.truth import measures
+from flexarm_ros.sim.truth import measures, reference_scene
 from flexarm_ros.sim.simulate import simulate
 
 T = 2.0
@@ -33,9 +33,7 @@ def main(argv=None) -> int:
         if getattr(a, name) < 1:
             ap.error(f"--{name}: got {getattr(a, name)}, expected an integer >= 1")
     sc = load_scene("two_link_free")
-    # the top rung as sim/truth.py builds it: rod 12, default quadrature, RK4 auto step
-    ref = simulate(sc.with_fidelity(rung="rod", refine=12, rod_points=0, dt=0.0,
-                                    integrator="rk4"), T)
+    ref = simulate(reference_scene(sc, 12), T)          # the top rung, as the checks build it
     ref_cols = {k: np.asarray(v) for k, v in ref.columns.items()}
     links = [lm.name for lm in ref.chain.links]
     dt = sc.fidelity.dt

@@ -137,7 +137,7 @@ def check_metric(metric: str) -> str:
     return metric
 
 
-def _reference_scene(scene, terms, closed_loop=False):
+def reference_scene(scene, terms, closed_loop=False):
     """The scene on the rod with ``terms`` terms at its automatic RK4 step, no tolerance,
     no estimate; the input programs alone, or (``closed_loop``) with the scene's controller
     and driver in the loop at the control rate, as the checked run had them."""
@@ -160,7 +160,7 @@ def _rod_columns(scene, T, terms, simulate, closed_loop=False):
     every rung and tolerance of one scene, and the pairs of references, share the runs).
     ``simulate``: the batch run without a check
     (:func:`flexarm_ros.sim.simulate._simulate`, passed in: this module sits below it)."""
-    return _rod_run(_reference_scene(scene, terms, closed_loop), T, simulate)
+    return _rod_run(reference_scene(scene, terms, closed_loop), T, simulate)
 
 
 @functools.lru_cache(maxsize=16)

@@ -133,11 +133,15 @@ def _one_compile_at_a_time(dispatcher):
     ``compile`` on the instance, from Python and when typing a caller)."""
     if fcntl is None:
         return dispatcher
+    from numba.core import sigutils
     from numba.core.compiler_lock import global_compiler_lock
     compile_unlocked = dispatcher.compile
     lock = _CompileLock(dispatcher)
 
     def compile(sig):
+        args, _ = sigutils.normalize_signature(sig)
+        if tuple(args) in dispatcher.overloads:     # in this process already (typing a
+            return compile_unlocked(sig)            # caller): no wait on another's compile
         with global_compiler_lock, lock:
             return compile_unlocked(sig)
     dispatcher.compile = compile

@@ -247,6 +247,25 @@ def test_set_reaches_simulate_and_an_explicit_flag_wins(tmp_path, capsys):
     assert _json(capsys, argv + ["--json"])["set"] == {}
 
 
+def test_a_fidelity_set_survives_a_flag_that_changes_the_model(capsys):
+    """--refine sends the scene's rod_modes, rod_points and dt back to their defaults (they
+    were chosen for its rod); a --set of one of them alongside it is kept, not dropped."""
+    argv = ["simulate", "two_link_free", "--duration", "0.05", "--quiet", "--json",
+            "--refine", "8", "--set", "fidelity.rod_modes=4", "--set",
+            "fidelity.rod_points=5", "--set", "fidelity.dt=0.0035"]
+    assert main(argv) == 0
+    summ = json.loads(capsys.readouterr().out)
+    assert summ["step_s"] == 0.0035 and len(summ["coordinates"]) == 2 + 2 * 4
+    assert main(["explain", "two_link_free", "--no-check", "--refine", "8", "--set",
+                 "fidelity.rod_modes=4", "--set", "fidelity.rod_points=5"]) == 0
+    text = capsys.readouterr().out
+    assert "rung rod (refine 8; its lowest 4 bending modes; 5 Gauss points)" in text
+    assert "4 elastic coordinate(s)" in text and ", 5 mass points" in text
+    # without the sets, --refine alone: all 8 modes on the default 11 points
+    assert main(["explain", "two_link_free", "--no-check", "--refine", "8"]) == 0
+    assert "8 elastic coordinate(s)" in capsys.readouterr().out
+
+
 def test_set_reaches_explain_and_creates_a_section_the_scene_leaves_out(capsys):
     assert main(["explain", "link", "--set", "fidelity.rung=fem", "--no-check"]) == 0
     text = capsys.readouterr().out

@@ -4,8 +4,6 @@ small-deflection frequencies of beam theory, energy conservation, the spin-up's
 convergence (and the floor of the second-order rungs it removes), and the compiled kernel
 against the numpy reference."""
 
-import math
-
 import numpy as np
 import pytest
 
@@ -206,3 +204,83 @@ def test_another_rung_or_refinement_leaves_the_scenes_rod_quadrature():
     assert sc.with_fidelity(rung="modal").fidelity.rod_points == 0
     assert sc.with_fidelity(refine=5, rod_points=7).fidelity.rod_points == 7
     assert sc.with_fidelity(dt=0.005).fidelity.rod_points == 4
+
+
+def test_the_lowest_modes_of_a_longer_rod_carry_beam_theorys_frequencies():
+    """fidelity.rod_modes: link_tipmass, joint locked, on the lowest 3 bending modes of the
+    12-term rod has the tip-loaded cantilever's first three frequencies within 1e-6
+    relative (the closed form of test_small_deflection_frequencies_are_beam_theorys), where
+    the rod of 3 Legendre terms — as many coordinates — is off by more than 1 % in its
+    third; the lowest modes are the accurate ones of a Galerkin basis."""
+    from flexarm_ros.model.linear import natural_modes
+    lk = load_scene("link_tipmass").links[0]
+    ref = bt.tip_loaded_frequencies_hz(lk.beam.EI, lk.beam.mass_per_length, lk.beam.length,
+                                       lk.tip.mass, lk.tip.inertia, 3)
+    err = {}
+    for terms, modes in ((12, 3), (3, 0)):
+        ch = Chain(load_scene("link_tipmass").with_fidelity(rung="rod", refine=terms,
+                                                           rod_modes=modes))
+        assert ch.links[0].beam.n == 3
+        f = np.asarray(natural_modes(ch, initial_state(ch)[0], "locked").frequencies_hz)
+        err[terms] = np.abs(f[f > 1e-6][:3] / ref - 1)
+    assert err[12].max() < 1e-6 and err[3][2] > 1e-2, err
+
+
+def test_all_the_modes_of_a_rod_are_the_rod_itself():
+    """rod_modes equal to the terms keeps every mode: the same model as 0 (all)."""
+    from flexarm_ros.model import rod
+    lk = load_scene("link_tipmass").links[0]
+    a = rod.build(lk.beam, lk.tip, 5)
+    b = rod.build(lk.beam, lk.tip, 5, modes=5)
+    np.testing.assert_array_equal(a[0].T, b[0].T)
+    np.testing.assert_array_equal(a[3], b[3])
+    np.testing.assert_array_equal(a[5], b[5])
+
+
+def test_the_stretch_stays_among_the_modes_kept():
+    """spin_up's beam declares EA: its rod on the lowest 3 bending modes of 8 terms keeps
+    the stretch coordinate too (3 + 1), which carries the 5e-4 m centrifugal stretch."""
+    ch = Chain(load_scene("spin_up").with_fidelity(refine=8, rod_modes=3))
+    basis = ch.links[0].beam.rod
+    assert basis.T.shape[1] == 4
+    assert np.count_nonzero(np.abs(basis.C).max(axis=0) > 0) == 1
+
+
+def test_four_modes_of_rod_8_meet_1e_6_m_in_both_measures_on_two_link_free():
+    """two_link_free on the lowest 4 bending modes of the 8-term rod, 5 Gauss points,
+    RKN4 at 3.5 ms (0.88 of its 3.97 ms stability limit): within 1e-6 m of rod 12 (the top
+    rung at its automatic RK4 step) over the 2 s in the tip position and in both links' tip
+    deflections (measured 5.8e-8 m and 8.6e-7 m); rod 5, the Legendre rod that meets it,
+    needs 1.7 ms (stability limit 1.96 ms), and rod 4 stops at 1.8e-6 m
+    (docs/decisions/0033-rod-modes.md)."""
+    from flexarm_ros.sim.truth import measures, reference_scene
+    sc = load_scene("two_link_free")
+    ref = simulate(reference_scene(sc, 12), 2.0).columns
+    run = simulate(sc.with_fidelity(refine=8, rod_modes=4, rod_points=5, dt=0.0035), 2.0)
+    assert run.chain.n == 2 + 2 * 4
+    m = measures(run.columns, ref, [lm.name for lm in run.chain.links])
+    assert m.position_m < 1e-6 and m.deflection_max_m < 1e-6, m
+    assert min(m.deflection_peak_m) > 1e-2                   # the beams do bend
+
+
+@pytest.mark.parametrize("over, says", [
+    ({"fidelity.refine": 8, "fidelity.rod_modes": 9},
+     "fidelity.rod_modes: got 9 for 8 curvature terms, expected 0 (all 8) or 1..8"),
+    ({"fidelity.refine": 8, "fidelity.rod_modes": 4, "fidelity.rod_points": 4},
+     "fidelity.rod_points: got 4 Gauss points for 4 rod modes of 8 curvature terms, "
+     "expected 0 (the default, 11) or at least 5"),
+    ({"fidelity.rod_modes": -1}, "fidelity.rod_modes"),
+    ({"fidelity.rod_modes": 17}, "fidelity.rod_modes")])
+def test_rod_modes_beyond_the_terms_or_out_of_range_are_refused_by_name(over, says):
+    from flexarm_ros.errors import InputError
+    with pytest.raises(InputError) as exc:
+        Chain(set_keys(load_scene("two_link_free"), over))
+    assert says in str(exc.value)
+
+
+def test_another_rung_or_refinement_leaves_the_scenes_rod_modes():
+    """rod_modes was chosen for one rod: another refinement or rung goes back to all."""
+    sc = load_scene("two_link_free").with_fidelity(refine=8, rod_modes=4, rod_points=5)
+    assert sc.with_fidelity(refine=10).fidelity.rod_modes == 0
+    assert sc.with_fidelity(rung="modal").fidelity.rod_modes == 0
+    assert sc.with_fidelity(dt=0.003).fidelity.rod_modes == 4

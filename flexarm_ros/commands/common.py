@@ -94,9 +94,9 @@ def load(args):
     """The scene with the ``--set`` values, then the fidelity flags (an explicit flag
     wins over a ``--set fidelity.…``)."""
     from flexarm_ros.scene import load_scene
-    from flexarm_ros.scene.overrides import apply_sets
-    return apply_sets(load_scene(args.scene or DEFAULT_SCENE),
-                      set_values(args)).with_fidelity(**overrides(args))
+    from flexarm_ros.scene.overrides import with_overrides
+    return with_overrides(load_scene(args.scene or DEFAULT_SCENE), set_values(args),
+                          overrides(args))
 
 
 def set_line(sets: dict) -> str | None:

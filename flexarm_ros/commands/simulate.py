@@ -89,7 +89,9 @@ def main(args):
         if summ.get("check"):
             _print_check(summ)
         if summ.get("auto"):
-            print(f"  rung auto: {summ['rung']} {summ['refine']}, {summ['integrator']} step "
+            modes = (f" (lowest {summ['rod_modes']} modes)"
+                     if summ.get("rod_modes", summ["refine"]) != summ["refine"] else "")
+            print(f"  rung auto: {summ['rung']} {summ['refine']}{modes}, {summ['integrator']} step "
                   f"{summ['step_s']:.3g} s, estimated tip error "
                   f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")

@@ -548,17 +548,18 @@ def discretize(beam, tip, fidelity, hub_inertia=None) -> BeamDiscretization:
             raise SceneError(f"fidelity.refine: got {n}, expected <= 400 segments")
         return finite_differences(beam, n)
     if rung == "rod":
-        return rod_rung(beam, tip, n, fidelity.rod_points)
+        return rod_rung(beam, tip, n, fidelity.rod_points, fidelity.rod_modes)
     raise SceneError(f"fidelity.rung: got {rung!r}, expected one of rigid, cubic, modal, "
                      f"fem, fd, rod")
 
 
-def rod_rung(beam, tip, terms, points: int = 0) -> BeamDiscretization:
+def rod_rung(beam, tip, terms, points: int = 0, modes: int = 0) -> BeamDiscretization:
     """The geometrically exact rod (:mod:`flexarm_ros.model.rod`) as a discretization:
     its exact kinematics in ``rod``; φ, φ(L), φ′(L) its small-deflection shapes, S zero
     (the chain reads the rod's own kinematics)."""
     from flexarm_ros.model import rod
-    basis, x, mass, K, D, M0, shape, curvature = rod.build(beam, tip, terms, points=points)
+    basis, x, mass, K, D, M0, shape, curvature = rod.build(beam, tip, terms, points=points,
+                                                            modes=modes)
     P = len(x)
     phi = basis.W[:P] @ basis.T[:P]          # transverse at η = 0: ∫ θ
     phi_tip = basis.W[P] @ basis.T[:P]

@@ -51,6 +51,10 @@ def explain(scene, chain=None) -> str:
              f"rung {fid.rung} (refine {chain.links[0].beam.refine}"
              + (": the rung's default, as fidelity.refine is 0" if fid.refine == 0 else "")
              + (f"; {fid.modal_basis} modes" if fid.rung == "modal" else "")
+             + (f"; its lowest {fid.rod_modes} bending modes" if fid.rung == "rod"
+                and 0 < fid.rod_modes < chain.links[0].beam.refine else "")
+             + (f"; {fid.rod_points} Gauss points" if fid.rung == "rod" and fid.rod_points
+                else "")
              + "), integrator "
              f"{fid.integrator}" + (f", dt {fid.dt:.4g} s" if fid.dt else
                                     f", the step chosen for a tip tolerance of "

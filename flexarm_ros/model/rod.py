@@ -40,6 +40,10 @@ the world as for every rung (r = o + A(ψ)s, ṙ, r̈ of :mod:`flexarm_ros.model
 The coordinates are the small-deflection modes of the rod carrying its tip body (linear
 combinations of the Legendre coefficients and the stretch), scaled to unit peak deflection
 (or unit tip stretch): the raw Legendre coefficients give a mass matrix of condition ~1e6.
+``fidelity.rod_modes`` keeps only the lowest of them (and the stretch): the curvature
+shapes of a longer rod on fewer coordinates, without its high rates — better than as many
+Legendre terms where the beams bend little (two_link_free), worse where they bend far
+(the spin-up); docs/decisions/0033-rod-modes.md.
 """
 
 from __future__ import annotations
@@ -196,24 +200,88 @@ def curvature_rows(xs, length, terms, axial, transform) -> np.ndarray:
 
 
 def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine",
-          points: int = 0):
+          points: int = 0, modes: int = 0):
     """(RodBasis, x, mass, K, D, M0, linear shape rows function, curvature rows function)
     of one beam: ``terms`` curvature terms, the stretch when the beam declares EA, the
-    coordinates the small-deflection modes carrying ``tip`` (module doc); ``points``
-    Gauss points (0: :func:`gauss_points`; else at least terms + 1, so that the mass
-    matrix of the raw basis stays regular)."""
+    coordinates the small-deflection modes carrying ``tip`` (module doc) — all of them, or
+    (``modes`` > 0) the lowest ``modes`` bending modes and the stretch (:func:`_build`);
+    ``points`` Gauss points (0: :func:`gauss_points` of ``terms``; else at least one more
+    than the bending coordinates, so that their mass matrix stays regular)."""
     if not 1 <= terms <= MAX_TERMS:
         raise SceneError(f"{fidelity_refine_name}: got {terms} curvature terms for the rod "
                          f"rung, expected 1..{MAX_TERMS}")
-    if points and points < terms + 1:
-        raise SceneError(f"fidelity.rod_points: got {points} Gauss points for {terms} "
-                         f"curvature terms, expected 0 (the default, {gauss_points(terms)}) "
-                         f"or at least {terms + 1}")
-    return _build(beam, tip, terms, points or gauss_points(terms))
+    if not 0 <= modes <= terms:
+        raise SceneError(f"fidelity.rod_modes: got {modes} for {terms} curvature terms, "
+                         f"expected 0 (all {terms}) or 1..{terms} (the lowest bending modes "
+                         f"of the {terms}-term rod kept as coordinates)")
+    kept = modes if 0 < modes < terms else terms
+    if points and points < kept + 1:
+        what = (f"{kept} curvature terms" if kept == terms else
+                f"{kept} rod modes of {terms} curvature terms")
+        raise SceneError(f"fidelity.rod_points: got {points} Gauss points for {what}, "
+                         f"expected 0 (the default, {gauss_points(terms)}) or at least "
+                         f"{kept + 1}")
+    return _build(beam, tip, terms, points or gauss_points(terms), kept)
+
+
+def _modes(beam, tip, terms, P):
+    """(ω², vectors, scale, sign) of the small-deflection modes of the rod with ``terms``
+    curvature terms carrying ``tip``, its mass on P Gauss points: K_raw v = ω² M_raw v, and
+    each vector's scale (its peak transverse deflection, or tip stretch for the axial one)
+    and sign (the tip's)."""
+    import scipy.linalg
+    L = beam.length
+    axial = getattr(beam, "EA", None) is not None
+    gx, gw = _leg.leggauss(P)
+    x = 0.5 * L * (gx + 1.0)
+    w = 0.5 * L * gw
+    mass = beam.mass_per_length * w
+    W = _integration_rows(x, np.append(x, L), L)
+    T_raw, C_raw = _raw_rows(np.append(x, L), L, terms, axial)
+    ne = T_raw.shape[1]
+    K_raw = _stiffness(beam, terms, axial, C_raw[:P], w)
+    zero = np.zeros(ne)
+    _, ds0, _ = _local(T_raw, C_raw, W, beam.hub_radius, zero, zero)
+    M_raw = np.einsum("p,pik,pil->kl", mass, ds0[:P], ds0[:P])
+    if tip is not None and (tip.mass > 0 or tip.inertia > 0):
+        gy = ds0[P, 1] + tip.cg[0] * T_raw[P]            # CG of the tip body, transverse
+        gx_ = ds0[P, 0] - tip.cg[1] * T_raw[P]           # ... axial
+        M_raw = M_raw + tip.mass * (np.outer(gy, gy) + np.outer(gx_, gx_)) \
+            + tip.inertia * np.outer(T_raw[P], T_raw[P])
+    vals, vecs = scipy.linalg.eigh(K_raw, M_raw)
+    # scale: unit peak transverse deflection (bending) or unit tip stretch (axial)
+    trans = ds0[:, 1, :] @ vecs                           # (P+1, ne) at the points and tip
+    axl = ds0[P, 0, :] @ vecs
+    bending = np.abs(trans).max(axis=0) >= np.abs(axl)
+    scale = np.where(bending, np.abs(trans).max(axis=0), np.abs(axl))
+    sign = np.sign(np.where(np.abs(trans[P]) > 0, trans[P], axl))
+    sign[sign == 0] = 1.0
+    return vals, vecs, scale, sign, bending
+
+
+def _stiffness(beam, terms, axial, C_pts, w):
+    """K_raw of the (Legendre, stretch) coordinates: EI·L/(2k+1) on the diagonal (the
+    Legendre polynomials are orthogonal), EA ∫ε² for the stretch."""
+    ne = terms + (1 if axial else 0)
+    K_raw = np.zeros((ne, ne))
+    for k in range(terms):
+        K_raw[k, k] = beam.EI * beam.length / (2 * k + 1)
+    if axial:
+        K_raw[terms, terms] = beam.EA * float(w @ C_pts[:, terms] ** 2)
+    return K_raw
 
 
 @functools.lru_cache(maxsize=32)
-def _build(beam, tip, terms, P):
+def _build(beam, tip, terms, P, kept):
+    """The rod of :func:`build` on P Gauss points. All ``terms`` bending modes (kept =
+    terms): the modes of the rod on those points, as sessions 20-25 shipped them. Fewer
+    (kept < terms): the lowest ``kept`` bending modes of the ``terms``-term rod on its
+    default quadrature — the curvature shapes a higher-order rod converges to, rather than
+    the best ``kept``-term polynomials — and the stretch, then carried on P points. The
+    lowest modes of a Galerkin basis are its accurate ones: on two_link_free three modes
+    of the 8-term rod halve the link-2 tip deflection error of three Legendre terms at
+    1 ms (1.3e-6 against 5.5e-6 m of rod 12) and keep the highest rate near 52 Hz, where
+    four Legendre terms go to 110 Hz (docs/decisions/0033-rod-modes.md)."""
     L = beam.length
     axial = getattr(beam, "EA", None) is not None
     gx, gw = _leg.leggauss(P)
@@ -224,29 +292,15 @@ def _build(beam, tip, terms, P):
     W = _integration_rows(x, xs, L)
     T_raw, C_raw = _raw_rows(xs, L, terms, axial)
     ne = T_raw.shape[1]
-    K_raw = np.zeros((ne, ne))
-    for k in range(terms):
-        K_raw[k, k] = beam.EI * L / (2 * k + 1)
-    if axial:
-        K_raw[terms, terms] = beam.EA * float(w @ C_raw[:P, terms] ** 2)
-    # small-deflection kinematics (η = 0): transverse from the curvature, axial from e
+    K_raw = _stiffness(beam, terms, axial, C_raw[:P], w)
     zero = np.zeros(ne)
     _, ds0, _ = _local(T_raw, C_raw, W, beam.hub_radius, zero, zero)
-    M_raw = np.einsum("p,pik,pil->kl", mass, ds0[:P], ds0[:P])
-    if tip is not None and (tip.mass > 0 or tip.inertia > 0):
-        gy = ds0[P, 1] + tip.cg[0] * T_raw[P]            # CG of the tip body, transverse
-        gx_ = ds0[P, 0] - tip.cg[1] * T_raw[P]           # ... axial
-        M_raw = M_raw + tip.mass * (np.outer(gy, gy) + np.outer(gx_, gx_)) \
-            + tip.inertia * np.outer(T_raw[P], T_raw[P])
-    import scipy.linalg
-    vals, vecs = scipy.linalg.eigh(K_raw, M_raw)
-    # scale: unit peak transverse deflection (bending) or unit tip stretch (axial)
-    trans = ds0[:, 1, :] @ vecs                           # (P+1, ne) at the points and tip
-    axl = ds0[P, 0, :] @ vecs
-    scale = np.where(np.abs(trans).max(axis=0) >= np.abs(axl), np.abs(trans).max(axis=0),
-                     np.abs(axl))
-    sign = np.sign(np.where(np.abs(trans[P]) > 0, trans[P], axl))
-    sign[sign == 0] = 1.0
+    if kept == terms:
+        _, vecs, scale, sign, _ = _modes(beam, tip, terms, P)
+    else:
+        _, vecs, scale, sign, bending = _modes(beam, tip, terms, gauss_points(terms))
+        keep = np.flatnonzero(~bending | (np.cumsum(bending) <= kept))
+        vecs, scale, sign = vecs[:, keep], scale[keep], sign[keep]
     V = vecs * (sign / scale)[None, :]
     basis = RodBasis(T_raw @ V, C_raw @ V, W, beam.hub_radius, L, terms, axial, x, V)
     K = V.T @ K_raw @ V

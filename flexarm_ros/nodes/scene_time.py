@@ -23,12 +23,12 @@ def load(node, params: dict) -> tuple:
     ``params`` → (values, scene with the ``set`` values and then the fidelity overrides
     applied, end tick count or None)."""
     from flexarm_ros.scene import load_scene
-    from flexarm_ros.scene.overrides import apply_sets, decode_sets
+    from flexarm_ros.scene.overrides import decode_sets, with_overrides
     p = declare(node, {**COMMON, **FIDELITY, **params})
     if p["mode"] not in MODES:
         raise ValueError(f"parameter mode: got {p['mode']!r}, expected one of {MODES}")
-    scene = apply_sets(load_scene(p["scene"]), decode_sets(p["set"])).with_fidelity(
-        **fidelity_overrides(p))
+    scene = with_overrides(load_scene(p["scene"]), decode_sets(p["set"]),
+                           fidelity_overrides(p))
     dur = p["duration"] or scene.duration
     n = None if dur == float("inf") else int(round(dur / control_period(scene)))
     return p, scene, n

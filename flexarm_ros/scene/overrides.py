@@ -107,6 +107,23 @@ def apply_sets(scene, sets: dict | None):
     return set_keys(scene, sets) if sets else scene
 
 
+def with_overrides(scene, sets: dict | None, fidelity: dict | None = None):
+    """``scene`` with ``sets`` written (:func:`apply_sets`), then the fidelity flags
+    (``Scene.with_fidelity`` keywords, None: not given). A flag wins over a ``--set
+    fidelity.…`` of the same key; a ``fidelity.…`` value set explicitly stays what it was
+    set to when a flag changes the model (``--refine 8 --set fidelity.rod_modes=4``: the
+    flag alone would send the scene's rod_modes, rod_points and dt back to 0)."""
+    scene = apply_sets(scene, sets)
+    given = {k: v for k, v in (fidelity or {}).items() if v is not None}
+    if not given:
+        return scene
+    for key, value in (sets or {}).items():
+        head, _, name = key.partition(".")
+        if head == "fidelity" and name and "." not in name:
+            given.setdefault(name, value)
+    return scene.with_fidelity(**given)
+
+
 def format_value(value) -> str:
     """A value as it would be typed after ``=`` (YAML flow style: ``6.0``, ``[6.0, 8.0]``,
     ``true``, ``modal``)."""

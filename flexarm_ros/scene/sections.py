@@ -576,10 +576,20 @@ class Fidelity:
                                  "(the one-link arm's own modes)")
     rod_points: int = param(0, ge=0, le=64,
                             doc="rod rung: Gauss points carrying each beam's mass (0 → "
-                                "terms + 3, at least 6; else at least terms + 1). Fewer "
-                                "are cheaper; measure the change against the top rung "
-                                "(two_link_free: 4 for 3 terms, docs/accuracy.md). "
-                                "Another rung or refinement goes back to 0")
+                                "terms + 3, at least 6; else at least one more than the "
+                                "bending coordinates). Fewer are cheaper; measure the "
+                                "change against the top rung (two_link_free: 4 for 3 "
+                                "terms, docs/accuracy.md). Another rung or refinement "
+                                "goes back to 0")
+    rod_modes: int = param(0, ge=0, le=16,
+                           doc="rod rung: keep the lowest rod_modes bending modes of the "
+                               "rod with fidelity.refine curvature terms as its "
+                               "coordinates (and the stretch, with EA); 0 → all. Fewer "
+                               "modes of more terms: the accurate low shapes without the "
+                               "high rates that shorten the explicit step (two_link_free: "
+                               "4 modes of rod 8 meet 1e-6 m in both measures at 3.5 ms, "
+                               "rod 5 needs 1.7 ms; docs/decisions/0033-rod-modes.md). "
+                               "Another rung or refinement goes back to 0")
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
                                            "(geometric stiffening) terms")
     integrator: str = param("rk4", choices=INTEGRATORS, doc="time integrator")
@@ -883,8 +893,9 @@ class Scene:
             changes.setdefault("integrator", "rk4")
         model = ("rung", "refine", "modal_basis")
         if any(changes.get(k, data[k]) != data[k] for k in ("rung", "refine")):
-            # the quadrature was measured for the scene's rod and its terms
+            # the quadrature and the modes kept were measured for the scene's rod
             changes.setdefault("rod_points", 0)
+            changes.setdefault("rod_modes", 0)
         if any(changes.get(k, data[k]) != data[k] for k in model) or changes.get("tolerance"):
             # a scene's fixed step was chosen for the model it names (two_link_free: 7.5 ms
             # for modal 3, above that model's automatic step): another model, or a

@@ -64,6 +64,12 @@ class SimResult:
                                     if self.chain.fidelity.tolerance else None),
                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
                                          if self.accuracy else None)}
+        if self.chain.fidelity.rung == "rod":
+            # the rod's bending coordinates per beam (fidelity.rod_modes; all its terms
+            # when 0) and its Gauss points (fidelity.rod_points; 0 takes the default)
+            beam = self.chain.links[0].beam
+            out["rod_modes"] = self.chain.fidelity.rod_modes or beam.refine
+            out["rod_points"] = len(beam.x)
         if self.accuracy:
             if self.accuracy.method == "linear":
                 how = "the linearized model stepped by the trapezoidal rule against its " \
@@ -131,16 +137,26 @@ def _tolerance_of(res) -> float:
 def _escalate(scene, T, progress, first: SimResult) -> SimResult:
     """Rung auto whose check (the top rung over the whole run) shows its tolerance not met:
     the model-form error of the floating-frame rungs, which the linearized analysis cannot
-    see. The run again on the rod, 3, 4, … terms below the reference's, the first whose
-    check meets the tolerance in the bound measures; else the last tried, said not met."""
+    see. The run again on the rod with 3, 4, … coordinates per beam, fewer than the
+    reference's terms: for each count first the lowest modes of the reference's rod
+    (fidelity.rod_modes, on as many Gauss points as the Legendre rod of that count; the
+    better basis where the beams bend little: two_link_free), then the Legendre rod of
+    that many terms (where they bend far: spin_up) — the first whose check meets the
+    tolerance in the bound measures; else the last tried, said not met."""
+    from flexarm_ros.model.rod import gauss_points
     truth = _truth()
     tol = first.auto.tolerance_m
     metric = scene.fidelity.tolerance_metric
     tried = [(first.auto.label, first.truth.estimate)]
     res = first
     top = int(first.truth.reference.split()[-1])
-    for terms in range(3, top):
-        sc = scene.with_fidelity(rung="rod", refine=terms, dt=0.0, tolerance=0.0)
+    candidates = []
+    for n in range(3, top):
+        candidates.append((f"rod {top} (lowest {n} modes)",
+                           dict(refine=top, rod_modes=n, rod_points=gauss_points(n))))
+        candidates.append((f"rod {n}", dict(refine=n)))
+    for label, over in candidates:
+        sc = scene.with_fidelity(rung="rod", dt=0.0, tolerance=0.0, **over)
         try:
             res = _simulate(sc, T, progress, None)
         except InputError:
@@ -150,7 +166,7 @@ def _escalate(scene, T, progress, first: SimResult) -> SimResult:
             break
         if all(res.truth.met(tol, metric).values()):
             break
-        tried.append((f"rod {terms}", res.truth.estimate))
+        tried.append((label, res.truth.estimate))
     res.auto = first.auto
     res.escalated = tried
     return res

@@ -148,6 +148,7 @@ def reference_scene(scene, terms, closed_loop=False):
                             estimate=False, integrator="rk4",
                             modal_basis=defaults.modal_basis,
                             rod_points=defaults.rod_points,
+                            rod_modes=defaults.rod_modes,
                             foreshortening=defaults.foreshortening, rtol=defaults.rtol,
                             atol=defaults.atol,
                             tolerance_metric=defaults.tolerance_metric)

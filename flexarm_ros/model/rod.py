@@ -224,31 +224,38 @@ def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine",
     return _build(beam, tip, terms, points or gauss_points(terms), kept)
 
 
-def _modes(beam, tip, terms, P):
-    """(ω², vectors, scale, sign) of the small-deflection modes of the rod with ``terms``
-    curvature terms carrying ``tip``, its mass on P Gauss points: K_raw v = ω² M_raw v, and
-    each vector's scale (its peak transverse deflection, or tip stretch for the axial one)
-    and sign (the tip's)."""
-    import scipy.linalg
+def _on_points(beam, terms, P):
+    """The raw (Legendre, stretch) rod on P Gauss points: (x, mass, W, T_raw, C_raw,
+    K_raw, ds0) — abscissae, point masses, the integration matrix, ∂θ/∂raw and ∂ε/∂raw at
+    the points and the tip, the stiffness, and ∂s/∂raw at η = 0."""
     L = beam.length
     axial = getattr(beam, "EA", None) is not None
     gx, gw = _leg.leggauss(P)
     x = 0.5 * L * (gx + 1.0)
     w = 0.5 * L * gw
-    mass = beam.mass_per_length * w
-    W = _integration_rows(x, np.append(x, L), L)
-    T_raw, C_raw = _raw_rows(np.append(x, L), L, terms, axial)
-    ne = T_raw.shape[1]
+    xs = np.append(x, L)
+    W = _integration_rows(x, xs, L)
+    T_raw, C_raw = _raw_rows(xs, L, terms, axial)
     K_raw = _stiffness(beam, terms, axial, C_raw[:P], w)
-    zero = np.zeros(ne)
+    zero = np.zeros(T_raw.shape[1])
     _, ds0, _ = _local(T_raw, C_raw, W, beam.hub_radius, zero, zero)
+    return x, beam.mass_per_length * w, W, T_raw, C_raw, K_raw, ds0
+
+
+def _modes(beam, tip, terms, P):
+    """(vectors, scale, sign, bending) of the small-deflection modes of the rod with
+    ``terms`` curvature terms carrying ``tip``, its mass on P Gauss points (K_raw v = ω²
+    M_raw v, ω rising): each vector's scale (its peak transverse deflection, or its tip
+    stretch for the axial one), sign (the tip's) and whether it bends."""
+    import scipy.linalg
+    _, mass, _, T_raw, _, K_raw, ds0 = _on_points(beam, terms, P)
     M_raw = np.einsum("p,pik,pil->kl", mass, ds0[:P], ds0[:P])
     if tip is not None and (tip.mass > 0 or tip.inertia > 0):
         gy = ds0[P, 1] + tip.cg[0] * T_raw[P]            # CG of the tip body, transverse
         gx_ = ds0[P, 0] - tip.cg[1] * T_raw[P]           # ... axial
         M_raw = M_raw + tip.mass * (np.outer(gy, gy) + np.outer(gx_, gx_)) \
             + tip.inertia * np.outer(T_raw[P], T_raw[P])
-    vals, vecs = scipy.linalg.eigh(K_raw, M_raw)
+    _, vecs = scipy.linalg.eigh(K_raw, M_raw)
     # scale: unit peak transverse deflection (bending) or unit tip stretch (axial)
     trans = ds0[:, 1, :] @ vecs                           # (P+1, ne) at the points and tip
     axl = ds0[P, 0, :] @ vecs
@@ -256,7 +263,7 @@ def _modes(beam, tip, terms, P):
     scale = np.where(bending, np.abs(trans).max(axis=0), np.abs(axl))
     sign = np.sign(np.where(np.abs(trans[P]) > 0, trans[P], axl))
     sign[sign == 0] = 1.0
-    return vals, vecs, scale, sign, bending
+    return vecs, scale, sign, bending
 
 
 def _stiffness(beam, terms, axial, C_pts, w):
@@ -279,26 +286,16 @@ def _build(beam, tip, terms, P, kept):
     default quadrature — the curvature shapes a higher-order rod converges to, rather than
     the best ``kept``-term polynomials — and the stretch, then carried on P points. The
     lowest modes of a Galerkin basis are its accurate ones: on two_link_free three modes
-    of the 8-term rod halve the link-2 tip deflection error of three Legendre terms at
-    1 ms (1.3e-6 against 5.5e-6 m of rod 12) and keep the highest rate near 52 Hz, where
-    four Legendre terms go to 110 Hz (docs/decisions/0033-rod-modes.md)."""
+    of the 8-term rod cut the link-2 tip deflection error of three Legendre terms to a
+    quarter at 1 ms (1.3e-6 against 5.5e-6 m of rod 12) at the same highest rate, 52 Hz,
+    where four Legendre terms go to 110 Hz (docs/decisions/0033-rod-modes.md)."""
     L = beam.length
     axial = getattr(beam, "EA", None) is not None
-    gx, gw = _leg.leggauss(P)
-    x = 0.5 * L * (gx + 1.0)
-    w = 0.5 * L * gw
-    mass = beam.mass_per_length * w
-    xs = np.append(x, L)
-    W = _integration_rows(x, xs, L)
-    T_raw, C_raw = _raw_rows(xs, L, terms, axial)
-    ne = T_raw.shape[1]
-    K_raw = _stiffness(beam, terms, axial, C_raw[:P], w)
-    zero = np.zeros(ne)
-    _, ds0, _ = _local(T_raw, C_raw, W, beam.hub_radius, zero, zero)
+    x, mass, W, T_raw, C_raw, K_raw, ds0 = _on_points(beam, terms, P)
     if kept == terms:
-        _, vecs, scale, sign, _ = _modes(beam, tip, terms, P)
+        vecs, scale, sign, _ = _modes(beam, tip, terms, P)
     else:
-        _, vecs, scale, sign, bending = _modes(beam, tip, terms, gauss_points(terms))
+        vecs, scale, sign, bending = _modes(beam, tip, terms, gauss_points(terms))
         keep = np.flatnonzero(~bending | (np.cumsum(bending) <= kept))
         vecs, scale, sign = vecs[:, keep], scale[keep], sign[keep]
     V = vecs * (sign / scale)[None, :]

@@ -1,5 +1,7 @@
-"""two_link_free's rod variants in one run (not a unit test; docs/accuracy.md, issue 36's
-two_link_free target, docs/decisions/0033-rod-modes.md).
+"""two_link_free's rod variants against rod 12, timed alternating in one run.
+
+Not a unit test: docs/accuracy.md, issue 36's two_link_free target,
+docs/decisions/0033-rod-modes.md.
 
 ``--part points``: rod 3 on 4, 5 and 6 Gauss points per beam (``fidelity.rod_points``) and
 the old modal 3 default. ``--part modes``: the shipped rod 3 and the variants that meet
@@ -52,9 +54,13 @@ def variants(part, sc):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--part", choices=("points", "modes"), default="points")
-    ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--repeat", type=int, default=8)
+    ap.add_argument("--part", choices=("points", "modes"), default="points",
+                    help="the Gauss points of rod 3, or the 1e-6 m variants (default points)")
+    ap.add_argument("--rounds", type=int, default=2,
+                    help="rounds of the alternating variants (default 2)")
+    ap.add_argument("--repeat", type=int, default=8,
+                    help="2 s runs per variant and round, the best timed (default 8; fewer "
+                         "are noisy on a busy host)")
     a = ap.parse_args(argv)
     for name in ("rounds", "repeat"):
         if getattr(a, name) < 1:

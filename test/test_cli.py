@@ -263,7 +263,16 @@ def test_a_fidelity_set_survives_a_flag_that_changes_the_model(capsys):
     assert "4 elastic coordinate(s)" in text and ", 5 mass points" in text
     # without the sets, --refine alone: all 8 modes on the default 11 points
     assert main(["explain", "two_link_free", "--no-check", "--refine", "8"]) == 0
-    assert "8 elastic coordinate(s)" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "8 elastic coordinate(s)" in text and ", 11 mass points" in text
+    # the modes alone: on the 8-term rod's 11 points, named in simulate's summary line
+    assert main(["explain", "two_link_free", "--no-check", "--refine", "8", "--set",
+                 "fidelity.rod_modes=4"]) == 0
+    text = capsys.readouterr().out
+    assert "4 elastic coordinate(s)" in text and ", 11 mass points" in text
+    assert main(["simulate", "two_link_free", "--duration", "0.05", "--refine", "8",
+                 "--set", "fidelity.rod_modes=4", "--dt", "0.0035"]) == 0
+    assert "rung rod (lowest 4 modes of 8 terms), rkn4" in capsys.readouterr().out
 
 
 def test_set_reaches_explain_and_creates_a_section_the_scene_leaves_out(capsys):

@@ -49,11 +49,13 @@ def fidelity_args(p):
                    help="beam discretization rung; auto: the cheapest rung, refinement and "
                         "RK4 step estimated to meet --tolerance (default 1e-5 m tip)")
     g.add_argument("--refine", type=integer,
-                   help="modes / elements / FD segments (0: the rung's default)")
+                   help="modes / elements / FD segments / rod curvature terms (0: the rung's "
+                        "default)")
     g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
     g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
     g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
-    g.add_argument("--dt", type=number, help="fixed step (rk4) or max step, s; 0 = automatic")
+    g.add_argument("--dt", type=number, help="fixed step (rk4, rkn4, trapezoid, lawson4) or max step, s; 0 = "
+                        "automatic")
     g.add_argument("--tolerance", type=number, metavar="M",
                    help="tip-position error bound, m: with --rung auto the model and step "
                         "are chosen for it; with a named rung the step (simulate): rk4's "

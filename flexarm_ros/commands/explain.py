@@ -62,8 +62,11 @@ def model_error_line(scene, open_loop: bool = False) -> str:
                      for n, d, s, p in zip(names, est.deflection_m, est.deflection_share,
                                            est.deflection_peak_m))
     loop = ", its controller in the loop" if closed_loop(sc, open_loop) else ""
-    model = (f"{res.chain.fidelity.rung} (refine {res.chain.links[0].beam.refine}), "
-             f"{res.chain.fidelity.integrator}")
+    fid = res.chain.fidelity
+    refine = res.chain.links[0].beam.refine
+    modes = (f", its lowest {fid.rod_modes} modes" if fid.rung == "rod"
+             and 0 < fid.rod_modes < refine else "")
+    model = f"{fid.rung} (refine {refine}{modes}), {fid.integrator}"
     return (f"{head}, {model}{loop}, against the geometrically exact rod "
             f"({chk.reference} at its automatic step): tip position {est.position_m:.2g} m; "
             f"tip deflection in the hub frame: {defl}. Each is the largest distance to "

@@ -68,7 +68,10 @@ def main(args):
     else:
         print(f"{scene.name}: {summ['message']}; {summ['sim_time_s']:.3g} s simulated in "
               f"{summ['wall_time_s']:.3g} s (real-time factor {summ['real_time_factor']:.3g}, "
-              f"rung {summ['rung']}, {summ['integrator']}, {summ['steps']} steps, "
+              f"rung {summ['rung']}"
+              + (f" (lowest {summ['rod_modes']} modes of {summ['refine']} terms)"
+                 if summ.get("rod_modes", summ["refine"]) != summ["refine"] else "")
+              + f", {summ['integrator']}, {summ['steps']} steps, "
               f"{summ['rhs_evaluations']} RHS evaluations)"
               + (f" → {args.out}" if args.out else ""))
         if summ["set"]:

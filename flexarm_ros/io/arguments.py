@@ -34,7 +34,8 @@ SET_HELP = ("set a scene value before the model is built: KEY is a scene key pat
             "flexarm sweep --param takes it (links[0].joint.drive.resistance, "
             "tool.position[0], control.kp[0], fidelity.rung), VALUE a YAML scalar or flow "
             "value (6.0, [6.0, 8.0], true, modal); checked by the scene's schema, applied "
-            "before the fidelity flags (an explicit --rung etc. wins); repeatable")
+            "before the fidelity flags (an explicit --rung etc. wins; a fidelity key set here "
+            "stays set when a flag such as --refine changes the model); repeatable")
 
 
 def set_option(parser, help_text: str = SET_HELP) -> None:

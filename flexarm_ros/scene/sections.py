@@ -576,11 +576,12 @@ class Fidelity:
                                  "(the one-link arm's own modes)")
     rod_points: int = param(0, ge=0, le=64,
                             doc="rod rung: Gauss points carrying each beam's mass (0 → "
-                                "terms + 3, at least 6; else at least one more than the "
-                                "bending coordinates). Fewer are cheaper; measure the "
-                                "change against the top rung (two_link_free: 4 for 3 "
-                                "terms, docs/accuracy.md). Another rung or refinement "
-                                "goes back to 0")
+                                "the curvature terms + 3, at least 6; else at least one "
+                                "more than the bending coordinates). Fewer are "
+                                "cheaper; measure the change against the top rung "
+                                "(two_link_free: 4 for 3 terms, docs/accuracy.md). Another "
+                                "rung or refinement goes back to 0 unless rod_points is "
+                                "given with it (a --set beside --refine is kept)")
     rod_modes: int = param(0, ge=0, le=16,
                            doc="rod rung: keep the lowest rod_modes bending modes of the "
                                "rod with fidelity.refine curvature terms as its "
@@ -589,7 +590,8 @@ class Fidelity:
                                "high rates that shorten the explicit step (two_link_free: "
                                "4 modes of rod 8 meet 1e-6 m in both measures at 3.5 ms, "
                                "rod 5 needs 1.7 ms; docs/decisions/0033-rod-modes.md). "
-                               "Another rung or refinement goes back to 0")
+                               "Another rung or refinement goes back to 0 unless rod_modes "
+                               "is given with it (a --set beside --refine is kept)")
     foreshortening: bool = param(True, doc="keep the quadratic foreshortening "
                                            "(geometric stiffening) terms")
     integrator: str = param("rk4", choices=INTEGRATORS, doc="time integrator")

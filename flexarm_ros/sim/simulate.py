@@ -139,8 +139,8 @@ def _escalate(scene, T, progress, first: SimResult) -> SimResult:
     the model-form error of the floating-frame rungs, which the linearized analysis cannot
     see. The run again on the rod with 3, 4, … coordinates per beam, fewer than the
     reference's terms: for each count first the lowest modes of the reference's rod
-    (fidelity.rod_modes, on as many Gauss points as the Legendre rod of that count; the
-    better basis where the beams bend little: two_link_free), then the Legendre rod of
+    (fidelity.rod_modes, on as many Gauss points as the Legendre rod of that count: the
+    check after the run holds the quadrature too; the better basis where the beams bend little: two_link_free), then the Legendre rod of
     that many terms (where they bend far: spin_up) — the first whose check meets the
     tolerance in the bound measures; else the last tried, said not met."""
     from flexarm_ros.model.rod import gauss_points

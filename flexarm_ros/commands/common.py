@@ -54,7 +54,8 @@ def fidelity_args(p):
     g.add_argument("--integrator", choices=INTEGRATORS, help="time integrator")
     g.add_argument("--rtol", type=number, help="relative tolerance (adaptive integrators)")
     g.add_argument("--atol", type=number, help="absolute tolerance (adaptive integrators)")
-    g.add_argument("--dt", type=number, help="fixed step (rk4, rkn4, trapezoid, lawson4) or max step, s; 0 = "
+    g.add_argument("--dt", type=number,
+                   help="fixed step (rk4, rkn4, trapezoid, lawson4) or max step, s; 0 = "
                         "automatic")
     g.add_argument("--tolerance", type=number, metavar="M",
                    help="tip-position error bound, m: with --rung auto the model and step "
@@ -93,8 +94,9 @@ def set_values(args) -> dict:
 
 
 def load(args):
-    """The scene with the ``--set`` values, then the fidelity flags (an explicit flag
-    wins over a ``--set fidelity.…``)."""
+    """The scene with the ``--set`` values, then the fidelity flags
+    (:func:`~flexarm_ros.scene.overrides.with_overrides`: an explicit flag wins over a
+    ``--set fidelity.…``, which survives a flag's resets)."""
     from flexarm_ros.scene import load_scene
     from flexarm_ros.scene.overrides import with_overrides
     return with_overrides(load_scene(args.scene or DEFAULT_SCENE), set_values(args),

@@ -43,6 +43,7 @@ def model_error_line(scene, open_loop: bool = False) -> str:
     (docs/accuracy.md, *Against the physics*): the run as ``flexarm simulate --estimate``
     makes it (its controller in the loop when it has one), or why it was not measured."""
     from flexarm_ros.errors import InputError, SceneError, SimulationDiverged
+    from flexarm_ros.model.rod import kept_modes
     from flexarm_ros.twin.batch import closed_loop, run_scene
     fid = scene.fidelity
     checked = fid.tolerance > 0 or fid.rung == "auto"
@@ -65,7 +66,7 @@ def model_error_line(scene, open_loop: bool = False) -> str:
     fid = res.chain.fidelity
     refine = res.chain.links[0].beam.refine
     modes = (f", its lowest {fid.rod_modes} modes" if fid.rung == "rod"
-             and 0 < fid.rod_modes < refine else "")
+             and kept_modes(fid.rod_modes, refine) < refine else "")
     model = f"{fid.rung} (refine {refine}{modes}), {fid.integrator}"
     return (f"{head}, {model}{loop}, against the geometrically exact rod "
             f"({chk.reference} at its automatic step): tip position {est.position_m:.2g} m; "

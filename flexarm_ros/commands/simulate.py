@@ -66,11 +66,13 @@ def main(args):
     if args.json:
         print(json.dumps(summ, indent=2))
     else:
+        # the rod on fewer bending modes than its terms (fidelity.rod_modes)
+        fewer = summ.get("rod_modes", summ["refine"]) != summ["refine"]
         print(f"{scene.name}: {summ['message']}; {summ['sim_time_s']:.3g} s simulated in "
               f"{summ['wall_time_s']:.3g} s (real-time factor {summ['real_time_factor']:.3g}, "
               f"rung {summ['rung']}"
               + (f" (lowest {summ['rod_modes']} modes of {summ['refine']} terms)"
-                 if summ.get("rod_modes", summ["refine"]) != summ["refine"] else "")
+                 if fewer else "")
               + f", {summ['integrator']}, {summ['steps']} steps, "
               f"{summ['rhs_evaluations']} RHS evaluations)"
               + (f" → {args.out}" if args.out else ""))
@@ -92,10 +94,9 @@ def main(args):
         if summ.get("check"):
             _print_check(summ)
         if summ.get("auto"):
-            modes = (f" (lowest {summ['rod_modes']} modes)"
-                     if summ.get("rod_modes", summ["refine"]) != summ["refine"] else "")
-            print(f"  rung auto: {summ['rung']} {summ['refine']}{modes}, {summ['integrator']} step "
-                  f"{summ['step_s']:.3g} s, estimated tip error "
+            modes = f" (lowest {summ['rod_modes']} modes)" if fewer else ""
+            print(f"  rung auto: {summ['rung']} {summ['refine']}{modes}, "
+                  f"{summ['integrator']} step {summ['step_s']:.3g} s, estimated tip error "
                   f"{summ['estimated_tip_error_m']:.2g} m for a tolerance of "
                   f"{summ['tolerance_m']:.2g} m (flexarm explain: why)")
         else:

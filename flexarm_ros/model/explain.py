@@ -6,6 +6,7 @@ import numpy as np
 
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.linear import natural_modes
+from flexarm_ros.model.rod import kept_modes
 
 
 def _tolerance_method(chain, state) -> str:
@@ -52,7 +53,8 @@ def explain(scene, chain=None) -> str:
              + (": the rung's default, as fidelity.refine is 0" if fid.refine == 0 else "")
              + (f"; {fid.modal_basis} modes" if fid.rung == "modal" else "")
              + (f"; its lowest {fid.rod_modes} bending modes" if fid.rung == "rod"
-                and 0 < fid.rod_modes < chain.links[0].beam.refine else "")
+                and kept_modes(fid.rod_modes, chain.links[0].beam.refine)
+                < chain.links[0].beam.refine else "")
              + (f"; {fid.rod_points} Gauss points" if fid.rung == "rod" and fid.rod_points
                 else "")
              + "), integrator "

@@ -199,6 +199,12 @@ def curvature_rows(xs, length, terms, axial, transform) -> np.ndarray:
     return K @ transform
 
 
+def kept_modes(modes: int, terms: int) -> int:
+    """The bending coordinates per beam of a rod with ``terms`` curvature terms and
+    ``fidelity.rod_modes`` = ``modes`` (0, or as many as the terms: all of them)."""
+    return modes if 0 < modes < terms else terms
+
+
 def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine",
           points: int = 0, modes: int = 0):
     """(RodBasis, x, mass, K, D, M0, linear shape rows function, curvature rows function)
@@ -218,7 +224,7 @@ def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine",
         raise SceneError(f"fidelity.rod_modes: got {modes} for {terms} curvature terms, "
                          f"expected 0 (all {terms}) or 1..{terms} (the lowest bending modes "
                          f"of the {terms}-term rod kept as coordinates)")
-    kept = modes if 0 < modes < terms else terms
+    kept = kept_modes(modes, terms)
     if points and points < kept + 1:
         what = (f"{kept} curvature terms" if kept == terms else
                 f"{kept} rod modes of {terms} curvature terms")
@@ -230,8 +236,8 @@ def build(beam, tip, terms: int, fidelity_refine_name: str = "fidelity.refine",
 
 def _on_points(beam, terms, P):
     """The raw (Legendre, stretch) rod on P Gauss points: (x, mass, W, T_raw, C_raw,
-    K_raw, ds0) — abscissae, point masses, the integration matrix, ∂θ/∂raw and ∂ε/∂raw at
-    the points and the tip, the stiffness, and ∂s/∂raw at η = 0."""
+    K_raw, ds0) — abscissae, point masses, the integration matrix, ∂θ/∂raw and ∂ε/∂raw
+    at the points and the tip, the stiffness, and ∂s/∂raw at η = 0."""
     L = beam.length
     axial = getattr(beam, "EA", None) is not None
     gx, gw = _leg.leggauss(P)
@@ -246,13 +252,14 @@ def _on_points(beam, terms, P):
     return x, beam.mass_per_length * w, W, T_raw, C_raw, K_raw, ds0
 
 
-def _modes(beam, tip, terms, P):
-    """(vectors, scale, sign, bending) of the small-deflection modes of the rod with
-    ``terms`` curvature terms carrying ``tip``, its mass on P Gauss points (K_raw v = ω²
-    M_raw v, ω rising): each vector's scale (its peak transverse deflection, or its tip
-    stretch for the axial one), sign (the tip's) and whether it bends."""
+def _modes(tip, raw):
+    """(vectors, scale, sign, bending) of the small-deflection modes carrying ``tip`` of
+    the raw rod ``raw`` (:func:`_on_points`: its terms, its mass on its Gauss points;
+    K_raw v = ω² M_raw v, ω rising): each vector's scale (its peak transverse deflection,
+    or its tip stretch for the axial one), sign (the tip's) and whether it bends."""
     import scipy.linalg
-    _, mass, _, T_raw, _, K_raw, ds0 = _on_points(beam, terms, P)
+    _, mass, _, T_raw, _, K_raw, ds0 = raw
+    P = len(mass)
     M_raw = np.einsum("p,pik,pil->kl", mass, ds0[:P], ds0[:P])
     if tip is not None and (tip.mass > 0 or tip.inertia > 0):
         gy = ds0[P, 1] + tip.cg[0] * T_raw[P]            # CG of the tip body, transverse
@@ -292,14 +299,15 @@ def _build(beam, tip, terms, P, kept):
     lowest modes of a Galerkin basis are its accurate ones: on two_link_free three modes
     of the 8-term rod cut the link-2 tip deflection error of three Legendre terms to 0.4
     at 1 ms on 6 points (1.3e-6 against 3.3e-6 m of rod 12) at the same highest rate, 52 Hz,
-    where four Legendre terms go to 110 Hz (docs/decisions/0033-rod-modes.md)."""
+    where four Legendre terms go to 107 Hz (docs/decisions/0033-rod-modes.md)."""
     L = beam.length
     axial = getattr(beam, "EA", None) is not None
-    x, mass, W, T_raw, C_raw, K_raw, ds0 = _on_points(beam, terms, P)
+    raw = _on_points(beam, terms, P)
+    x, mass, W, T_raw, C_raw, K_raw, ds0 = raw
     if kept == terms:
-        vecs, scale, sign, _ = _modes(beam, tip, terms, P)
+        vecs, scale, sign, _ = _modes(tip, raw)
     else:
-        vecs, scale, sign, bending = _modes(beam, tip, terms, gauss_points(terms))
+        vecs, scale, sign, bending = _modes(tip, _on_points(beam, terms, gauss_points(terms)))
         keep = np.flatnonzero(~bending | (np.cumsum(bending) <= kept))
         vecs, scale, sign = vecs[:, keep], scale[keep], sign[keep]
     V = vecs * (sign / scale)[None, :]

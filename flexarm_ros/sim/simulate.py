@@ -65,10 +65,11 @@ class SimResult:
                "estimated_tip_error_m": (self.accuracy.estimated_tip_error_m
                                          if self.accuracy else None)}
         if self.chain.fidelity.rung == "rod":
+            from flexarm_ros.model.rod import kept_modes
             # the rod's bending coordinates per beam (fidelity.rod_modes; all its terms
             # when 0) and its Gauss points (fidelity.rod_points; 0 takes the default)
             beam = self.chain.links[0].beam
-            out["rod_modes"] = self.chain.fidelity.rod_modes or beam.refine
+            out["rod_modes"] = kept_modes(self.chain.fidelity.rod_modes, beam.refine)
             out["rod_points"] = len(beam.x)
         if self.accuracy:
             if self.accuracy.method == "linear":
@@ -140,9 +141,10 @@ def _escalate(scene, T, progress, first: SimResult) -> SimResult:
     see. The run again on the rod with 3, 4, … coordinates per beam, fewer than the
     reference's terms: for each count first the lowest modes of the reference's rod
     (fidelity.rod_modes, on as many Gauss points as the Legendre rod of that count: the
-    check after the run holds the quadrature too; the better basis where the beams bend little: two_link_free), then the Legendre rod of
-    that many terms (where they bend far: spin_up) — the first whose check meets the
-    tolerance in the bound measures; else the last tried, said not met."""
+    check after the run holds the quadrature too; the better basis where the beams bend
+    little: two_link_free), then the Legendre rod of that many terms (where they bend
+    far: spin_up) — the first whose check meets the tolerance in the bound measures; else
+    the last tried, said not met."""
     from flexarm_ros.model.rod import gauss_points
     truth = _truth()
     tol = first.auto.tolerance_m

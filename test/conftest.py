@@ -16,10 +16,17 @@
 * The ``ros`` and ``subprocess`` markers are kept true: a test that opens a ROS context or
   starts a process without its marker fails and says which marker to add, so the inner
   loop never grows a ROS graph or a child process unnoticed.
+* A worker that dies of a fatal signal (a segfault in a native library) has its
+  ``faulthandler`` dump, the crashing thread first, printed in the run's summary under
+  "fatal error in worker gwN": xdist's own report says only that the worker crashed, and
+  the dump it relays scrolls far above the summary.
 """
 
+import faulthandler
 import os
+import shutil
 import subprocess
+import tempfile
 
 import pytest
 
@@ -43,7 +50,14 @@ _worker_domain()
 environment.private_graph()
 
 
+CRASH_DIR = "FLEXARM_TEST_CRASH_DIR"
+
+
 def pytest_configure(config):
+    if getattr(config.option, "numprocesses", None) and CRASH_DIR not in os.environ:
+        # the controller of an xdist run: its workers (spawned later) inherit the folder
+        os.environ[CRASH_DIR] = tempfile.mkdtemp(prefix="flexarm_crash_")
+        config.add_cleanup(lambda: shutil.rmtree(os.environ.pop(CRASH_DIR), True))
     for line in (
             "slow: long studies (CI runs -m 'not slow'; run them with -m slow)",
             "ros: opens a ROS 2 context (rclpy) in the test's process",
@@ -54,6 +68,30 @@ def pytest_configure(config):
             "extended: listed in test/extended.txt (added by conftest): 1.5 s or more; the "
             "README's test command leaves them out, .ci/run runs them after it"):
         config.addinivalue_line("markers", line)
+
+
+def pytest_sessionstart(session):
+    """In an xdist worker: fatal-signal dumps go to a file of the run's crash folder (after
+    pytest's faulthandler plugin set stderr, which a crash report scrolls away)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker and os.environ.get(CRASH_DIR):
+        fd = os.open(os.path.join(os.environ[CRASH_DIR], f"{worker}.txt"),
+                     os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        faulthandler.enable(file=fd, all_threads=True)   # open until the worker exits
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The controller prints every dump a worker left: the crashing thread comes first."""
+    folder = os.environ.get(CRASH_DIR)
+    if os.environ.get("PYTEST_XDIST_WORKER") or not folder or not os.path.isdir(folder):
+        return
+    for name in sorted(os.listdir(folder)):
+        with open(os.path.join(folder, name), errors="replace") as f:
+            lines = f.read().splitlines()
+        if lines:
+            terminalreporter.write_sep("=", f"fatal error in worker {name[:-4]}")
+            for line in lines[:60]:
+                terminalreporter.write_line(line)
 
 
 EXTENDED_LIST = os.path.join(os.path.dirname(__file__), "extended.txt")

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -216,6 +217,7 @@ def test_killed_controller_process_trips_the_watchdog(tmp_path):
     from rclpy.node import Node
     node = Node("watcher", context=watcher.context)
     watcher.executor.add_node(node)
+    watcher.nodes["watcher"] = node                    # closed with the graph
     now = [0.0]
     from flexarm_ros.nodes.common import QOS
     node.create_subscription(Clock, T.CLOCK, lambda m: now.__setitem__(
@@ -224,9 +226,12 @@ def test_killed_controller_process_trips_the_watchdog(tmp_path):
     try:
         assert watcher.spin_until(lambda: node.count_publishers(T.CLOCK) > 0, 120)
         assert watcher.spin_until(lambda: now[0] >= 0.3, 120)
+        watcher.close()         # before the kill, as in test_run's SIGKILL test (0034)
         pg.signal("controller", signal.SIGKILL)
-        assert watcher.spin_until(lambda: pg.procs["simulator"].poll() is not None, 300)
-        node.destroy_node()
+        t0 = time.monotonic()
+        while pg.procs["simulator"].poll() is None and time.monotonic() - t0 < 300:
+            time.sleep(0.05)
+        assert pg.procs["simulator"].poll() is not None
     finally:
         codes = pg.stop()
         watcher.close()

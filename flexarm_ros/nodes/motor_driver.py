@@ -97,6 +97,10 @@ class MotorDriverNode(Node):
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
         self.accepted = {T.COMMANDS: 0}
         self.paired = 0                         # lockstep: states answered with a command
+        # lockstep: states that found a command already waiting (an extra put the queue
+        # ahead; the controller's own answers to the last states are then still on their
+        # way when the twin ends: flexarm_ros.run.supervision._await_last_answers)
+        self.ran_ahead = 0
         self._started = False                   # the start barrier passed
         # the start barrier, on the wall clock: with use_sim_time (fast mode) a timer on
         # the node's clock would wait for the /clock that only the start brings
@@ -141,6 +145,8 @@ class MotorDriverNode(Node):
         if who is not None:
             self.rejections.refused(self.state_source, "a state", None, who)
             return
+        if self.lockstep and self.commands and not self.states:
+            self.ran_ahead += 1
         self.states.append(m)
         self._drain()
 

@@ -41,6 +41,21 @@ def test_the_example_imports_nothing_of_the_twin():
     assert imported <= {"math", "sys", "time", "rclpy", "sensor_msgs", "std_msgs"}, imported
 
 
+def test_the_recorder_waits_for_a_users_controller_where_the_run_starts_none():
+    """Where the run starts the motor driver and not the controller, the recorder is told
+    to subscribe to joint_states only once it has matched the user's command publishers:
+    the simulator starts only with the recorder there, so the bag holds the first
+    command (the realtime `--processes` case below had lost up to 0.36 s of them)."""
+    from flexarm_ros.run.graphs import _params
+    def p(graph):
+        return _params("two_link_position", "realtime", 1.0, "x.mcap", "recorder", False,
+                       graph=graph)
+    assert p(["simulator", "motor_driver", "recorder"])["await_command_source"] is True
+    for graph in (["simulator", "motor_driver", "controller", "recorder"],
+                  ["simulator", "controller", "recorder"], ["simulator", "recorder"], None):
+        assert "await_command_source" not in p(graph), graph
+
+
 def _stop(proc, log):
     proc.terminate()
     proc.wait(30)

@@ -68,6 +68,9 @@ def _params(scene, mode, duration, record, node, progress, fidelity=None,
         p["use_sim_time"] = True
     if node == "motor_driver" and driver_awaits:
         p["await_first_command"] = True
+    if node == "recorder" and graph is not None and "motor_driver" in graph \
+            and "controller" not in graph:
+        p["await_command_source"] = True        # a user's controller: its first command
     return p
 
 

@@ -19,6 +19,7 @@ import pytest
 from flexarm_ros.bag import read_bag
 from flexarm_ros.commands.run import _exit_status
 from flexarm_ros.run import RunResult, ended_early
+from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.recording import missing_messages
 
 
@@ -131,7 +132,7 @@ def _where_lost(path: Path, summary: dict) -> dict:
     topic its count, its last log time against /clock's, and its three widest gaps
     (start s, length s)."""
     bag = read_bag(path)
-    clock = [t for t, _ in bag["/clock"]] if "/clock" in bag.topics else []
+    clock = [t for t, _ in bag[T.CLOCK]] if T.CLOCK in bag.topics else []
     out = {"missing": summary.get("missing"), "clock_s": [
         round(clock[0] * 1e-9, 3), round(clock[-1] * 1e-9, 3), len(clock)] if clock else None}
     for topic in summary.get("missing") or {}:

@@ -287,8 +287,8 @@ def test_set_reaches_explain_and_creates_a_section_the_scene_leaves_out(capsys):
 
 @pytest.mark.parametrize("sets,expect", [
     (["links[0].beam.EII=3"], "flexarm: error: links[0].beam.EII: unknown key; expected "
-                              "one of EA, EI, damping, hub_radius, length, mass_per_length, "
-                              "thickness"),
+                              "one of E, EA, EI, damping, density, hub_radius, length, "
+                              "mass_per_length, section, thickness"),
     (["links[0].beam.EI=-1"], "flexarm: error: links[0].beam.EI: got -1.0, expected a "
                               "finite number > 0"),
     (["links[0].beam.EI=stiff"], "links[0].beam.EI: got 'stiff' (str), expected a finite "

@@ -11,6 +11,21 @@ from flexarm_ros.io.arguments import integer, number, set_option
 from flexarm_ros.scene import DEFAULT_SCENE
 
 SCENE_HELP = f"scene YAML path or shipped scene name (default {DEFAULT_SCENE})"
+#: the exit status of a run whose tolerance the check against the top rung found not met
+#: (its outputs written; ``--best-effort`` exits 0 instead)
+TOLERANCE_NOT_MET = 4
+
+
+def tolerance_status(summ: dict, args) -> int:
+    """0, or :data:`TOLERANCE_NOT_MET` with one line on stderr, for a run summary whose
+    tolerance the check found not met (``--best-effort``: 0, the warning stands)."""
+    import sys
+    if summ.get("tolerance_met") is not False or getattr(args, "best_effort", False):
+        return 0
+    print(f"flexarm: tolerance not met (exit {TOLERANCE_NOT_MET}; the outputs are written; "
+          f"--best-effort accepts the run): {summ.get('warning', '')}".rstrip(": "),
+          file=sys.stderr)
+    return TOLERANCE_NOT_MET
 
 
 def fail(text):
@@ -63,6 +78,10 @@ def fidelity_args(p):
                         "(the contact stepper's with a wall) or the trapezoid's; 0: none "
                         "(the automatic step; rung auto's default 1e-5 m), e.g. to clear a "
                         "scene's fidelity.tolerance")
+    g.add_argument("--best-effort", action="store_true",
+                   help="with --tolerance: a run that does not meet it still exits 0 (its "
+                        "outputs are written either way; without this flag such a run "
+                        f"exits {TOLERANCE_NOT_MET}, 'tolerance not met')")
     g.add_argument("--tolerance-metric", choices=("position", "deflection", "both"),
                    help="what --tolerance bounds: the tip position in the world frame, "
                         "the elastic tip deflection of every link in its hub frame, or both "

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from flexarm_ros.commands.common import (
     Progress, check_duration, fidelity_args, load, open_loop_arg, scene_arg, set_line,
-    set_values)
+    set_values, tolerance_status)
 from flexarm_ros.io.arguments import number
 from flexarm_ros.io.tables import sensor_table_path
 
@@ -112,9 +112,10 @@ def main(args):
             if summ.get("assessment"):
                 print(f"  estimated tip error {summ['estimated_tip_error_m']:.2g} m "
                       f"({summ['estimate'].split(':')[0]}; --json: how)")
-    if summ.get("warning"):
+    status = tolerance_status(summ, args)
+    if summ.get("warning") and not status:
         print(f"flexarm: warning: {summ['warning']}", file=sys.stderr)
-    return 0
+    return status
 
 
 def _print_check(summ) -> None:

@@ -357,7 +357,7 @@ def hub_load(links, k, basis):
     hub = lk.hub
     inertia = hub.inertia + hub.mass * (hub.cg[0] ** 2 + hub.cg[1] ** 2)
     if lk.joint.flexibility is None and lk.joint.backlash is None:
-        inertia += lk.joint.drive_inertia
+        inertia += lk.joint.total_drive_inertia
     return float(inertia)
 
 

@@ -62,7 +62,7 @@ def encode(drive, motor_current: str = "dynamic"):
     if drive.type == "dc_motor":
         L = drive.inductance or 0.0
         par[DC_GEAR_RATIO] = drive.gear_ratio
-        par[DC_TORQUE_CONSTANT] = drive.torque_constant
+        par[DC_TORQUE_CONSTANT] = drive.output_torque_constant
         par[DC_BACK_EMF_CONSTANT] = drive.back_emf_constant
         par[DC_RESISTANCE] = drive.resistance
         par[DC_INDUCTANCE] = L

@@ -85,6 +85,24 @@ def explain(scene, chain=None) -> str:
                      + f"; beam L = {b.length} m, {b.n} elastic coordinate(s) "
                        f"[{', '.join(coords[:6])}{', …' if len(coords) > 6 else ''}], "
                        f"{len(b.x)} mass points")
+        sheet = lm.link.beam.datasheet()
+        if sheet:
+            lines.append(f"    beam from the datasheet: {sheet}")
+        drive = lm.link.joint.drive
+        if drive is not None and drive.type == "dc_motor" and (
+                drive.rotor_inertia or drive.gear_efficiency):
+            jt = lm.link.joint
+            parts = []
+            if drive.rotor_inertia:
+                parts.append(f"rotor J_m {drive.rotor_inertia:.4g} kg·m² → n²·J_m "
+                             f"{drive.reflected_rotor_inertia:.4g} kg·m² + drive_inertia "
+                             f"{jt.drive_inertia:.4g} = {jt.total_drive_inertia:.4g} kg·m² on "
+                             f"the drive coordinate")
+            if drive.gear_efficiency:
+                parts.append(f"gear efficiency {drive.gear_efficiency:g} → output torque "
+                             f"{drive.gear_ratio * drive.output_torque_constant:.4g} N·m/A "
+                             f"(η·n·K_t)")
+            lines.append(f"    drive from the datasheet: {'; '.join(parts)}")
     kept, omitted = [], []
     (kept if chain.has_gravity else omitted).append(
         "gravity" + (f" {tuple(scene.gravity)} m/s²" if chain.has_gravity else

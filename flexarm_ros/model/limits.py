@@ -79,7 +79,7 @@ def joint_limits(scene) -> list[JointLimits]:
                 isrc = (f"n·K_t·2·V_max/R, the plugging current from the no-load speed: "
                         f"{key}.drive.current_limit not given")
             out.append(JointLimits(lk.name, "voltage", "V", v, vsrc,
-                                   d.gear_ratio * d.torque_constant * i, isrc))
+                                   d.gear_ratio * d.output_torque_constant * i, isrc))
         else:
             eta = d.torque_efficiency or 1.0
             out.append(JointLimits(lk.name, "current", "A", d.rated_current,

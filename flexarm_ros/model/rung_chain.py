@@ -177,7 +177,7 @@ class RungChain:
         for lm in self.links:
             jt = lm.link.joint
             drive = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
-            self.M_drive[drive, drive] += jt.drive_inertia
+            self.M_drive[drive, drive] += jt.total_drive_inertia
             self.D[drive, drive] += jt.drive_damping
             if jt.flexibility is not None:
                 fx = jt.flexibility

@@ -5,7 +5,7 @@ A key path is the name the scene's error messages already print::
     links[0].joint.drive.resistance      tool.position[0]      fidelity.rung
 
 :func:`set_keys` writes values at paths into the scene's mapping
-(:func:`dataclasses.asdict`) and validates the result with the scene loader, so a value
+(:func:`flexarm_ros.scene.schema.to_mapping`) and validates the result with the scene loader, so a value
 the schema refuses raises :class:`~flexarm_ros.errors.SceneError` naming the key, the
 value and the expectation (``links[0].joint.drive.resistance: got -1.0, expected a finite
 number > 0 (Ω)``), exactly as a scene file with that value would. A path through a section
@@ -65,8 +65,9 @@ def _plain(obj):
 
 def scene_mapping(scene) -> dict:
     """The scene as the nested mapping a YAML file would hold (``load_scene_dict`` of it
-    gives the scene back)."""
-    return _plain(dataclasses.asdict(scene))
+    gives the scene back): each section's own keys (a step program has no ``value``)."""
+    from flexarm_ros.scene.schema import to_mapping
+    return to_mapping(scene)
 
 
 def _where(tokens) -> str:

@@ -149,6 +149,15 @@ def from_mapping(cls, data: Any, path: str = ""):
     if unknown:
         raise SceneError(f"{_join(path, str(unknown[0]))}: unknown key; expected one of "
                          f"{', '.join(sorted(fields))}")
+    own = getattr(cls, "accepted_keys", None)
+    allowed = own(data) if own is not None else None
+    if allowed is not None:
+        misplaced = [k for k in data if k not in allowed]
+        if misplaced:
+            key = misplaced[0]
+            raise SceneError(f"{_join(path, str(key))}: got {_fmt(data[key])}, but "
+                             f"{cls.kind_of(data)} takes no {key}; expected one of "
+                             f"{', '.join(allowed)}")
     kwargs = {}
     for name, f in fields.items():
         sub = _join(path, name)
@@ -162,6 +171,26 @@ def from_mapping(cls, data: Any, path: str = ""):
     check = getattr(obj, "validate", None)
     if check is not None:
         check(where)
+    return obj
+
+
+def to_mapping(obj):
+    """The mapping a scene file would hold for the schema object ``obj`` (lists for
+    tuples): every field, except those a section with ``accepted_keys`` does not take for
+    its type (a step program has no ``value``) and those it derived (``derived_keys``: a
+    beam's EI from E and its section), so :func:`from_mapping` of the result
+    gives ``obj`` back."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        derived = getattr(obj, "derived_keys", ())
+        names = [f.name for f in dataclasses.fields(obj) if f.init and f.name not in derived]
+        out = {n: to_mapping(getattr(obj, n)) for n in names}
+        own = getattr(type(obj), "accepted_keys", None)
+        allowed = own(out) if own is not None else None
+        return out if allowed is None else {k: v for k, v in out.items() if k in allowed}
+    if isinstance(obj, (list, tuple)):
+        return [to_mapping(v) for v in obj]
+    if isinstance(obj, dict):
+        return {k: to_mapping(v) for k, v in obj.items()}
     return obj
 
 

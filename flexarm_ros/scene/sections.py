@@ -78,19 +78,185 @@ class BeamDamping:
                                           doc="β in D = β·K (Rayleigh)")
 
 
+SECTION_SHAPES = ("rectangle", "tube", "circle")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Section:
+    """A beam's cross-section by its dimensions; with the beam's ``E`` and ``density`` it
+    gives EI = E·I and ρA = density·A (Roark's Formulas, Table A.1):
+    rectangle I = b·h³/12, A = b·h with h the side in the bending plane (``in_plane``);
+    tube I = π(D⁴ − d⁴)/64, A = π(D² − d²)/4 with d = D − 2·wall_thickness;
+    circle I = π·D⁴/64, A = π·D²/4."""
+    shape: str = param(choices=SECTION_SHAPES, doc="section shape")
+    width: Optional[float] = param(None, unit="m", gt=0.0, doc="rectangle: width")
+    thickness: Optional[float] = param(None, unit="m", gt=0.0, doc="rectangle: thickness")
+    in_plane: str = param("thickness", choices=("thickness", "width"),
+                          doc="rectangle: the side that lies in the bending plane — "
+                              "thickness (a strip bending the easy way, I = w·t³/12) or "
+                              "width (edgewise, I = t·w³/12)")
+    outer_diameter: Optional[float] = param(None, unit="m", gt=0.0,
+                                            doc="tube / circle: outer diameter D")
+    wall_thickness: Optional[float] = param(None, unit="m", gt=0.0,
+                                            doc="tube: wall thickness")
+
+    KEYS = {"rectangle": ("width", "thickness", "in_plane"),
+            "tube": ("outer_diameter", "wall_thickness"), "circle": ("outer_diameter",)}
+
+    @classmethod
+    def accepted_keys(cls, data):
+        """The keys a section of ``data['shape']`` takes (None: the shape is checked
+        first)."""
+        keys = cls.KEYS.get(data.get("shape")) if isinstance(data.get("shape"), str) else None
+        return None if keys is None else ("shape",) + keys
+
+    @staticmethod
+    def kind_of(data) -> str:
+        return f"a {data['shape']} section"
+
+    def validate(self, where):
+        need = {"rectangle": ("width", "thickness"),
+                "tube": ("outer_diameter", "wall_thickness"),
+                "circle": ("outer_diameter",)}[self.shape]
+        for key in need:
+            if getattr(self, key) is None:
+                raise SceneError(f"{where}.{key}: missing, expected a value > 0 (m) for a "
+                                 f"{self.shape} section")
+        if self.shape == "tube" and not 2.0 * self.wall_thickness <= self.outer_diameter:
+            raise SceneError(f"{where}.wall_thickness: got {self.wall_thickness} m, expected "
+                             f"at most half the outer diameter ({self.outer_diameter / 2:g} m)")
+
+    @property
+    def area(self) -> float:
+        """A, m²."""
+        if self.shape == "rectangle":
+            return self.width * self.thickness
+        D = self.outer_diameter
+        d = D - 2.0 * self.wall_thickness if self.shape == "tube" else 0.0
+        return math.pi * (D * D - d * d) / 4.0
+
+    @property
+    def second_moment(self) -> float:
+        """I about the axis normal to the bending plane, m⁴."""
+        if self.shape == "rectangle":
+            h, b = ((self.thickness, self.width) if self.in_plane == "thickness"
+                    else (self.width, self.thickness))
+            return b * h ** 3 / 12.0
+        D = self.outer_diameter
+        d = D - 2.0 * self.wall_thickness if self.shape == "tube" else 0.0
+        return math.pi * (D ** 4 - d ** 4) / 64.0
+
+    @property
+    def depth(self) -> float:
+        """The section's depth in the bending plane (the strain gauge's lever ×2), m."""
+        if self.shape == "rectangle":
+            return self.thickness if self.in_plane == "thickness" else self.width
+        return self.outer_diameter
+
+    def describe(self) -> str:
+        if self.shape == "rectangle":
+            return (f"rectangle {1e3 * self.width:g} × {1e3 * self.thickness:g} mm, "
+                    f"{self.in_plane} in the bending plane")
+        if self.shape == "tube":
+            return (f"tube Ø{1e3 * self.outer_diameter:g} × {1e3 * self.wall_thickness:g} mm "
+                    f"wall")
+        return f"circle Ø{1e3 * self.outer_diameter:g} mm"
+
+
+#: a datasheet value (E, density, section) and the schema value it gives, if both given,
+#: must agree to this relative difference
+DERIVED_AGREE = 1e-9
+
+
 @dataclass(frozen=True, kw_only=True)
 class Beam:
-    """A uniform Euler–Bernoulli beam clamped to its hub at ``hub_radius`` from the joint."""
+    """A uniform Euler–Bernoulli beam clamped to its hub at ``hub_radius`` from the joint.
+
+    In the schema's terms (``EI``, ``mass_per_length``) or the datasheet's: a material
+    (``E``, ``density``) and a :class:`Section`, from which EI = E·I, ρA = density·A and
+    the gauge depth ``thickness`` are derived (``flexarm explain`` prints them)."""
     length: float = param(unit="m", gt=0.0, doc="beam length L")
-    EI: float = param(unit="N·m²", gt=0.0, doc="bending stiffness E·I (in the plane)")
+    EI: Optional[float] = param(None, unit="N·m²", gt=0.0,
+                                doc="bending stiffness E·I (in the plane); or E and section")
     EA: Optional[float] = param(None, unit="N", gt=0.0,
                                 doc="axial stiffness E·A: the rod rung's stretch (none: "
                                     "an inextensible rod; the other rungs are inextensible)")
-    mass_per_length: float = param(unit="kg/m", gt=0.0, doc="ρ·A")
+    mass_per_length: Optional[float] = param(None, unit="kg/m", gt=0.0,
+                                             doc="ρ·A; or density and section")
+    E: Optional[float] = param(None, unit="Pa", gt=0.0, le=1e13,
+                               doc="Young's modulus (aluminium 6061 ≈ 69e9, steel ≈ 200e9, "
+                                   "CFRP along the fibres ≈ 70e9-135e9); with section → EI")
+    density: Optional[float] = param(None, unit="kg/m³", gt=0.0, le=1e5,
+                                     doc="material density (aluminium 2700, steel 7850, "
+                                         "CFRP ≈ 1550); with section → mass_per_length")
+    section: Optional[Section] = param(None, doc="cross-section dimensions (with E / "
+                                                 "density)")
     hub_radius: float = param(0.0, unit="m", ge=0.0, doc="distance joint axis → beam root")
     thickness: Optional[float] = param(None, unit="m", gt=0.0,
-                                       doc="section depth in the bending plane (for strain)")
+                                       doc="section depth in the bending plane (for strain; "
+                                           "default: the section's)")
     damping: BeamDamping = param(default_factory=BeamDamping, doc="beam damping")
+
+    def __post_init__(self):
+        derived = []
+        sec = self.section
+        if sec is not None:
+            try:
+                sec.validate("section")
+            except SceneError:               # the loader reports it with its path
+                object.__setattr__(self, "_derived", ())
+                return
+            for key, base, value in (("EI", self.E, sec.second_moment),
+                                     ("mass_per_length", self.density, sec.area),
+                                     ("thickness", 1.0, sec.depth)):
+                if base is not None and getattr(self, key) is None:
+                    object.__setattr__(self, key, base * value)
+                    derived.append(key)
+        object.__setattr__(self, "_derived", tuple(derived))
+
+    @property
+    def derived_keys(self) -> tuple:
+        """The keys computed from the datasheet terms (not written by to_mapping)."""
+        return getattr(self, "_derived", ())
+
+    def validate(self, where):
+        sec = self.section
+        for key, base, name, unit in (("EI", "E", "second_moment", "N·m²"),
+                                      ("mass_per_length", "density", "area", "kg/m")):
+            given = getattr(self, base)
+            if given is not None and sec is None:
+                raise SceneError(f"{where}.section: missing, expected a section (rectangle, "
+                                 f"tube or circle) with {where}.{base}")
+            if getattr(self, key) is None:
+                raise SceneError(f"{where}.{key}: missing, expected {key} [{unit}] or "
+                                 f"{base} with a section")
+            if given is not None and key not in self.derived_keys:
+                want = given * getattr(sec, name)
+                if abs(getattr(self, key) - want) > DERIVED_AGREE * want:
+                    raise SceneError(f"{where}.{key}: got {getattr(self, key):g} and "
+                                     f"{base} with a section giving {want:g}, expected one "
+                                     f"of them")
+        if sec is not None and self.E is None and self.density is None:
+            raise SceneError(f"{where}.section: got a section without E or density, "
+                             f"expected E (→ EI) and/or density (→ mass_per_length) with it")
+
+    def datasheet(self) -> str:
+        """What the datasheet terms gave, for ``flexarm explain`` ('' if none)."""
+        if not self.derived_keys:
+            return ""
+        parts = [self.section.describe()]
+        if "EI" in self.derived_keys:
+            parts.append(f"E {self.E:.4g} Pa → EI {self.EI:.4g} N·m² "
+                         f"(I {self.section.second_moment:.4g} m⁴)")
+        if "mass_per_length" in self.derived_keys:
+            parts.append(f"density {self.density:.4g} kg/m³ → ρA {self.mass_per_length:.4g} "
+                         f"kg/m (A {self.section.area:.4g} m²)")
+        if "thickness" in self.derived_keys:
+            parts.append(f"gauge depth {self.thickness:.4g} m")
+        if self.E is not None and self.EA is None:
+            parts.append(f"E·A {self.E * self.section.area:.4g} N, not used (give EA for the "
+                         f"rod's stretch)")
+        return "; ".join(parts)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -104,7 +270,8 @@ class JointFlexibility:
 
 DRIVE_TYPES = ("dc_motor", "hydraulic")
 _DC_FIELDS = ("gear_ratio", "torque_constant", "back_emf_constant", "resistance")
-_DC_OPTIONAL = ("inductance", "supply_voltage", "current_limit")
+_DC_OPTIONAL = ("inductance", "supply_voltage", "current_limit", "rotor_inertia",
+                "gear_efficiency")
 _HYD_FIELDS = ("displacement", "valve_gain", "supply_pressure", "total_volume",
                "bulk_modulus", "rated_current")
 _HYD_OPTIONAL = ("torque_efficiency", "leakage", "null_bias")
@@ -148,6 +315,13 @@ class Drive:
                                                "model, the twin's torque limit is "
                                                "n·K_t·2·V_max/R (the plugging current from "
                                                "the no-load speed)")
+    rotor_inertia: Optional[float] = param(None, unit="kg·m²", ge=0.0, le=1.0,
+                                           doc="dc_motor: rotor inertia J_m on the motor "
+                                               "shaft (datasheet); adds n²·J_m to the "
+                                               "joint's drive_inertia")
+    gear_efficiency: Optional[float] = param(None, unit="", gt=0.0, le=1.0,
+                                             doc="dc_motor: gearbox efficiency η: output "
+                                                 "torque η·n·K_t·i (default 1)")
     # hydraulic
     displacement: Optional[float] = param(None, unit="m³/rad", gt=0.0,
                                           doc="hydraulic: actuator displacement D_m")
@@ -170,6 +344,18 @@ class Drive:
                                                "(programs beyond it are refused)")
     null_bias: Optional[bool] = param(None, doc="hydraulic: add the null current that holds "
                                                 "the initial state at rest (default true)")
+
+    @property
+    def output_torque_constant(self) -> float:
+        """η·K_t: output torque per ampere per gear ratio (dc_motor), N·m/A."""
+        return (self.gear_efficiency or 1.0) * self.torque_constant
+
+    @property
+    def reflected_rotor_inertia(self) -> float:
+        """n²·J_m on the gearbox output (dc_motor with rotor_inertia; else 0), kg·m²."""
+        if self.type != "dc_motor" or not self.rotor_inertia:
+            return 0.0
+        return self.gear_ratio ** 2 * self.rotor_inertia
 
     def validate(self, where):
         own, optional = ((_DC_FIELDS, _DC_OPTIONAL) if self.type == "dc_motor"
@@ -224,7 +410,7 @@ class Joint:
         if self.flexibility is not None and self.backlash is not None:
             raise SceneError(f"{where}.backlash: got both flexibility and backlash, expected "
                              f"one (backlash carries its own mesh stiffness)")
-        if self.backlash is not None and self.drive_inertia == 0.0:
+        if self.backlash is not None and self.total_drive_inertia == 0.0:
             raise SceneError(f"{where}.drive_inertia: got 0.0, expected > 0 kg·m² with "
                              f"backlash (the motor-side coordinate needs inertia)")
         if self.torque_limit is not None and self.drive is not None:
@@ -235,6 +421,13 @@ class Joint:
         if self.initial_angle_deg is not None and self.initial_angle != 0.0:
             raise SceneError(f"{where}.initial_angle_deg: got {self.initial_angle_deg}, "
                              f"expected only one of initial_angle / initial_angle_deg")
+
+    @property
+    def total_drive_inertia(self) -> float:
+        """drive_inertia + n²·J_m of the drive's rotor (``drive.rotor_inertia``), kg·m²:
+        what the drive coordinate carries (seed 000 Eq. 5.11's J_eq)."""
+        return self.drive_inertia + (self.drive.reflected_rotor_inertia
+                                     if self.drive is not None else 0.0)
 
     @property
     def angle0(self) -> float:
@@ -307,6 +500,25 @@ class Program:
     values: tuple[float, ...] = param((), doc="breakpoint values")
     omega: float = param(0.0, unit="rad/s", doc="spin_up final rate Ω")
     ramp_time: float = param(1.0, unit="s", gt=0.0, doc="spin_up / smooth_step ramp time")
+
+    #: the keys each program type reads (:func:`flexarm_ros.model.programs.eval_torque`,
+    #: ``eval_motion``); any other key of a program is refused naming these
+    KEYS = {"constant": ("value",), "step": ("offset", "amplitude", "start"),
+            "pulse": ("amplitude", "start", "width"),
+            "square": ("amplitude", "frequency_hz", "phase_deg", "offset", "start"),
+            "piecewise_constant": ("times", "values"), "piecewise_linear": ("times", "values"),
+            "spin_up": ("omega", "ramp_time"), "smooth_step": ("amplitude", "start", "ramp_time"),
+            "hold": ()}
+
+    @classmethod
+    def accepted_keys(cls, data):
+        """The keys a program of ``data['type']`` takes (None: the type is checked first)."""
+        keys = cls.KEYS.get(data.get("type")) if isinstance(data.get("type"), str) else None
+        return None if keys is None else ("type",) + keys
+
+    @staticmethod
+    def kind_of(data) -> str:
+        return f"a {data['type']} program"
 
     def validate(self, where):
         if self.type in ("piecewise_constant", "piecewise_linear"):
@@ -386,6 +598,26 @@ class Sensor:
     adc_range: Optional[tuple[float, float]] = param(None, doc="ADC input range (lo, hi) in "
                                                               "output units; clipped")
     adc_bits: Optional[int] = param(None, ge=1, le=32, doc="ADC resolution (needs adc_range)")
+
+    #: the keys each sensor kind reads (:mod:`flexarm_ros.model.sensors`): encoder counts
+    #: and the tip position take no noise, sensitivity or ADC
+    COMMON = ("name", "kind", "rate_hz", "frame_id")
+    _ANALOG = ("sensitivity", "noise_std", "seed", "adc_range", "adc_bits")
+    KEYS = {"encoder": ("joint", "lines_per_rev", "quadrature", "on_motor_shaft"),
+            "accelerometer": ("link", "body", "position", "axis") + _ANALOG,
+            "strain": ("link", "position") + _ANALOG,
+            "potentiometer": ("joint",) + _ANALOG,
+            "tip_position": ()}
+
+    @classmethod
+    def accepted_keys(cls, data):
+        """The keys a sensor of ``data['kind']`` takes (None: the kind is checked first)."""
+        keys = cls.KEYS.get(data.get("kind")) if isinstance(data.get("kind"), str) else None
+        return None if keys is None else cls.COMMON + keys
+
+    @staticmethod
+    def kind_of(data) -> str:
+        return f"{'an' if data['kind'][0] in 'aeiou' else 'a'} {data['kind']} sensor"
 
     def validate(self, where):
         check_name(f"{where}.name", self.name)

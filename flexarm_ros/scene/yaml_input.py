@@ -10,13 +10,18 @@ anything, with one line naming the file, the place and the limit:
 - nesting deeper than :data:`MAX_DEPTH` levels (the deepest scene is 6);
 - a document that expands (aliases followed) to more than :data:`MAX_NODES` nodes (a
   scene is about 300);
-- a key twice in one mapping (line and column of both).
+- a key twice in one mapping (line and column of both);
+- a node that contains itself through an alias (``x: &x [*x]``), at once.
 
-The loader is PyYAML's safe loader (no tags beyond the standard ones), so the values are
-what ``yaml.safe_load`` gives for every document within the limits.
+The loader is PyYAML's safe loader (no tags beyond the standard ones) with one change:
+numbers are read as YAML 1.2 reads them, so ``3.5e6`` and ``1e-5`` are floats (YAML 1.1,
+which PyYAML follows, reads them as strings and a scene refused "3.5e6 (str)"). Every
+other value is what ``yaml.safe_load`` gives for every document within the limits.
 """
 
 from __future__ import annotations
+
+import re
 
 import yaml
 
@@ -67,10 +72,21 @@ class BoundedLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+#: YAML 1.2's core-schema float (``1e-5``, ``3.5e6``, ``.5``, ``-2.``, ``.inf``, ``.nan``)
+_FLOAT_12 = re.compile(r"""^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?
+                        |[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$""", re.X)
+BoundedLoader.yaml_implicit_resolvers = {
+    k: [(tag, rx) for tag, rx in v if tag != "tag:yaml.org,2002:float"]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12,
+                                    list("-+0123456789."))
+
+
 def _expanded_size(root) -> int:
     """Nodes of the document with every alias followed (each shared node counted as often
     as it is reached), computed once per node; stops counting past MAX_NODES."""
     size: dict[int, int] = {}
+    open_: set[int] = set()              # nodes whose children are still being counted
     stack = [(root, False)]
     while stack:
         node, done = stack.pop()
@@ -82,8 +98,14 @@ def _expanded_size(root) -> int:
         children = ([c for pair in node.value for c in pair]
                     if isinstance(node, yaml.MappingNode) else list(node.value))
         if done:
+            open_.discard(id(node))
             size[id(node)] = min(MAX_NODES + 1, 1 + sum(size[id(c)] for c in children))
         else:
+            if any(id(c) in open_ or c is node for c in children):
+                mark = node.start_mark
+                raise _Refused(f"a node at line {mark.line + 1} contains itself through an "
+                               f"alias, expected no recursive alias")
+            open_.add(id(node))
             stack.append((node, True))
             stack.extend((c, False) for c in children if id(c) not in size)
     return size[id(root)]

@@ -472,7 +472,7 @@ class ControllerCore:
         if any(d is None or d.type != "dc_motor" for d in dr):
             raise SceneError("control.mode: position/sanding control needs a dc_motor drive "
                              "on every joint")
-        motor = MotorVoltageMap([d.gear_ratio for d in dr], [d.torque_constant for d in dr],
+        motor = MotorVoltageMap([d.gear_ratio for d in dr], [d.output_torque_constant for d in dr],
                                 [d.back_emf_constant for d in dr], [d.resistance for d in dr],
                                 list(self.limit))            # saturates at the wire limit
         self.pd = JointPD(ctl.kp, ctl.kd, motor)

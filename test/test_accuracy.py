@@ -216,7 +216,7 @@ def test_simulate_json_reports_the_estimate(tmp_path, capsys):
     code = main(["simulate", "two_link_free", "--rung", "modal", "--refine", "3",
                  "--duration", "0.5", "--tolerance", "1e-6", "--json", "--quiet"])
     out = json.loads(capsys.readouterr().out)
-    assert code == 0 and 0 < out["a_priori_tip_error_m"] <= 0.5e-6
+    assert code == 4 and 0 < out["a_priori_tip_error_m"] <= 0.5e-6
     assert out["tolerance_met"] is False and out["estimated_tip_error_m"] > 1e-6
     assert "not met" in out["warning"] and "--rung rod" in out["warning"]
 

@@ -317,7 +317,7 @@ def test_estimate_from_the_cli_and_its_refusals(tmp_path, capsys):
     code = main(["simulate", "two_link_free", "--rung", "cubic", "--estimate", "--tolerance",
                  "1e-6", "--duration", "0.5", "--quiet", "--out", str(tmp_path / "y.npz")])
     cap = capsys.readouterr()
-    assert code == 0 and "step 0.00" in cap.out and "checked against rod" in cap.out
+    assert code == 4 and "step 0.00" in cap.out and "checked against rod" in cap.out
     assert "not met" in cap.err and "--rung rod" in cap.err
     code = main(["simulate", "link_flexjoint", "--estimate", "--integrator", "dop853",
                  "--duration", "0.1", "--quiet"])

@@ -72,7 +72,7 @@ __all__ = ["Channel", "ChannelSet", "JOINT_TARGETS", "add_wall_gap", "bag_channe
            "load_bag", "load_channels", "mapped_bag_channels", "same_unit", "scene_of_bag",
            "target_names"]
 
-_SI_UNIT = {"accelerometer": "m/s^2", "strain": "1", "potentiometer": "rad"}
+_SI_UNIT = {"accelerometer": "m/s^2", "strain": "1", "potentiometer": "rad", "tip_position": "m"}
 _DRIVE_UNIT = {"dc_motor": "V", "hydraulic": "A", None: "N*m"}
 #: The controller's commanded joint angles (sensor_msgs/JointState, names ``<link>_joint``):
 #: the topic contract's name when :mod:`flexarm_ros.twin.topics` declares it.

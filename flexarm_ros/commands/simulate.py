@@ -46,12 +46,15 @@ def main(args):
     from flexarm_ros.io.progress import CompileNotice
     from flexarm_ros.sim import budget
     budget.FORECAST_STREAM = sys.stderr     # a run of over a minute says so, even --quiet
+    from flexarm_ros.sim import truth
+    truth.ANNOUNCE_STREAM = None if (args.quiet or args.json) else sys.stderr
     try:
         with CompileNotice(enabled=not args.quiet):
             res = run_scene(scene, args.duration, progress=progress.callback,
                             open_loop=args.open_loop)
     finally:
         budget.FORECAST_STREAM = None
+        truth.ANNOUNCE_STREAM = None
         progress.clear()
     summ = res.summary()
     summ["set"] = set_values(args)

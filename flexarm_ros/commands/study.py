@@ -15,6 +15,10 @@ def add_parser(sub) -> None:
     scene_arg(st)
     st.add_argument("--duration", type=number, help="simulated seconds per run")
     st.add_argument("--quick", action="store_true", help="a small ladder (CI)")
+    st.add_argument("--budget", type=number, metavar="S",
+                    help="wall-time budget of the study, s (default 240, --quick 60): the "
+                         "window is fitted to it by forecasts, rows beyond it are left "
+                         "out, a reference beyond it is refused up front")
     st.add_argument("--json", action="store_true")
     st.add_argument("--png", type=Path, help="write the Pareto plot here (.png, .pdf or "
                                              ".svg)")
@@ -44,12 +48,19 @@ def main(args):
         check_scheduler_address(args.scheduler)
     if args.png:
         check_output_file("--png", args.png, (".png", ".pdf", ".svg"))
+    from flexarm_ros.studies.ladder import DEFAULT_BUDGET_S, QUICK_BUDGET_S
+    budget = args.budget
+    if budget is None:
+        budget = QUICK_BUDGET_S if args.quick else DEFAULT_BUDGET_S
+    elif not (budget > 0 and budget < float("inf")):
+        from flexarm_ros.errors import InputError
+        raise InputError(f"--budget: got {budget}, expected a finite number > 0 s")
     scene = load(args)
     quiet = args.quiet or args.json
     from flexarm_ros.ensemble.runner import open_executor
     with open_executor(args.workers or 0, args.scheduler) as ex:   # rows as runner tasks
         rows = run_study(scene, duration=args.duration, quick=args.quick, executor=ex,
-                         open_loop=args.open_loop,
+                         open_loop=args.open_loop, budget_s=budget,
                          progress=None if quiet else
                          (lambda text: print(f"  {text}", file=sys.stderr, flush=True)))
     if args.png:
@@ -59,4 +70,10 @@ def main(args):
     else:
         from flexarm_ros.studies.ladder import format_table
         print(format_table(rows))
+    meta = getattr(rows, "meta", {})
+    if meta.get("warning"):
+        print(f"flexarm: warning: {meta['warning']}", file=sys.stderr)
+    if meta.get("skipped"):
+        print(f"flexarm: {meta['skipped']} row(s) left out to keep the study within "
+              f"{budget:g} s (their status says why; --budget S runs them)", file=sys.stderr)
     return 0

@@ -164,6 +164,10 @@ def _rod_columns(scene, T, terms, simulate, closed_loop=False):
     return _rod_run(reference_scene(scene, terms, closed_loop), T, simulate)
 
 
+#: (scene, T, closed_loop) whose references this process has run (no forecast again)
+_DONE: set = set()
+
+
 @functools.lru_cache(maxsize=16)
 def _rod_run(ref_scene, T, simulate):
     run = simulate(ref_scene, T)
@@ -185,6 +189,46 @@ def reference(scene, T: float, tolerance_m: float, simulate, closed_loop=False):
             return f"rod {ref_terms}", cols, links, own
 
 
+#: the longest check a run takes on itself, s: a check forecast above it (its reference
+#: rods' steps × the predicted cost per step) is not run and says so, naming the forecast
+#: and what sets the rods' step (``flexarm explain --check-budget`` sets it for explain)
+CHECK_BUDGET_S = 120.0
+#: where the check announces itself and its forecast (None: silent; the CLI sets stderr)
+ANNOUNCE_STREAM = None
+
+
+def forecast_s(scene, T: float, closed_loop: bool = False):
+    """(seconds, step_s, terms) forecast for the first pair of :data:`REFERENCES` over
+    ``T`` s: each rod's RK4 steps at its automatic step (the stability limit of its
+    linearization at the start, :func:`flexarm_ros.model.explicit.stability`) times the
+    predicted cost per step (:func:`flexarm_ros.model.linear_response.step_cost_us`); the
+    reference rod's step is returned."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.explicit import stability
+    from flexarm_ros.model.linear_response import step_cost_us
+    from flexarm_ros.model.statics import initial_state
+    total, step = 0.0, math.inf
+    for terms in REFERENCES[0]:
+        chain = Chain(reference_scene(scene, terms, closed_loop))
+        rate, limit, auto = stability(chain, *initial_state(chain), "rk4")
+        h = auto if auto > 0 else chain.fidelity.output_dt
+        h = min(h, chain.fidelity.output_dt)
+        if terms == REFERENCES[0][0]:
+            step = h
+        total += T / h * step_cost_us(chain) * 1e-6
+    return total, step, REFERENCES[0][0]
+
+
+def why_slow(scene) -> str:
+    """What a slow reference comes from, where the scene says it."""
+    beta = [f"links[{k}].beam.damping.stiffness_proportional = {lk.beam.damping.stiffness_proportional:g} s"
+            for k, lk in enumerate(scene.links) if lk.beam.damping.stiffness_proportional > 0]
+    if beta:
+        return (f"; the rod's high curvature modes under {', '.join(beta)} (D = β·K damps "
+                f"mode ω at β·ω², which sets an explicit step of about 2.8/(β·ω²))")
+    return ""
+
+
 def top_check(scene, columns, T: float, tolerance_m: float, simulate,
               closed_loop: bool = False) -> TopCheck:
     """The run of ``scene`` (its output ``columns`` over ``T`` s) against the top rung
@@ -199,8 +243,22 @@ def top_check(scene, columns, T: float, tolerance_m: float, simulate,
     except TypeError:                        # an unhashable scene: no memo
         return TopCheck("rod", None, None, 0.0, "not run: the scene is not hashable")
     try:
+        key = (scene, float(T), closed_loop)
+        if key not in _DONE:
+            need, step, terms = forecast_s(scene, float(T), closed_loop)
+            if need > CHECK_BUDGET_S:
+                return TopCheck(
+                    f"rod {terms}", None, None, time.perf_counter() - t0,
+                    f"not run: the reference rods would take about {need:.3g} s (rod "
+                    f"{terms} at its stable RK4 step {step:.3g} s over {T:g} s){why_slow(scene)}"
+                    f", above the check's budget {CHECK_BUDGET_S:g} s")
+            if ANNOUNCE_STREAM is not None and need > 1.0:
+                print(f"flexarm: checking against the geometrically exact rod {terms}: about "
+                      f"{need:.2g} s (its stable RK4 step {step:.3g} s) ...",
+                      file=ANNOUNCE_STREAM, flush=True)
         label, cols, links, own = reference(scene, float(T), tolerance_m, simulate,
                                             closed_loop)
+        _DONE.add(key)
     except (InputError, SimulationDiverged) as exc:
         return TopCheck(f"rod {REFERENCES[0][0]}", None, None, time.perf_counter() - t0,
                         "not run: " + " ".join(str(exc).split()))

@@ -55,11 +55,18 @@ Reference accuracy
     are at the resolution of the study, not differences between the models.
 
 Duration
-    ``duration=None`` takes the scene's duration, capped at 1 s (quick: 0.1 s). In the
-    full study the window is further shortened so that the whole study fits in
-    ``budget_s`` (default 240 s): every run of the study is first timed on a short pilot
-    window (20 output samples) and the window is scaled to the budget (never below 5
-    pilot windows). An explicit ``duration`` is used as given.
+    ``duration=None`` takes the scene's duration, capped at 1 s (quick: 0.1 s) after the
+    latest start of its input programs, so the window sees the inputs act. The window is
+    shortened so that the whole study fits in ``budget_s`` (default 240 s, quick 60 s):
+    every RK4 run is forecast (its steps at its step times the predicted cost per step,
+    with the reference at its phase-limited step), the other integrators are timed on a
+    short pilot window (20 output samples), and the window is scaled to the budget,
+    never below the input's start plus 5 pilot windows. Where even that window does not
+    fit, the costliest rows are left out (status ``skipped: forecast ...``); a reference
+    that does not fit alone is refused before anything runs, with its forecast and the
+    budget it needs. An explicit ``duration`` is used as given, rows beyond the budget
+    left out the same way. A window in which the reference's tip does not move is
+    reported (``meta['warning']``): its table ranks nothing.
 """
 
 from __future__ import annotations
@@ -84,8 +91,12 @@ from flexarm_ros.ensemble.runner import run_tasks
 #: duration cap of the study window when none is given, s
 DEFAULT_DURATION_S = 1.0
 QUICK_DURATION_S = 0.1
-#: wall-time budget of a full default study, s (pilot runs choose the window to fit)
+#: wall-time budget of a full default study, s (forecasts and pilot runs choose the window
+#: to fit); of a quick one
 DEFAULT_BUDGET_S = 240.0
+QUICK_BUDGET_S = 60.0
+#: each row shorter than MIN_TIMING_S is integrated again: its forecast's fixed part, s
+ROW_OVERHEAD_S = 0.3
 PILOT_SAMPLES = 20
 #: runs shorter than this are timed again (fastest of up to MAX_TIMING_RUNS runs)
 MIN_TIMING_S = 0.2
@@ -259,6 +270,9 @@ def _row(scene, s: dict, T: float, ref_res, f_ref, ref_label) -> dict:
                atol=s.get("atol") if adaptive else None,
                duration_s=float(T), status="ok", pareto=False, reference=ref_label,
                reference_first_frequency_hz=f_ref)
+    if s.get("skip"):
+        row["status"] = s["skip"]
+        return row
     try:
         sc = _apply(scene, s)
         if adaptive:
@@ -321,39 +335,105 @@ def _repeat_timing(chain, sc, T, wall):
     return best, runs
 
 
-def _choose_duration(scene, ladder, ref, quick, budget_s, progress):
-    cap = min(scene.duration, QUICK_DURATION_S if quick else DEFAULT_DURATION_S)
+def input_start(scene) -> float:
+    """The latest time at which one of the scene's input programs first moves, s (0: its
+    inputs act from the start, or a controller drives it)."""
+    latest = 0.0
+    for inp in scene.inputs:
+        p = inp.program
+        start = (p.times[0] if p.type.startswith("piecewise") and p.times else
+                 p.start if "start" in type(p).KEYS.get(p.type, ()) else 0.0)
+        latest = max(latest, float(start))
+    return latest
+
+
+def forecast_rate(scene, s: dict, reference: bool = False):
+    """Forecast wall seconds per simulated second of row ``s`` (RK4 rows: its steps per
+    second at its step — the automatic one, or the reference's phase-limited one — times
+    the predicted cost per step, :func:`~flexarm_ros.model.linear_response.step_cost_us`),
+    and the step; (None, None) for the other integrators (timed by a pilot run)."""
+    from flexarm_ros.model.linear_response import step_cost_us
+    if s.get("integrator", "rk4") != "rk4":
+        return None, None
+    try:
+        sc = _apply(scene, s)
+        chain = Chain(sc)
+        h = s.get("dt") or choose_step(chain, initial_x(chain), "rk4", 0.0,
+                                       sc.fidelity.output_dt)
+        if reference:
+            f1 = first_frequency(chain)
+            if f1:
+                h = min(h, REFERENCE_PHASE_STEP / (2 * math.pi * f1))
+        return step_cost_us(chain) * 1e-6 / h, h
+    except ROW_ERRORS:
+        return 0.0, None              # the row fails at once when it runs
+
+
+def _choose_duration(scene, ladder, ref, quick, budget_s, progress, duration=None):
+    """(window T, {row index: why skipped}): the study's window and the rows left out so
+    that the forecast study fits ``budget_s`` (module doc, *Duration*)."""
     dt_out = scene.fidelity.output_dt
-    if quick or not budget_s or budget_s <= 0:
-        return cap
     T_p = PILOT_SAMPLES * dt_out
-    if 5 * T_p >= cap:
-        return cap
+    t_in = input_start(scene)
+    after = QUICK_DURATION_S if quick else DEFAULT_DURATION_S
+    cap = min(scene.duration, max(after, t_in + after))     # the window sees the input act
+    T_min = min(cap, max(5 * T_p, t_in + 5 * T_p))
+    if duration is not None:
+        cap = T_min = float(duration)
+    if not budget_s or budget_s <= 0:
+        return cap, {}
+    ref_rate, ref_h = forecast_rate(scene, ref, reference=True)
+    rates = [forecast_rate(scene, s)[0] for s in ladder]
+    unknown = [k for k, r in enumerate(rates) if r is None]
+    if unknown and 5 * T_p < cap:
+        if progress:
+            progress(f"pilot runs of {T_p:.3g} s for the rows without a forecast ...")
+        for k in unknown:
+            t0 = time.perf_counter()
+            try:
+                sc = _apply(scene, ladder[k])
+                run_scene(sc, T_p, chain=Chain(sc))
+            except ROW_ERRORS:
+                pass
+            rates[k] = (time.perf_counter() - t0) / T_p
+    rates = [r or 0.0 for r in rates]
+    ref_rate = ref_rate or 0.0
+    fixed = ROW_OVERHEAD_S * (len(ladder) + 1)
+
+    def total(T, keep):
+        return fixed + T * (ref_rate + sum(rates[k] for k in keep))
+    keep = list(range(len(ladder)))
+    rate_all = ref_rate + sum(rates)
+    T = cap if rate_all <= 0 else min(cap, max(0.0, budget_s - fixed) / rate_all)
+    T = max(T, T_min)
+    T = max(dt_out, math.floor(T / dt_out + 1e-9) * dt_out)
+    if ref_rate * T + fixed > budget_s:
+        from flexarm_ros.errors import InputError
+        from flexarm_ros.sim.truth import why_slow
+        raise InputError(
+            f"--budget: got {budget_s:g} s, expected at least the reference's forecast: "
+            f"{_label(ref)} needs about {ref_rate * T + fixed:.3g} s for the shortest "
+            f"window that sees the input act ({T:.3g} s at its RK4 step {ref_h:.3g} s"
+            f"{why_slow(scene)}); give --budget {math.ceil(1.5 * (ref_rate * T + fixed))}, "
+            f"a shorter --duration, or study a coarser ladder")
+    skipped = {}
+    while total(T, keep) > budget_s and keep:
+        worst = max(keep, key=lambda k: rates[k])
+        keep.remove(worst)
+        skipped[worst] = (f"skipped: forecast {rates[worst] * T:.3g} s for the "
+                          f"{T:.3g} s window, beyond the study's budget {budget_s:g} s "
+                          f"(--budget)")
     if progress:
-        progress(f"pilot runs of {T_p:.3g} s to fit the study in {budget_s:.0f} s ...")
-    total = 0.0
-    for s in [ref] + list(ladder):
-        t0 = time.perf_counter()
-        try:
-            if s is ref:
-                _reference_run(scene, ref, T_p)
-            else:
-                sc = _apply(scene, s)
-                chain = Chain(sc)
-                first_frequency(chain)
-                run_scene(sc, T_p, chain=chain)
-        except ROW_ERRORS:
-            pass
-        total += time.perf_counter() - t0
-    T = budget_s * T_p / total if total > 0 else cap
-    T = min(cap, max(5 * T_p, T))
-    return max(dt_out, math.floor(T / dt_out + 1e-9) * dt_out)
+        progress(f"window {T:.4g} s (inputs act from {t_in:g} s), forecast "
+                 f"{total(T, keep):.3g} s within the budget {budget_s:g} s"
+                 + (f"; {len(skipped)} row(s) left out" if skipped else ""))
+    return T, skipped
 
 
 def run_study(scene, duration: Optional[float] = None, quick: bool = False,
               progress: Optional[Callable[[str], None]] = None, *,
               ladder: Optional[list] = None, reference: Optional[dict] = None,
-              budget_s: Optional[float] = DEFAULT_BUDGET_S, executor=None,
+              budget_s: Optional[float] = None, executor=None,
               open_loop: bool = False) -> StudyRows:
     """Run the speed–accuracy study of ``scene``; returns the rows (see module doc). A
     scene with a wall gets the contact trade instead (:mod:`contact_study`).
@@ -407,13 +487,14 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
     ref["refine"] = int(ref.get("refine") or DEFAULT_REFINE[ref["rung"]])
     ref.setdefault("dt", 0.0)
     ref.setdefault("integrator", "rk4")
+    if duration is not None and not float(duration) > 0:
+        raise SceneError(f"duration: got {duration}, expected > 0 s")
+    if budget_s is None:            # 0: no budget
+        budget_s = QUICK_BUDGET_S if quick else DEFAULT_BUDGET_S
+    T, skipped = _choose_duration(scene, ladder, ref, quick, budget_s, progress, duration)
+    for k, why in skipped.items():
+        ladder[k]["skip"] = why
     _warm_up(scene)
-    if duration is None:
-        T = _choose_duration(scene, ladder, ref, quick, budget_s, progress)
-    else:
-        T = float(duration)
-        if not T > 0:
-            raise SceneError(f"duration: got {T}, expected > 0 s")
     ref_label = _label(ref)
     if progress:
         progress(f"reference {ref_label}, {T:.4g} s simulated ...")
@@ -444,6 +525,15 @@ def run_study(scene, duration: Optional[float] = None, quick: bool = False,
                          abs_tie=meta["reference_error_estimate_m"] or 0.0)
     for r, f in zip(rows, flags):
         r["pareto"] = bool(f)
+    tip = np.hypot(ref_res.columns["tip_x"] - ref_res.columns["tip_x"][0],
+                   ref_res.columns["tip_y"] - ref_res.columns["tip_y"][0])
+    if not np.max(tip, initial=0.0) > 1e-9:
+        meta["warning"] = (f"the reference's tip does not move in the {T:.4g} s window "
+                           f"(its largest displacement {np.max(tip, initial=0.0):.2g} m): "
+                           f"every row's error is about zero and the table ranks nothing; "
+                           f"give a longer --duration or inputs that act in it")
+    if skipped:
+        meta["skipped"] = len(skipped)
     return StudyRows(rows, meta)
 
 

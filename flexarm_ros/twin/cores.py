@@ -71,15 +71,14 @@ class SimulatorCore:
         self._gt_names = self._joint_names + [f"{n}_drive" for n in self.names]
         self.encoders = {sm.link: sm for sm in self.plant.sensors if sm.spec.kind == "encoder"}
         self.groups = {}
-        for kind, topic in (("accelerometer", T.ACCEL_BATCH), ("strain", T.STRAIN_BATCH),
-                            ("potentiometer", T.POT_BATCH)):
+        for topic, kind in T.BATCH_KINDS.items():
             sens = [sm for sm in self.plant.sensors if sm.spec.kind == kind]
             if sens:
                 rates = {sm.spec.rate_hz for sm in sens}
                 if len(rates) > 1:
                     raise SceneError(f"sensors: {kind}s at several rates {sorted(rates)}, "
                                      f"expected one rate per batch topic")
-                self.groups[topic] = [sm.name for sm in sens]
+                self.groups[topic] = T.batch_columns([sm.spec for sm in sens])
         self.batch = {topic: [] for topic in self.groups}
         self.counts = {link: 0 for link in self.encoders}
         self._prev_angle = None

@@ -246,12 +246,15 @@ def sensor_batches(bag, topic: str, scene, ns: str | None = None) -> SensorBatch
             return None
         notes.append(f"{where}: no {kind} sensor in the scene; sample rate {rate:.6g} Hz "
                      f"estimated from the message spacing")
-    t_ns, values = expand_batches(msgs, rate, len(spec) or None, where)
-    if spec and values.shape[1] != len(spec):
-        notes.append(f"{where}: {values.shape[1]} channels, the scene has {len(spec)} "
-                     f"{kind} sensors; named {kind}_0, {kind}_1, ...")
-        spec = []
-    names = [s.name for s in spec] or [f"{kind}_{j}" for j in range(values.shape[1])]
+    cols = T.batch_columns(spec)
+    t_ns, values = expand_batches(msgs, rate, len(cols) or None, where)
+    if spec and values.shape[1] != len(cols):
+        notes.append(f"{where}: {values.shape[1]} channels, the scene's {len(spec)} "
+                     f"{kind} sensors have {len(cols)}; named {kind}_0, {kind}_1, ...")
+        spec, cols = [], []
+    if kind == "tip_position":                   # one spec per column (x, y)
+        spec = [s for s in spec for _ in range(2)]
+    names = cols or [f"{kind}_{j}" for j in range(values.shape[1])]
     return SensorBatches(T.resolve(ns, topic), kind, names, spec, rate, t_ns, values, notes)
 
 

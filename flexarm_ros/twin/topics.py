@@ -9,6 +9,7 @@ against the twin unchanged). Standard message types only.
 | ``encoders/counts`` | std_msgs/Int32MultiArray | sim → ctrl, log | raw counts, joint order |
 | ``accelerometers/batch`` | std_msgs/Float64MultiArray | sim → log | [sample, channel] in the sensors' output units (V with a sensitivity, else m/s²), samples of (t − T, t], uniform 1/fs spacing, the last at the message time |
 | ``strain/batch``, ``potentiometer/batch`` | std_msgs/Float64MultiArray | sim → log | same layout |
+| ``tip_position/batch`` | std_msgs/Float64MultiArray | sim → log | same layout, two channels per ``tip_position`` sensor: x, y of the last beam tip (m, world frame) |
 | ``tool/contact`` | std_msgs/Bool | sim → ctrl | in contact (scenes with a wall) |
 | ``tool/wrench`` | geometry_msgs/WrenchStamped | sim → ctrl | frame ``wall``: x = normal force on the tool (N, ≥ 0), y = friction force along the wall's tangent t = E·n |
 | ``ground_truth/joint_states`` | sensor_msgs/JointState | sim → analysis | exact link-side joint angles ``<link>_joint`` and drive coordinates ``<link>_drive`` (rad, rad/s) |
@@ -34,6 +35,7 @@ ENCODER_COUNTS = "encoders/counts"
 ACCEL_BATCH = "accelerometers/batch"
 STRAIN_BATCH = "strain/batch"
 POT_BATCH = "potentiometer/batch"
+TIP_BATCH = "tip_position/batch"
 TOOL_CONTACT = "tool/contact"
 TOOL_WRENCH = "tool/wrench"
 GT_JOINT_STATES = "ground_truth/joint_states"
@@ -48,7 +50,17 @@ REJECTED = "diagnostics/rejected"
 
 #: Sensor batch topic -> the scene sensor kind whose channels it carries (scene order).
 BATCH_KINDS = {ACCEL_BATCH: "accelerometer", STRAIN_BATCH: "strain",
-               POT_BATCH: "potentiometer"}
+               POT_BATCH: "potentiometer", TIP_BATCH: "tip_position"}
+
+
+def batch_columns(sensors) -> list[str]:
+    """The column names of a batch topic carrying ``sensors`` (scene sensor specs of one
+    kind, in scene order): the sensor's name, or ``<name>_x``, ``<name>_y`` for a
+    ``tip_position``."""
+    out = []
+    for s in sensors:
+        out += [f"{s.name}_x", f"{s.name}_y"] if s.kind == "tip_position" else [s.name]
+    return out
 
 TYPES = {
     CLOCK: "rosgraph_msgs/msg/Clock",
@@ -57,6 +69,7 @@ TYPES = {
     ACCEL_BATCH: "std_msgs/msg/Float64MultiArray",
     STRAIN_BATCH: "std_msgs/msg/Float64MultiArray",
     POT_BATCH: "std_msgs/msg/Float64MultiArray",
+    TIP_BATCH: "std_msgs/msg/Float64MultiArray",
     TOOL_CONTACT: "std_msgs/msg/Bool",
     TOOL_WRENCH: "geometry_msgs/msg/WrenchStamped",
     GT_JOINT_STATES: "sensor_msgs/msg/JointState",

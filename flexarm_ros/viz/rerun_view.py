@@ -38,7 +38,7 @@ TIMELINE = "sim_time"
 """The rerun timeline (a duration: the simulation time, ns resolution)."""
 
 BATCH_ENTITIES = {T.ACCEL_BATCH: "plots/accelerometers", T.STRAIN_BATCH: "plots/strain",
-                  T.POT_BATCH: "plots/potentiometers"}
+                  T.POT_BATCH: "plots/potentiometers", T.TIP_BATCH: "plots/tip_position"}
 
 _LINK_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
                 (140, 86, 75), (227, 119, 194)]

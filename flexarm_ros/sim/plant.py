@@ -86,7 +86,9 @@ def plant_scene(scene):
     links = []
     for lk in scene.links:
         if not in_plant(lk.joint.drive):
-            lk = dataclasses.replace(lk, joint=dataclasses.replace(lk.joint, drive=None))
+            # the rotor's reflected inertia (drive.rotor_inertia) stays on the coordinate
+            lk = dataclasses.replace(lk, joint=dataclasses.replace(
+                lk.joint, drive=None, drive_inertia=lk.joint.total_drive_inertia))
         links.append(lk)
     motions = {inp.joint: inp for inp in scene.inputs if inp.motion is not None}
     inputs = []

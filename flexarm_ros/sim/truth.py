@@ -176,17 +176,33 @@ def _rod_run(ref_scene, T, simulate):
     return cols, [lm.name for lm in run.chain.links]
 
 
-def reference(scene, T: float, tolerance_m: float, simulate, closed_loop=False):
+def reference(scene, T: float, tolerance_m: float, simulate, closed_loop=False,
+              first_forecast_s: float = 0.0):
     """(label, columns, links, own error Measures) of the top rung for ``scene`` over
     ``T`` s: the first pair of :data:`REFERENCES` whose own bound is at most
-    :data:`BOUND_SHARE` of ``tolerance_m`` (0: the first pair)."""
-    for i, (ref_terms, bound_terms) in enumerate(REFERENCES):
+    :data:`BOUND_SHARE` of ``tolerance_m`` (0: the first pair) — or the last pair that
+    fits :data:`CHECK_BUDGET_S` (each further pair is forecast, scaled by how the first
+    pair's forecast ``first_forecast_s`` compared with its wall time, before it runs; a
+    larger own bound only makes the estimate more conservative)."""
+    spent, scale, best = 0.0, 1.0, None
+    for i, pair in enumerate(REFERENCES):
+        if i > 0 and first_forecast_s > 0:
+            need = scale * _pairs_forecast(scene, T, pair, closed_loop)
+            if spent + need > CHECK_BUDGET_S:
+                return best
+        t0 = time.perf_counter()
+        ref_terms, bound_terms = pair
         cols, links = _rod_columns(scene, T, ref_terms, simulate, closed_loop)
         bound, _ = _rod_columns(scene, T, bound_terms, simulate, closed_loop)
+        wall = time.perf_counter() - t0
+        spent += wall
+        if i == 0 and first_forecast_s > 0 and wall > 0.5:
+            scale = max(1.0, wall / first_forecast_s)
         own = measures(bound, cols, links)
+        best = (f"rod {ref_terms}", cols, links, own)
         good = max(own.position_m, own.deflection_max_m) <= BOUND_SHARE * tolerance_m
         if tolerance_m <= 0 or good or i == len(REFERENCES) - 1:
-            return f"rod {ref_terms}", cols, links, own
+            return best
 
 
 #: the longest check a run takes on itself, s: a check forecast above it (its reference
@@ -207,16 +223,25 @@ def forecast_s(scene, T: float, closed_loop: bool = False):
     from flexarm_ros.model.explicit import stability
     from flexarm_ros.model.linear_response import step_cost_us
     from flexarm_ros.model.statics import initial_state
+    return _pairs_forecast(scene, T, REFERENCES[0], closed_loop, want_step=True)
+
+
+def _pairs_forecast(scene, T, pair, closed_loop, want_step=False):
+    """:func:`forecast_s` of the rods of ``pair``."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.explicit import stability
+    from flexarm_ros.model.linear_response import step_cost_us
+    from flexarm_ros.model.statics import initial_state
     total, step = 0.0, math.inf
-    for terms in REFERENCES[0]:
+    for terms in pair:
         chain = Chain(reference_scene(scene, terms, closed_loop))
         rate, limit, auto = stability(chain, *initial_state(chain), "rk4")
         h = auto if auto > 0 else chain.fidelity.output_dt
         h = min(h, chain.fidelity.output_dt)
-        if terms == REFERENCES[0][0]:
+        if terms == pair[0]:
             step = h
         total += T / h * step_cost_us(chain) * 1e-6
-    return total, step, REFERENCES[0][0]
+    return (total, step, pair[0]) if want_step else total
 
 
 def why_slow(scene) -> str:
@@ -244,6 +269,7 @@ def top_check(scene, columns, T: float, tolerance_m: float, simulate,
         return TopCheck("rod", None, None, 0.0, "not run: the scene is not hashable")
     try:
         key = (scene, float(T), closed_loop)
+        need = 0.0
         if key not in _DONE:
             need, step, terms = forecast_s(scene, float(T), closed_loop)
             if need > CHECK_BUDGET_S:
@@ -257,7 +283,7 @@ def top_check(scene, columns, T: float, tolerance_m: float, simulate,
                       f"{need:.2g} s (its stable RK4 step {step:.3g} s) ...",
                       file=ANNOUNCE_STREAM, flush=True)
         label, cols, links, own = reference(scene, float(T), tolerance_m, simulate,
-                                            closed_loop)
+                                            closed_loop, need)
         _DONE.add(key)
     except (InputError, SimulationDiverged) as exc:
         return TopCheck(f"rod {REFERENCES[0][0]}", None, None, time.perf_counter() - t0,

@@ -102,7 +102,7 @@ def arm(seed: int, *, links: int | None = None, control: str | None = None) -> d
             else 0.0
         section = _section(rng, tube=vertical)
         link = {"name": f"link{k + 1}",
-                "joint": {"drive_damping": round(float(rng.uniform(0.2, 1.0)), 3)},
+                "joint": {"drive_damping": round(float(rng.uniform(0.0, 0.05)), 4)},
                 "beam": {"length": L, "E": E, "density": rho, "section": section,
                          "damping": ({"stiffness_proportional":
                                       float(f"{rng.uniform(1e-5, 2e-4):.2g}")}

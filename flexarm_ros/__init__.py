@@ -4,4 +4,4 @@ The physics core (:mod:`flexarm_ros.model`) never imports rclpy; ROS nodes live 
 :mod:`flexarm_ros.nodes` and are thin adapters over it.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

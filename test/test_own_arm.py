@@ -321,3 +321,45 @@ def test_the_twin_keeps_the_rotor_inertia_when_its_driver_takes_the_motor():
     ra, rb = run_scene(load_scene_dict(a)), run_scene(load_scene_dict(b))
     assert np.allclose(ra.columns["l1_joint"], rb.columns["l1_joint"], rtol=0, atol=1e-14)
     assert 0.0 < ra.columns["l1_joint"][-1] < 0.3
+
+
+# ------------------------------------------------------------------ the docs' own arm
+ROOT = __import__("pathlib").Path(__file__).resolve().parent.parent
+
+
+def _section(md: str, heading: str) -> str:
+    text = md.split(f"## {heading}", 1)[1]
+    return text.split("\n## ", 1)[0]
+
+
+def test_the_worked_example_of_scenes_md_is_the_example_file_and_it_runs(capsys):
+    """docs/scenes.md's YAML snippets are the example's own values, and every command
+    its table lists answers on it."""
+    md = _section((ROOT / "docs" / "scenes.md").read_text(), "Your own arm, step by step")
+    blocks = [load_yaml(b.split("```", 1)[0], "scenes.md")
+              for b in md.split("```yaml\n")[1:]]
+    ex = ROOT / "examples" / "three_link_arm.yaml"
+    data = load_yaml(ex.read_text(), str(ex))
+    shoulder = data["links"][0]
+    assert blocks[0]["beam"] == shoulder["beam"]
+    assert blocks[1]["drive"] == shoulder["joint"]["drive"]
+    assert main(["explain", str(ex)]) == 0
+    out = capsys.readouterr().out
+    assert "beam from the datasheet: rectangle 25 × 2 mm" in out
+    assert "first frequencies, drives locked: 0.4332, 2.492, 6.661" in out
+    last = out.strip().splitlines()[-1]
+    assert "against the geometrically exact rod" in last and "tip position 0.0018 m" in last
+    assert main(["simulate", str(ex), "--tolerance", "1e-5", "--quiet"]) == 4
+    assert "--rung rod" in capsys.readouterr().err
+
+
+def test_the_shipped_scenes_table_names_each_scenes_own_integrator():
+    md = _section((ROOT / "docs" / "scenes.md").read_text(), "The shipped scenes (`config/`)")
+    for row in md.splitlines():
+        if not row.startswith("| `"):
+            continue
+        names = [n for n in row.split("|")[1].replace("`", "").split(",")]
+        model = row.split("|")[3]
+        for name in (n.strip() for n in names):
+            fid = load_scene(name).fidelity
+            assert fid.integrator in model and fid.rung in model, (name, model)

@@ -363,3 +363,52 @@ def test_the_shipped_scenes_table_names_each_scenes_own_integrator():
         for name in (n.strip() for n in names):
             fid = load_scene(name).fidelity
             assert fid.integrator in model and fid.rung in model, (name, model)
+
+
+ZOO_EXTENDED = (1, 5, 11, 21)
+#: a command that has not answered by then hangs (a liveness bound, not a speed target)
+HANG_S = 300
+
+
+def _flexarm(argv, tmp_path):
+    import subprocess
+    import sys
+    return subprocess.run([sys.executable, "-m", "flexarm_ros.cli"] + argv, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=HANG_S)
+
+
+@pytest.mark.subprocess
+@pytest.mark.parametrize("seed", ZOO_EXTENDED)
+def test_every_command_answers_on_a_generated_arm_in_bounded_time(tmp_path, seed):
+    """explain (with its check), simulate --tolerance, study --quick, a short lockstep run
+    and a sweep on an arm of the zoo: each answers (an outcome, or a one-line refusal
+    naming what to change), with finite outputs, before HANG_S."""
+    import json
+    path = str(_write(tmp_path, arm(seed)))
+    r = _flexarm(["explain", path], tmp_path)
+    assert r.returncode == 0 and "model-form check" in r.stderr, r.stderr
+    assert r.stdout.strip().splitlines()[-1].startswith("model-form error")
+    r = _flexarm(["simulate", path, "--tolerance", "1e-5", "--out", "t.csv"], tmp_path)
+    assert r.returncode in (0, 4), r.stderr
+    assert (r.returncode == 4) == ("tolerance not met (exit 4" in r.stderr)
+    table = np.genfromtxt(tmp_path / "t.csv", delimiter=",", skip_header=1)
+    assert table.shape[0] > 10 and np.all(np.isfinite(table))
+    r = _flexarm(["study", path, "--quick", "--json", "--quiet"], tmp_path)
+    if r.returncode == 2:                       # a reference it cannot afford: said why
+        assert r.stderr.count("\n") == 1 and "--budget" in r.stderr, r.stderr
+    else:
+        assert r.returncode == 0, r.stderr
+        rows = json.loads(r.stdout)
+        assert rows and all(row["status"] == "ok" or row["status"].startswith("skipped")
+                            for row in rows), rows
+        assert all(math.isfinite(row["tip_rms_error_m"]) for row in rows
+                   if row["status"] == "ok")
+    r = _flexarm(["run", path, "--duration", "0.3", "--quiet", "--record", "run.mcap"],
+                 tmp_path)
+    assert r.returncode == 0, r.stderr
+    from flexarm_ros.bag import read_bag
+    bag = read_bag(tmp_path / "run.mcap")
+    assert any(t.endswith("/joint_states") and bag[t] for t in bag.topics)
+    r = _flexarm(["sweep", path, "--param", "links[0].beam.E=60e9:80e9", "--samples", "2",
+                  "--metric", "max_tip_deflection", "--quiet", "--json"], tmp_path)
+    assert r.returncode == 0, r.stderr

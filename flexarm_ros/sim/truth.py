@@ -246,10 +246,11 @@ def _pairs_forecast(scene, T, pair, closed_loop, want_step=False):
 
 def why_slow(scene) -> str:
     """What a slow reference comes from, where the scene says it."""
-    beta = [f"links[{k}].beam.damping.stiffness_proportional = {lk.beam.damping.stiffness_proportional:g} s"
+    beta = [f"links[{k}].beam.damping.stiffness_proportional = "
+            f"{lk.beam.damping.stiffness_proportional:g} s"
             for k, lk in enumerate(scene.links) if lk.beam.damping.stiffness_proportional > 0]
     if beta:
-        return (f"; the rod's high curvature modes under {', '.join(beta)} (D = β·K damps "
+        return (f"; the fine model's highest modes under {', '.join(beta)} (D = β·K damps "
                 f"mode ω at β·ω², which sets an explicit step of about 2.8/(β·ω²))")
     return ""
 

@@ -414,8 +414,11 @@ def _choose_duration(scene, ladder, ref, quick, budget_s, progress, duration=Non
             f"--budget: got {budget_s:g} s, expected at least the reference's forecast: "
             f"{_label(ref)} needs about {ref_rate * T + fixed:.3g} s for the shortest "
             f"window that sees the input act ({T:.3g} s at its RK4 step {ref_h:.3g} s"
-            f"{why_slow(scene)}); give --budget {math.ceil(1.5 * (ref_rate * T + fixed))}, "
-            f"a shorter --duration, or study a coarser ladder")
+            f"{why_slow(scene)}); give --budget {math.ceil(1.5 * (ref_rate * T + fixed))}"
+            + (f" or a --duration below {T:.3g} s" if duration is None else
+               " or a shorter --duration")
+            + (", or damp the beams by viscous_per_length instead" if why_slow(scene)
+               else ""))
     skipped = {}
     while total(T, keep) > budget_s and keep:
         worst = max(keep, key=lambda k: rates[k])

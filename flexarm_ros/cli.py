@@ -37,8 +37,8 @@ import time
 #: calibrate, registered by their own packages): modules of :mod:`flexarm_ros.commands`,
 #: imported by :func:`main` inside its Ctrl-C handling (a Ctrl-C while numpy and the
 #: commands load is one line too)
-COMMAND_NAMES = ("new", "simulate", "modes", "linearize", "explain", "study", "run",
-                 "replay", "compare", "bag")
+COMMAND_NAMES = ("new", "simulate", "modes", "linearize", "explain", "design", "study",
+                 "run", "replay", "compare", "bag")
 #: what a batch process runs with its own collector settings (:func:`_startup_gc`)
 BATCH_COMMAND_NAMES = ("simulate", "modes", "linearize", "explain")
 #: exit status of an interrupted command (128 + SIGINT, as a shell reports it)

@@ -768,6 +768,55 @@ class Sanding:
     lift_time: float = param(1.0, unit="s", gt=0.0, doc="time of the lift-off move")
 
 
+#: a shaper's impulse amplitudes must sum to 1 within this (the move keeps its length)
+SHAPER_SUM_TOLERANCE = 1e-9
+MAX_SHAPER_IMPULSES = 256
+
+
+@dataclass(frozen=True, kw_only=True)
+class Shaper:
+    """An input shaper on the position controller's joint targets (Singer & Seering 1990):
+    the step from the start angles q₀ to the target q* becomes the staircase
+    q_cmd(t) = q₀ + Σᵢ Aᵢ·H(t − tᵢ)·(q* − q₀), ΣAᵢ = 1. ``flexarm design --shaper`` writes
+    one from the loop's own modes and records what it used."""
+    times: tuple[float, ...] = param(unit="s", doc="impulse times, ascending, the first 0")
+    amplitudes: tuple[float, ...] = param(doc="impulse amplitudes, summing to 1")
+    design: str = param("", doc="what the shaper was designed on (written by flexarm "
+                                "design: shaper, modes, pose, version)")
+    frequencies_hz: tuple[float, ...] = param((), unit="Hz",
+                                              doc="the shaped modes' natural frequencies")
+    damping_ratios: tuple[float, ...] = param((), doc="the shaped modes' damping ratios")
+
+    def validate(self, where):
+        n = len(self.times)
+        if n == 0 or n != len(self.amplitudes):
+            raise SceneError(f"{where}.times: got {n} times and {len(self.amplitudes)} "
+                             f"amplitudes, expected equal non-zero lengths")
+        if n > MAX_SHAPER_IMPULSES:
+            raise SceneError(f"{where}.times: got {n} impulses, expected at most "
+                             f"{MAX_SHAPER_IMPULSES}")
+        if self.times[0] != 0.0:
+            raise SceneError(f"{where}.times[0]: got {self.times[0]}, expected 0 (the "
+                             f"first impulse at the step)")
+        if any(b <= a for a, b in zip(self.times, self.times[1:])):
+            raise SceneError(f"{where}.times: got {list(self.times)}, expected strictly "
+                             f"ascending times")
+        total = math.fsum(self.amplitudes)
+        if abs(total - 1.0) > SHAPER_SUM_TOLERANCE:
+            raise SceneError(f"{where}.amplitudes: got a sum of {total!r}, expected 1 "
+                             f"(within {SHAPER_SUM_TOLERANCE:g}: the shaped move keeps its "
+                             f"length)")
+        if len(self.frequencies_hz) != len(self.damping_ratios):
+            raise SceneError(f"{where}.damping_ratios: got {len(self.damping_ratios)}, "
+                             f"expected one per frequency ({len(self.frequencies_hz)})")
+
+    def share(self, t: float) -> float:
+        """Σ Aᵢ over the impulses at or before ``t`` (0 before the first); an impulse
+        within 1 ns of ``t`` counts as reached (the batch run's tick times and the ROS
+        clock's integer nanoseconds agree on every impulse)."""
+        return math.fsum(a for ti, a in zip(self.times, self.amplitudes) if ti <= t + 1e-9)
+
+
 @dataclass(frozen=True, kw_only=True)
 class Control:
     """What the controller node runs (seed 000 Sec. 5.4). open_loop: the scene's input
@@ -786,6 +835,8 @@ class Control:
     velocity_filter_hz: float = param(20.0, unit="Hz", gt=0.0,
                                       doc="encoder velocity low-pass cutoff")
     sanding: Optional[Sanding] = param(None, doc="sanding mode parameters")
+    shaper: Optional[Shaper] = param(None, doc="position mode: an input shaper on the "
+                                               "target step (flexarm design --shaper)")
     watchdog_s: float = param(0.05, unit="s", gt=0.0,
                               doc="motor driver: commands older than this → 0 V / closed "
                                   "valve")
@@ -976,6 +1027,10 @@ class Scene:
         if ctl.mode == "position" and (ctl.tip_target is None) == (not ctl.joint_target):
             raise SceneError("control.tip_target: expected exactly one of tip_target / "
                              "joint_target for mode 'position'")
+        if ctl.shaper is not None and ctl.mode != "position":
+            raise SceneError(f"control.shaper: got a shaper with control.mode "
+                             f"{ctl.mode!r}, expected mode 'position' (it shapes the target "
+                             f"step)")
         if ctl.mode == "sanding" and ctl.sanding is None:
             raise SceneError("control.sanding: missing, expected the sanding parameters "
                              "for mode 'sanding'")

@@ -482,6 +482,11 @@ class ControllerCore:
         self.q_cmd = np.array(ctl.joint_target) if ctl.joint_target else q0.copy()
         if ctl.tip_target is not None and self.mode == "position":
             self.q_cmd = self._ik(ctl.tip_target, q0)
+        # a shaped target step: q_cmd(t) = q0 + S(t)·(q* − q0) (control.shaper)
+        self.shaper = ctl.shaper if self.mode == "position" else None
+        self.q_start, self.q_goal = q0, self.q_cmd.copy()
+        if self.shaper is not None:
+            self.q_cmd = self.q_start + self.shaper.share(0.0) * (self.q_goal - self.q_start)
         self.task = None
         if self.mode == "sanding":
             sd = ctl.sanding
@@ -530,5 +535,7 @@ class ControllerCore:
             target, self.phase = self.task.update(t, dt, self.arm.forward(q), in_contact,
                                                   normal_force)
             self.q_cmd = self._ik(target, self.q_cmd)
+        elif self.shaper is not None:
+            self.q_cmd = self.q_start + self.shaper.share(t) * (self.q_goal - self.q_start)
         self.torque_demand = self.pd.torque(q, qd, self.q_cmd)
         return self.pd.motor.voltage(self.torque_demand, qd)

@@ -1,0 +1,133 @@
+"""Vibration control designed on the model: the position loop linearized at the move's
+target pose, its modes, and input shapers for the modes that carry deflection
+(``flexarm design``).
+
+The loop is the twin's own (:class:`flexarm_ros.twin.cores.ControllerCore`): the joint PD
+T = −k_d q̇ − k_p (q − q*) on the encoder coordinates (the drive coordinate: motor side
+where the joint has one), turned into a voltage by the static motor map
+u = R/(η n K_t)·T + K_b n q̇ (seed 000 Eq. 5.17). Linearized about the target pose q* at
+rest (:func:`flexarm_ros.model.statespace.linearize` of the scene with its joints at q*),
+the plant ẋ = A x + B u with the law u = −F x + G k_p δq* gives the closed loop
+A_cl = A − B F, whose eigenvalues λ are the loop's modes: f = |λ|/2π, ζ = −Re λ/|λ|. The
+controller's velocity filter and its sampling are left out (their corner and rate are far
+above the loop's modes; the test identifies the modes from the twin's response).
+
+A mode *carries deflection in the move* when its share of the step response of the last
+link's tip deflection — the modal residue |c vᵢ|·|wᵢᵀ b| / |λᵢ| for the target step b —
+is at least :data:`DEFLECTION_SHARE` of the largest; those are shaped unless ``modes``
+names how many (the lowest first).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from flexarm_ros.errors import InputError, SceneError
+
+#: a mode whose step-response share of the tip deflection is below this fraction of the
+#: largest is left unshaped
+DEFLECTION_SHARE = 0.01
+#: modes above this fraction of the control rate are not shaped (the loop's sampling)
+MAX_RATE_SHARE = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopMode:
+    """One oscillating mode of the closed loop."""
+    frequency_hz: float           # natural frequency |λ|/2π
+    damping_ratio: float          # −Re λ / |λ|
+    damped_hz: float              # Im λ / 2π
+    share: float                  # of the largest step-response residue in the deflection
+
+
+def closed_loop(scene, q_goal):
+    """(A_cl, B_ref, C_defl, StateSpace) of the position loop of ``scene`` linearized at
+    the joint angles ``q_goal`` (module doc); B_ref maps a target step δq* to ẋ, C_defl
+    is the last link's tip deflection row."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.statespace import linearize
+    from flexarm_ros.scene.keys import set_keys
+    ctl = scene.control
+    if ctl is None or ctl.mode != "position":
+        raise InputError(f"control.mode: got {ctl.mode if ctl else None!r}, expected "
+                         f"'position' (a design shapes or replaces the joint PD's move)")
+    at = {f"links[{k}].joint.initial_angle": float(q) for k, q in enumerate(q_goal)}
+    at.update({f"links[{k}].joint.initial_rate": 0.0 for k in range(len(q_goal))})
+    for k, lk in enumerate(scene.links):
+        if lk.joint.initial_angle_deg is not None:
+            at[f"links[{k}].joint.initial_angle_deg"] = None
+    pose = set_keys(dataclasses.replace(scene, control=None, inputs=()), at)
+    chain = Chain(pose)
+    ss = linearize(chain)
+    nf = len(chain.free)
+    free = list(chain.free)
+    F = np.zeros((len(ss.inputs), ss.A.shape[0]))
+    G = np.zeros((len(ss.inputs), len(scene.links)))
+    for j, a in enumerate(chain.actuators):
+        d = scene.links[a.link].joint.drive
+        if d is None or d.type != "dc_motor" or (d.inductance or 0.0) > 0.0:
+            raise InputError(f"links[{a.link}].joint.drive: a design needs a dc_motor with "
+                             f"a quasi-static current (inductance 0 or none) on every joint")
+        lm = chain.links[a.link]
+        coord = lm.i_motor if lm.i_motor >= 0 else lm.i_joint
+        i = free.index(coord)
+        gain = d.resistance / (d.gear_ratio * d.output_torque_constant)   # V per N·m
+        F[j, i] = gain * ctl.kp[a.link]
+        F[j, nf + i] = gain * ctl.kd[a.link] - d.back_emf_constant * d.gear_ratio
+        G[j, a.link] = gain * ctl.kp[a.link]
+    A_cl = ss.A - ss.B @ F
+    row = ss.outputs.index(f"{scene.links[-1].name}_tip_deflection")
+    return A_cl, ss.B @ G, ss.C[row], ss
+
+
+def loop_modes(scene, q_goal, q_start, control_rate_hz: float) -> list[LoopMode]:
+    """The oscillating modes of the loop at ``q_goal``, lowest first, each with its share
+    of the tip deflection in the step from ``q_start`` (module doc)."""
+    A, Bref, c, _ = closed_loop(scene, q_goal)
+    lam, V = np.linalg.eig(A)
+    if np.max(lam.real) > 0:
+        worst = lam[np.argmax(lam.real)]
+        raise SceneError(f"control: the position loop linearized at the target pose is "
+                         f"unstable (eigenvalue {worst.real:.4g}{worst.imag:+.4g}j 1/s), "
+                         f"expected a stable loop to design on: lower control.kp / raise "
+                         f"control.kd")
+    W = np.linalg.inv(V)
+    b = Bref @ (np.asarray(q_goal, float) - np.asarray(q_start, float))
+    out = []
+    res = np.abs(c @ V) * np.abs(W @ b) / np.maximum(np.abs(lam), 1e-300)
+    top = 0.0
+    picked = []
+    for k, l in enumerate(lam):
+        if l.imag <= 0 or abs(l) / (2 * math.pi) > MAX_RATE_SHARE * control_rate_hz:
+            continue
+        picked.append(k)
+        top = max(top, res[k])
+    for k in sorted(picked, key=lambda k: abs(lam[k])):
+        w = abs(lam[k])
+        out.append(LoopMode(w / (2 * math.pi), -lam[k].real / w, lam[k].imag / (2 * math.pi),
+                            float(res[k] / top) if top > 0 else 0.0))
+    return out
+
+
+def design_shaper(scene, kind: str, q_goal, q_start, modes: int | None = None):
+    """(times, amplitudes, the shaped LoopModes): shaper ``kind`` on each mode that
+    carries deflection (or the lowest ``modes``), convolved, on the control grid."""
+    from flexarm_ros.control.shapers import convolve, on_grid, shaper
+    rate = scene.control.rate_hz
+    found = loop_modes(scene, q_goal, q_start, rate)
+    if modes is None:
+        chosen = [m for m in found if m.share >= DEFLECTION_SHARE]
+    else:
+        if modes > len(found):
+            raise InputError(f"--modes: got {modes}, expected at most {len(found)} (the "
+                             f"loop's oscillating modes below {MAX_RATE_SHARE * rate:g} Hz)")
+        chosen = found[:modes]
+    if not chosen:
+        raise InputError("--shaper: the loop has no oscillating mode that carries the last "
+                         "link's deflection in this move, expected one to shape")
+    times, amps = convolve(*(shaper(kind, m.frequency_hz, m.damping_ratio) for m in chosen))
+    times, amps = on_grid(times, amps, 1.0 / rate)
+    return times, amps, chosen

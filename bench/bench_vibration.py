@@ -2,7 +2,7 @@
 figures of docs/control_design.md come from here).
 
 For each arm — seed 000's two_link_position and examples/three_link_position.yaml — the
-joint PD alone and with each input shaper that ``flexarm design`` writes (zv, zvd on
+joint PD alone and with each input shaper that ``flexarm design`` writes (zv, zvd, ei on
 every mode that carries the outer tip's deflection), each design kept at the nominal
 model and run on the nominal rig and on rigs whose beams are 30 % stiffer and 20 % softer
 (EI, or E for a beam given by its datasheet, scaled with ``--set``):
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 ARMS = ("two_link_position", "examples/three_link_position.yaml")
-DESIGNS = ("pd", "zv", "zvd")
+DESIGNS = ("pd", "zv", "zvd", "ei")
 RIGS = {"nominal": 1.0, "stiffer 30 %": 1.3, "softer 20 %": 0.8}
 WINDOW_S = 2.0
 AFTER_S = 0.5

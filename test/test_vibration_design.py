@@ -41,6 +41,26 @@ def test_zv_zvd_zvdd_are_the_closed_forms(f, zeta):
         assert residual(t, a, f, zeta) < 1e-14
 
 
+@pytest.mark.parametrize("zeta", [0.0, 0.05, 0.2])
+def test_the_ei_shaper_meets_its_defining_conditions(zeta):
+    """5 % at the design frequency, flat there, zero vibration either side; undamped, the
+    closed form [(1+V)/4, (1−V)/2, (1+V)/4] at 0, T/2, T (Singhose et al. 1994)."""
+    from flexarm_ros.control.shapers import ei_zero_frequencies
+    t, a = shaper("ei", 1.0, zeta)
+    assert math.fsum(a) == pytest.approx(1.0, abs=1e-14) and np.all(a > 0)
+    assert residual(t, a, 1.0, zeta) == pytest.approx(0.05, abs=1e-10)
+    h = 1e-4
+    assert abs(residual(t, a, 1 + h, zeta) - residual(t, a, 1 - h, zeta)) / (2 * h) < 1e-4
+    lo, hi = ei_zero_frequencies(t, a, 1.0, zeta)
+    assert lo < 1.0 < hi and residual(t, a, lo, zeta) < 1e-6
+    assert residual(t, a, hi, zeta) < 1e-6
+    if zeta == 0.0:
+        assert np.allclose(a, [0.2625, 0.475, 0.2625], rtol=1e-10)
+        assert np.allclose(t, [0.0, 0.5, 1.0], rtol=1e-10)
+    zvd = shaper("zvd", 1.0, zeta)               # and wider than ZVD at 5 %
+    assert residual(t, a, 1.2, zeta) < residual(*zvd, 1.2, zeta)
+
+
 def test_zvd_is_flat_in_frequency_where_zv_is_not():
     """ZVD's derivative of the residual vanishes at the design frequency too (its
     robustness), ZV's does not: V(1.05 f) of ZVD is far below ZV's."""
@@ -253,3 +273,26 @@ def test_an_unstable_loop_is_refused_before_a_design():
         assert "unstable" in str(exc) and "control.kd" in str(exc)
     else:                                    # undamped but stable: every ζ ~ 0
         assert min(m.damping_ratio for m in modes) < 0.02
+
+
+@pytest.mark.heavy
+@pytest.mark.ros
+@pytest.mark.subprocess
+def test_the_ros_lockstep_run_of_a_shaped_scene_equals_simulate(tmp_path):
+    """A real lockstep ROS run of the ZVD scene past its second impulse (0.46 s): its
+    ground_truth/joint_states equal the batch run's joints at every tick to 1e-9 rad."""
+    from flexarm_ros.bag.reader import read_bag
+    from flexarm_ros.run import run
+    from flexarm_ros.twin import topics as T
+    scene_path = _designed(tmp_path)
+    path = tmp_path / "shaped.mcap"
+    run(str(scene_path), 0.6, "lockstep", record=path, namespace="/sh", progress=False)
+    msgs = read_bag(path)[f"/sh/{T.GT_JOINT_STATES}"]
+    t = np.array([ts for ts, _ in msgs]) * 1e-9
+    res = run_scene(load_scene(scene_path), 0.6)
+    ns = np.round(np.asarray(res.columns["t"]) * 1e9).astype(np.int64)
+    idx = np.searchsorted(ns, np.round(t * 1e9).astype(np.int64))
+    assert len(msgs) >= 590
+    for j, name in enumerate(("link1_joint", "link2_joint")):
+        q = np.array([m.position[j] for _, m in msgs])
+        assert np.max(np.abs(np.asarray(res.columns[name])[idx] - q)) <= 1e-9

@@ -15,8 +15,9 @@ def add_parser(sub) -> None:
     d = sub.add_parser("design", help="input shaper designed on the scene's position loop")
     scene_arg(d)
     d.add_argument("--shaper", choices=SHAPERS, required=True,
-                   help="zv, zvd or zvdd on each mode that carries the last link's "
-                        "deflection in the move (convolved)")
+                   help="zv, zvd, zvdd or ei (extra-insensitive, 5 %% at the design "
+                        "frequency) on each mode that carries the last link's deflection in "
+                        "the move (convolved)")
     d.add_argument("--modes", type=integer, metavar="K",
                    help="shape the K lowest oscillating modes of the loop instead")
     d.add_argument("--out", type=Path, required=True,

@@ -128,6 +128,10 @@ def design_shaper(scene, kind: str, q_goal, q_start, modes: int | None = None):
     if not chosen:
         raise InputError("--shaper: the loop has no oscillating mode that carries the last "
                          "link's deflection in this move, expected one to shape")
-    times, amps = convolve(*(shaper(kind, m.frequency_hz, m.damping_ratio) for m in chosen))
+    try:
+        parts = [shaper(kind, m.frequency_hz, m.damping_ratio) for m in chosen]
+    except ValueError as exc:
+        raise InputError(f"--shaper: {exc}") from None
+    times, amps = convolve(*parts)
     times, amps = on_grid(times, amps, 1.0 / rate)
     return times, amps, chosen

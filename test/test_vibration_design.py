@@ -296,3 +296,25 @@ def test_the_ros_lockstep_run_of_a_shaped_scene_equals_simulate(tmp_path):
     for j, name in enumerate(("link1_joint", "link2_joint")):
         q = np.array([m.position[j] for _, m in msgs])
         assert np.max(np.abs(np.asarray(res.columns[name])[idx] - q)) <= 1e-9
+
+
+def test_linearize_closed_loop_exports_the_designs_loop(tmp_path, capsys):
+    import json
+    assert main(["linearize", "two_link_position", "--closed-loop", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    A, B = np.array(out["A"]), np.array(out["B"])
+    assert out["inputs"] == ["link1_joint_target", "link2_joint_target"]
+    assert out["input_units"] == ["rad", "rad"]
+    sc = load_scene("two_link_position")
+    goal, start = _goal(sc)
+    lam = np.linalg.eigvals(A)
+    osc = sorted((abs(l) / (2 * math.pi) for l in lam if l.imag > 0))
+    want = [m.frequency_hz for m in loop_modes(sc, goal, start, 1000.0)]
+    assert osc[:len(want)] == pytest.approx(want, rel=1e-12)
+    # a joint target held: the loop settles there (DC gain of the joint outputs is 1)
+    C, D = np.array(out["C"]), np.array(out["D"])
+    dc = -C @ np.linalg.solve(A, B) + D
+    rows = [out["outputs"].index(n) for n in ("link1_joint", "link2_joint")]
+    assert np.allclose(dc[rows], np.eye(2), atol=1e-9)
+    assert main(["linearize", "two_link_case1", "--closed-loop"]) == 2
+    assert "--closed-loop: got control.mode None" in capsys.readouterr().err

@@ -36,6 +36,10 @@ def add_parser(sub) -> None:
     li.add_argument("--json", action="store_true",
                     help="print A, B, C, D, x0, states, inputs, outputs, their units and the "
                          "PBH controllability as JSON")
+    li.add_argument("--closed-loop", action="store_true",
+                    help="the scene's position loop (its joint PD through the voltage map) "
+                         "about the move's target pose: inputs the joint targets, "
+                         "A − B·F (flexarm design's model, docs/control_design.md)")
     fidelity_args(li)
     li.set_defaults(func=main)
 
@@ -48,7 +52,10 @@ def main(args):
     if args.out:
         check_output_file("--out", args.out, (".npz",))
     scene = load(args)
-    ss = linearize(Chain(scene))
+    if args.closed_loop:
+        ss = closed_loop_model(scene)
+    else:
+        ss = linearize(Chain(scene))
     pbh = pbh_test(ss.A, ss.B)
     if args.out:
         out = Path(args.out)
@@ -63,7 +70,7 @@ def main(args):
                          indent=1))
     else:
         eig = np.linalg.eigvals(ss.A)
-        osc = np.sort(np.abs(eig[eig.imag > 0].imag)) / (2 * np.pi)
+        osc = sorted(eig[eig.imag > 0], key=abs)
 
         def named(names, units):
             return ", ".join(f"{n} [{u}]" for n, u in zip(names, units)) or "none"
@@ -74,9 +81,38 @@ def main(args):
         print("  states: " + named(ss.states, ss.state_units))
         print("  inputs: " + named(ss.inputs, ss.input_units))
         print("  outputs: " + named(ss.outputs, ss.output_units))
-        print("  oscillatory eigenvalues (Hz): " + ", ".join(f"{f:.4g}" for f in osc[:10]))
+        print("  oscillating modes, natural frequency |λ|/2π (damped Im λ/2π, damping ratio "
+              "−Re λ/|λ|): " + ", ".join(
+                  f"{abs(l) / (2 * np.pi):.4g} Hz ({l.imag / (2 * np.pi):.4g} Hz, "
+                  f"ζ {-l.real / abs(l):.3g})" for l in osc[:10]))
+        print("  compare with: " + (
+            "flexarm design (the same loop's modes)" if args.closed_loop else
+            "flexarm modes --joints free (the undamped arm with its joints free, as here; "
+            "the drives' back-EMF and the beams' damping move these eigenvalues from "
+            "those)"))
         print(f"  controllable (PBH, tol {pbh.tol:g}): "
               + ("yes" if pbh.controllable else
                  f"no, {len(pbh.uncontrollable)} of {len(ss.states)} eigenvalues fail")
               + (f"; smallest margin {pbh.margins.min():.2g}" if pbh.margins.size else ""))
     return 0
+
+
+def closed_loop_model(scene):
+    """The StateSpace of the scene's position loop about its target pose
+    (:func:`flexarm_ros.control.design.closed_loop`): inputs the joint targets (rad),
+    outputs the plant's, y = (C − D F) x + D G δq*."""
+    from flexarm_ros.control.design import closed_loop
+    from flexarm_ros.errors import InputError
+    from flexarm_ros.model.statespace import StateSpace
+    from flexarm_ros.twin.cores import ControllerCore
+    if scene.control is None or scene.control.mode != "position":
+        raise InputError(f"--closed-loop: got control.mode "
+                         f"{scene.control.mode if scene.control else None!r}, expected "
+                         f"'position' (the loop of the joint PD)")
+    ctl = ControllerCore(scene)
+    A, Bref, _, ss = closed_loop(scene, ctl.q_goal)
+    F = np.linalg.lstsq(ss.B, ss.A - A, rcond=None)[0]      # B·F = A − A_cl
+    G = np.linalg.lstsq(ss.B, Bref, rcond=None)[0]
+    names = [f"{lk.name}_joint_target" for lk in scene.links]
+    return StateSpace(A, Bref, ss.C - ss.D @ F, ss.D @ G, ss.states, names, ss.outputs,
+                      ss.x0, ss.state_units, ["rad"] * len(names), ss.output_units)

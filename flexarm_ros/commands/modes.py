@@ -47,4 +47,10 @@ def main(args):
             print(set_line(out["set"]))
         for k, f in enumerate(out["frequencies_hz"], 1):
             print(f"  mode {k:2d}: {f:12.5f} Hz")
+        other = "free" if joints == "locked" else "locked"
+        why = ("the joints held (the scene drives them: its default)" if joints == "locked"
+               and args.joints is None else f"--joints {joints}")
+        print(f"  {why}; --joints {other} for the other condition. flexarm linearize's "
+              f"eigenvalues are those of the arm with its joints free, damped; flexarm "
+              f"design's are the position loop's")
     return 0

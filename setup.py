@@ -54,7 +54,10 @@ setup(
                      "pyarrow>=14"],
         # the suite runs on pytest-xdist workers (pytest.ini: -n auto, one ROS domain per
         # worker) with a per-test time limit (pytest-timeout) so a hang fails, not stalls
+        # python-control: fx.linearize returns its StateSpace where it is installed (the
+        # tests check it against the export)
         "dev": ["pytest>=7", "pytest-xdist>=3.5", "pytest-timeout>=2.2", "hypothesis>=6",
+                "control>=0.10",
                 "rosbags>=0.9", "colcon-common-extensions", "colcon-ros", "ros-ament-package"],
     },
     zip_safe=True,

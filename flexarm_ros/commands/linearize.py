@@ -97,22 +97,15 @@ def main(args):
     return 0
 
 
+
 def closed_loop_model(scene):
     """The StateSpace of the scene's position loop about its target pose
-    (:func:`flexarm_ros.control.design.closed_loop`): inputs the joint targets (rad),
-    outputs the plant's, y = (C − D F) x + D G δq*."""
-    from flexarm_ros.control.design import closed_loop
+    (:func:`flexarm_ros.control.design.closed_loop_statespace`)."""
+    from flexarm_ros.control.design import closed_loop_statespace
     from flexarm_ros.errors import InputError
-    from flexarm_ros.model.statespace import StateSpace
     from flexarm_ros.twin.cores import ControllerCore
     if scene.control is None or scene.control.mode != "position":
         raise InputError(f"--closed-loop: got control.mode "
                          f"{scene.control.mode if scene.control else None!r}, expected "
                          f"'position' (the loop of the joint PD)")
-    ctl = ControllerCore(scene)
-    A, Bref, _, ss = closed_loop(scene, ctl.q_goal)
-    F = np.linalg.lstsq(ss.B, ss.A - A, rcond=None)[0]      # B·F = A − A_cl
-    G = np.linalg.lstsq(ss.B, Bref, rcond=None)[0]
-    names = [f"{lk.name}_joint_target" for lk in scene.links]
-    return StateSpace(A, Bref, ss.C - ss.D @ F, ss.D @ G, ss.states, names, ss.outputs,
-                      ss.x0, ss.state_units, ["rad"] * len(names), ss.output_units)
+    return closed_loop_statespace(scene, ControllerCore(scene).q_goal)

@@ -135,3 +135,15 @@ def design_shaper(scene, kind: str, q_goal, q_start, modes: int | None = None):
     times, amps = convolve(*parts)
     times, amps = on_grid(times, amps, 1.0 / rate)
     return times, amps, chosen
+
+
+def closed_loop_statespace(scene, q_goal):
+    """The position loop about ``q_goal`` as a StateSpace: inputs the joint targets (rad),
+    the plant's outputs, y = (C − D F) x + D G δq* (:func:`closed_loop`)."""
+    from flexarm_ros.model.statespace import StateSpace
+    A, Bref, _, ss = closed_loop(scene, q_goal)
+    F = np.linalg.lstsq(ss.B, ss.A - A, rcond=None)[0]      # B·F = A − A_cl
+    G = np.linalg.lstsq(ss.B, Bref, rcond=None)[0]
+    names = [f"{lk.name}_joint_target" for lk in scene.links]
+    return StateSpace(A, Bref, ss.C - ss.D @ F, ss.D @ G, ss.states, names, ss.outputs,
+                      ss.x0, ss.state_units, ["rad"] * len(names), ss.output_units)

@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
@@ -65,17 +63,13 @@ def _metrics(res, scene, window):
 
 
 def measure(arm: str) -> list[dict]:
-    from flexarm_ros.cli import main
+    from flexarm_ros.api import design
     from flexarm_ros.scene import load_scene
     from flexarm_ros.twin.batch import run_scene
     base = load_scene(arm)
     scenes = {"pd": base}
-    with tempfile.TemporaryDirectory() as tmp:
-        for kind in DESIGNS[1:]:
-            out = Path(tmp) / f"{kind}.yaml"
-            if main(["design", arm, "--shaper", kind, "--out", str(out)]) != 0:
-                raise SystemExit(f"flexarm design {arm} --shaper {kind} failed")
-            scenes[kind] = load_scene(out)
+    for kind in DESIGNS[1:]:              # what flexarm design --shaper KIND writes
+        scenes[kind] = design(base, shaper=kind)
     moves = {k: (s.control.shaper.times[-1] if s.control.shaper else 0.0)
              for k, s in scenes.items()}
     start = max(moves.values()) + AFTER_S

@@ -17,8 +17,8 @@ from flexarm_ros.sim.simulate import simulate
 
 def _scene(name):
     """The scene with the fidelity these step choices were measured on: the seed 001
-    links defaulted to clamped modes by RK4 before session 21 (now free-hub modes by
-    lawson4, which has no step chosen for a tolerance: refused with --tolerance)."""
+    links on chain-loaded modes by RK4 (they ship free-hub modes by lawson4, which a
+    tolerance replaces by RK4 at the step it chooses)."""
     sc = load_scene(name)
     if sc.fidelity.integrator == "lawson4":
         sc = sc.with_fidelity(modal_basis="chain_loaded", integrator="rk4")
@@ -389,10 +389,23 @@ def test_a_scenes_fixed_step_goes_with_its_model():
     assert 0 < res.run.dt < 0.0033
 
 
+def test_a_tolerance_on_a_lawson4_scene_steps_rk4_at_the_step_chosen_for_it(capsys):
+    """The seed 001 scenes step lawson4, which has no step chosen for a tolerance: asked
+    for one, the run steps RK4 at the step the tolerance chooses, checked against the
+    exact rod; an explicit --integrator lawson4 with it is refused (below)."""
+    code = main(["simulate", "link_tipmass", "--tolerance", "1e-5", "--duration", "0.05",
+                 "--json", "--quiet"])
+    out = json.loads(capsys.readouterr().out)
+    assert out["integrator"] == "rk4" and out["tolerance_m"] == 1e-5
+    assert out["tolerance_met"] is True and code == 0   # modal 3: 4.5e-7 m / 6.7e-6 m
+    assert out["step_s"] > 0 and out["check"]["status"] == "ok"
+
+
 def test_a_tolerance_with_lawson4_is_refused_naming_the_fix(capsys):
-    """The seed 001 scenes step lawson4, which has no step chosen for a tolerance: one
-    line naming the key, the value, the integrator and what to do, exit 2."""
-    code = main(["simulate", "link", "--tolerance", "1e-5", "--duration", "0.01", "--quiet"])
+    """An explicit lawson4 has no step chosen for a tolerance: one line naming the key,
+    the value, the integrator and what to do, exit 2."""
+    code = main(["simulate", "link", "--tolerance", "1e-5", "--integrator", "lawson4",
+                 "--duration", "0.01", "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("flexarm: error: fidelity.tolerance: got 1e-05 m with "

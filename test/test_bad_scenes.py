@@ -6,11 +6,12 @@ contain — where (key path), what (the bad value as written back) and the expec
 """
 
 import copy
+from pathlib import Path
 
 import pytest
 
 from flexarm_ros.errors import SceneError
-from flexarm_ros.scene import load_scene_dict
+from flexarm_ros.scene import load_scene, load_scene_dict
 
 BASE = {
     "name": "base",
@@ -218,3 +219,31 @@ def test_fidelity_override_is_validated_like_the_file():
     with pytest.raises(SceneError) as info:
         scene.with_fidelity(dt=-1e-3)
     assert "fidelity.dt: got -0.001, expected a finite number >= 0" in str(info.value)
+
+
+def _numeric_keys(data, path=""):
+    """The key paths of every number in a scene mapping."""
+    if isinstance(data, dict):
+        for k, v in data.items():
+            yield from _numeric_keys(v, f"{path}.{k}" if path else k)
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            yield from _numeric_keys(v, f"{path}[{i}]")
+    elif isinstance(data, (int, float)) and not isinstance(data, bool):
+        yield path
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in
+                                        (Path(__file__).parent.parent / "config").glob("*.yaml")))
+def test_every_number_of_a_shipped_scene_at_1e300_is_refused_naming_its_key(name):
+    """1e300 in any numeric key of any shipped scene: refused as the scene loads, one
+    line naming that key — never an OverflowError or a matrix of infinities later."""
+    from flexarm_ros.scene.keys import scene_mapping, set_keys
+    sc = load_scene(name)
+    keys = list(_numeric_keys(scene_mapping(sc)))
+    assert len(keys) > 20
+    for key in keys:
+        with pytest.raises(SceneError) as exc:
+            set_keys(sc, {key: 1e300})
+        msg = str(exc.value)
+        assert "\n" not in msg and (key in msg or key.split("[")[0] in msg), (key, msg)

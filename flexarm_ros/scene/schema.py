@@ -39,6 +39,12 @@ def _fmt(value) -> str:
     return repr(value) if isinstance(value, str) else str(value)
 
 
+#: a number without an upper bound of its own is refused beyond this magnitude: 1e15 in SI
+#: units is beyond any arm (E of diamond 1.2e12 Pa) and below what overflows the model's
+#: powers and matrices (a beam of 1e300 m raised OverflowError)
+MAX_MAGNITUDE = 1e15
+
+
 def _expect_number(meta) -> str:
     parts = []
     if meta.get("gt") is not None:
@@ -56,6 +62,11 @@ def _expect_number(meta) -> str:
 
 
 def _check_bounds(path, value, meta):
+    if (math.isfinite(value) and meta.get("le") is None and meta.get("lt") is None
+            and not abs(value) <= MAX_MAGNITUDE):
+        raise SceneError(f"{path}: got {_fmt(value)}, expected {_expect_number(meta)} "
+                         f"within ±{MAX_MAGNITUDE:g} (no arm needs more; larger values "
+                         f"overflow the model)")
     bad = (not math.isfinite(value)
            or (meta.get("gt") is not None and not value > meta["gt"])
            or (meta.get("ge") is not None and not value >= meta["ge"])

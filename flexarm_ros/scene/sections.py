@@ -577,7 +577,7 @@ class Sensor:
     """
     name: str = param(doc="sensor name (column / channel name)")
     kind: str = param(choices=SENSOR_KINDS, doc="what it measures")
-    rate_hz: float = param(unit="Hz", gt=0.0, doc="sample rate")
+    rate_hz: float = param(unit="Hz", gt=0.0, le=1e6, doc="sample rate")
     joint: int = param(0, ge=0, doc="encoder / potentiometer: joint number, 1-based")
     link: str = param("", doc="accelerometer / strain: link name")
     body: str = param("beam", choices=("hub", "beam", "tip"),
@@ -825,7 +825,7 @@ class Control:
     ``joint_target``; sanding: the sanding task through the same loop."""
     mode: str = param("open_loop", choices=("open_loop", "position", "sanding"),
                       doc="control mode")
-    rate_hz: float = param(1000.0, unit="Hz", gt=0.0, doc="control rate")
+    rate_hz: float = param(1000.0, unit="Hz", gt=0.0, le=1e6, doc="control rate")
     kp: tuple[float, ...] = param((), unit="N·m/rad", ge=0.0, doc="PD stiffness per joint")
     kd: tuple[float, ...] = param((), unit="N·m·s/rad", ge=0.0, doc="PD damping per joint")
     tip_target: Optional[tuple[float, float]] = param(None, unit="m",

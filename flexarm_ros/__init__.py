@@ -8,7 +8,7 @@ The physics core (:mod:`flexarm_ros.model`) never imports rclpy; ROS nodes live 
 :mod:`flexarm_ros.nodes` and are thin adapters over it.
 """
 
-__version__ = "0.2.0"
+from flexarm_ros.version import __version__  # noqa: F401  (the package's version)
 
 #: the Python API (:mod:`flexarm_ros.api`), imported on first use so that ``import
 #: flexarm_ros`` stays as light as the commands need it

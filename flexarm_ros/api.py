@@ -32,13 +32,13 @@ def load_scene(name_or_path, set: dict | None = None, **fidelity):
     ``--set``) and fidelity overrides (``rung=``, ``refine=``, ``integrator=``, ``dt=``,
     ``tolerance=``, … as the flags) applied the way the commands apply them."""
     from flexarm_ros.scene import load_scene as _load
-    from flexarm_ros.scene.overrides import with_overrides
+    from flexarm_ros.scene.overrides import parse_sets, with_overrides
     if isinstance(name_or_path, Path):
         name_or_path = str(name_or_path)
     if set is not None and not isinstance(set, dict):
         raise InputError(f"set: got {type(set).__name__}, expected a mapping of scene key "
                          f"paths to values")
-    from flexarm_ros.scene.overrides import parse_sets
+    # through --set's own parser: the same values and refusals (NaN, malformed keys)
     sets = parse_sets([f"{k}={_yaml(v)}" for k, v in (set or {}).items()])
     return with_overrides(_load(name_or_path), sets, _fidelity(fidelity))
 
@@ -159,39 +159,29 @@ def modes(scene, joints: str | None = None) -> dict:
     """``flexarm modes --json``: natural frequencies (Hz) and mode shapes at the initial
     configuration, joints ``locked`` or ``free`` (default: locked when the scene drives
     them)."""
-    from flexarm_ros.model.chain import Chain
-    from flexarm_ros.model.linear import natural_modes
-    from flexarm_ros.model.statics import initial_state
+    from flexarm_ros.model.modes import scene_modes
     sc = _scene(scene)
     if joints not in (None, "locked", "free"):
         raise InputError(f"joints: got {joints!r}, expected locked or free")
-    joints = joints or ("locked" if sc.inputs else "free")
-    chain = Chain(sc)
-    q0 = initial_state(chain)[0]
-    m = natural_modes(chain, q0, joints)
-    return {"joints": joints, "frequencies_hz": np.asarray(m.frequencies_hz),
-            "shapes": np.asarray(m.shapes), "coordinates": list(m.coordinates)
-            if hasattr(m, "coordinates") else None}
+    _, m = scene_modes(sc, joints)
+    return {"joints": m.joints, "frequencies_hz": np.asarray(m.frequencies_hz),
+            "shapes": np.asarray(m.shapes), "coordinates": list(m.coordinates)}
 
 
 def design(scene, shaper: str = "zvd", modes: int | None = None):
     """``flexarm design --shaper``: the scene with the position loop's input shaper (its
     ``control.shaper`` records the design)."""
     import dataclasses
-    from flexarm_ros.control.design import design_shaper
+    from flexarm_ros.control.design import require_position, shaper_record
+    from flexarm_ros.scene.schema import from_mapping
     from flexarm_ros.scene.sections import Shaper
     from flexarm_ros.twin.cores import ControllerCore
+    from flexarm_ros.version import __version__
     sc = _scene(scene)
-    if sc.control is None or sc.control.mode != "position":
-        raise InputError(f"control.mode: got {sc.control.mode if sc.control else None!r}, "
-                         f"expected 'position' (the shaper shapes the joint PD's target step)")
+    require_position(sc)
     ctl = ControllerCore(sc)
-    times, amps, found = design_shaper(sc, shaper, ctl.q_goal, ctl.q_start, modes)
-    sh = Shaper(times=tuple(map(float, times)), amplitudes=tuple(map(float, amps)),
-                design=f"{shaper} (flexarm_ros.design)",
-                frequencies_hz=tuple(float(m.frequency_hz) for m in found),
-                damping_ratios=tuple(float(m.damping_ratio) for m in found))
-    sh.validate("control.shaper")
+    record, _ = shaper_record(sc, shaper, ctl.q_goal, ctl.q_start, modes, __version__)
+    sh = from_mapping(Shaper, record, "control.shaper")
     return dataclasses.replace(sc, control=dataclasses.replace(sc.control, shaper=sh))
 
 

@@ -32,7 +32,7 @@ ALLOWED = {
 
 #: every layer, lowest first: a layer imports only layers before it (``""`` is the
 #: package's own ``__init__``, the version)
-ORDER = ("errors", "", "testing", "child_process", "scene", "io", "model", "sim", "control",
+ORDER = ("version", "errors", "", "testing", "child_process", "scene", "io", "model", "sim", "control",
          "bag", "twin", "analysis", "viz", "ensemble", "studies", "calibration", "nodes",
          "replay", "run", "commands", "api", "cli")
 

@@ -29,7 +29,7 @@ def add_parser(sub) -> None:
 def main(args):
     import yaml
     from flexarm_ros import __version__
-    from flexarm_ros.control.design import design_shaper
+    from flexarm_ros.control.design import require_position, shaper_record
     from flexarm_ros.errors import InputError
     from flexarm_ros.io.paths import check_output_file
     from flexarm_ros.scene.keys import scene_mapping
@@ -39,24 +39,14 @@ def main(args):
     if args.modes is not None and args.modes < 1:
         raise InputError(f"--modes: got {args.modes}, expected an integer >= 1")
     scene = load(args)
-    if scene.control is None or scene.control.mode != "position":
-        raise InputError(f"control.mode: got "
-                         f"{scene.control.mode if scene.control else None!r}, expected "
-                         f"'position' (the shaper shapes the joint PD's target step)")
+    require_position(scene)
     ctl = ControllerCore(scene)
-    times, amps, modes = design_shaper(scene, args.shaper, ctl.q_goal, ctl.q_start,
-                                       args.modes)
-    what = ", ".join(f"{m.frequency_hz:.4g} Hz ζ {m.damping_ratio:.3g}" for m in modes)
-    pose = ", ".join(f"{q:.6g}" for q in ctl.q_goal)
-    design = (f"{args.shaper} on the position loop's modes {what} (the PD loop linearized "
-              f"at the target joint angles [{pose}] rad), impulses on the "
-              f"{scene.control.rate_hz:g} Hz control grid; flexarm design {__version__}")
+    record, modes = shaper_record(scene, args.shaper, ctl.q_goal, ctl.q_start, args.modes,
+                                  __version__)
+    times, design = record["times"], record["design"]
     data = scene_mapping(scene)
     data["name"] = f"{scene.name}_{args.shaper}"
-    data["control"]["shaper"] = {
-        "times": [float(t) for t in times], "amplitudes": [float(a) for a in amps],
-        "design": design, "frequencies_hz": [float(m.frequency_hz) for m in modes],
-        "damping_ratios": [float(m.damping_ratio) for m in modes]}
+    data["control"]["shaper"] = record
     load_scene_dict(data)                                  # what is written loads
     head = (f"# {scene.name} with an input shaper, written by flexarm design "
             f"{__version__}\n# {design}\n"

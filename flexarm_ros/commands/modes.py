@@ -23,16 +23,12 @@ def add_parser(sub) -> None:
 
 
 def main(args):
-    from flexarm_ros.model.chain import Chain
-    from flexarm_ros.model.linear import natural_modes
-    from flexarm_ros.model.statics import initial_state
+    from flexarm_ros.model.modes import scene_modes
     if args.count < 1:
         fail(f"--count: got {args.count}, expected an integer >= 1 (modes to print)")
     scene = load(args)
-    chain = Chain(scene)
-    q0 = initial_state(chain)[0]
-    joints = args.joints or ("locked" if scene.inputs else "free")
-    m = natural_modes(chain, q0, joints)
+    chain, m = scene_modes(scene, args.joints)
+    joints = m.joints
     n = min(args.count, len(m.frequencies_hz))
     out = {"scene": scene.name, "rung": chain.fidelity.rung, "joints": joints,
            "coordinates": list(m.coordinates),

@@ -43,17 +43,23 @@ class LoopMode:
     share: float                  # of the largest step-response residue in the deflection
 
 
-def closed_loop(scene, q_goal):
-    """(A_cl, B_ref, C_defl, StateSpace) of the position loop of ``scene`` linearized at
-    the joint angles ``q_goal`` (module doc); B_ref maps a target step δq* to ẋ, C_defl
-    is the last link's tip deflection row."""
-    from flexarm_ros.model.chain import Chain
-    from flexarm_ros.model.statespace import linearize
-    from flexarm_ros.scene.keys import set_keys
+def require_position(scene):
+    """The scene's control section, or InputError unless it is a position loop (what a
+    design starts from; before the controller is built, which needs its targets)."""
     ctl = scene.control
     if ctl is None or ctl.mode != "position":
         raise InputError(f"control.mode: got {ctl.mode if ctl else None!r}, expected "
                          f"'position' (a design shapes or replaces the joint PD's move)")
+    return ctl
+
+
+def _feedback(scene, q_goal):
+    """(F, G, ss): the plant of ``scene`` linearized at rest at the joint angles
+    ``q_goal`` (voltages in) and the twin's PD law on it, u = −F x + G δq* (module doc)."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.model.statespace import linearize
+    from flexarm_ros.scene.keys import set_keys
+    ctl = require_position(scene)
     at = {f"links[{k}].joint.initial_angle": float(q) for k, q in enumerate(q_goal)}
     at.update({f"links[{k}].joint.initial_rate": 0.0 for k in range(len(q_goal))})
     for k, lk in enumerate(scene.links):
@@ -78,9 +84,16 @@ def closed_loop(scene, q_goal):
         F[j, i] = gain * ctl.kp[a.link]
         F[j, nf + i] = gain * ctl.kd[a.link] - d.back_emf_constant * d.gear_ratio
         G[j, a.link] = gain * ctl.kp[a.link]
-    A_cl = ss.A - ss.B @ F
+    return F, G, ss
+
+
+def closed_loop(scene, q_goal):
+    """(A_cl, B_ref, C_defl, StateSpace) of the position loop of ``scene`` linearized at
+    the joint angles ``q_goal`` (module doc): A_cl = A − B F; B_ref = B G maps a target
+    step δq* to ẋ; C_defl is the last link's tip deflection row."""
+    F, G, ss = _feedback(scene, q_goal)
     row = ss.outputs.index(f"{scene.links[-1].name}_tip_deflection")
-    return A_cl, ss.B @ G, ss.C[row], ss
+    return ss.A - ss.B @ F, ss.B @ G, ss.C[row], ss
 
 
 def loop_modes(scene, q_goal, q_start, control_rate_hz: float) -> list[LoopMode]:
@@ -141,9 +154,24 @@ def closed_loop_statespace(scene, q_goal):
     """The position loop about ``q_goal`` as a StateSpace: inputs the joint targets (rad),
     the plant's outputs, y = (C − D F) x + D G δq* (:func:`closed_loop`)."""
     from flexarm_ros.model.statespace import StateSpace
-    A, Bref, _, ss = closed_loop(scene, q_goal)
-    F = np.linalg.lstsq(ss.B, ss.A - A, rcond=None)[0]      # B·F = A − A_cl
-    G = np.linalg.lstsq(ss.B, Bref, rcond=None)[0]
+    F, G, ss = _feedback(scene, q_goal)
     names = [f"{lk.name}_joint_target" for lk in scene.links]
-    return StateSpace(A, Bref, ss.C - ss.D @ F, ss.D @ G, ss.states, names, ss.outputs,
-                      ss.x0, ss.state_units, ["rad"] * len(names), ss.output_units)
+    return StateSpace(ss.A - ss.B @ F, ss.B @ G, ss.C - ss.D @ F, ss.D @ G, ss.states,
+                      names, ss.outputs, ss.x0, ss.state_units, ["rad"] * len(names),
+                      ss.output_units)
+
+
+def shaper_record(scene, kind: str, q_goal, q_start, modes: int | None = None,
+                  version: str = "") -> tuple[dict, list]:
+    """(the ``control.shaper`` mapping, the shaped LoopModes) of :func:`design_shaper`,
+    with the ``design`` line that records what it was designed on (``flexarm design`` and
+    ``fx.design`` write the same)."""
+    times, amps, chosen = design_shaper(scene, kind, q_goal, q_start, modes)
+    what = ", ".join(f"{m.frequency_hz:.4g} Hz ζ {m.damping_ratio:.3g}" for m in chosen)
+    pose = ", ".join(f"{q:.6g}" for q in q_goal)
+    design = (f"{kind} on the position loop's modes {what} (the PD loop linearized at the "
+              f"target joint angles [{pose}] rad), impulses on the "
+              f"{scene.control.rate_hz:g} Hz control grid; flexarm design {version}")
+    return {"times": [float(t) for t in times], "amplitudes": [float(a) for a in amps],
+            "design": design, "frequencies_hz": [float(m.frequency_hz) for m in chosen],
+            "damping_ratios": [float(m.damping_ratio) for m in chosen]}, chosen

@@ -93,7 +93,9 @@ class MotorVoltageMap:
             if getattr(d, "type", "dc_motor") != "dc_motor":
                 raise ValueError(f"drives[{k}].type: got {d.type!r}, expected 'dc_motor'")
         sv = [getattr(d, "supply_voltage", None) for d in drives]
-        return cls([d.gear_ratio for d in drives], [getattr(d, "output_torque_constant", d.torque_constant) for d in drives],
+        # η·K_t where the drive has a gear efficiency (a scene's Drive), else K_t
+        kt = [getattr(d, "output_torque_constant", d.torque_constant) for d in drives]
+        return cls([d.gear_ratio for d in drives], kt,
                    [d.back_emf_constant for d in drives], [d.resistance for d in drives],
                    [math.inf if v is None else v for v in sv])
 

@@ -29,6 +29,12 @@ def step_cost_us(chain) -> float:
     return COST_US[0] + COST_US[1] * chain.n * points
 
 
+def rk4_work_s(chain, duration: float, h: float) -> float:
+    """Predicted integration time (s) of ``duration`` s of ``chain`` at the RK4 step ``h``:
+    its steps times :func:`step_cost_us`."""
+    return duration / h * step_cost_us(chain) * 1e-6
+
+
 #: torque-program codes that are constant between their breakpoints
 PIECEWISE_CONSTANT = (0, 1, 2, 3, 5)
 

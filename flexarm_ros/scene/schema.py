@@ -160,14 +160,14 @@ def from_mapping(cls, data: Any, path: str = ""):
     if unknown:
         raise SceneError(f"{_join(path, str(unknown[0]))}: unknown key; expected one of "
                          f"{', '.join(sorted(fields))}")
-    own = getattr(cls, "accepted_keys", None)
-    allowed = own(data) if own is not None else None
+    allowed = accepted_keys(cls, data)
     if allowed is not None:
         misplaced = [k for k in data if k not in allowed]
         if misplaced:
-            key = misplaced[0]
+            key, kind = misplaced[0], data[cls.KEYED_BY]
+            article = "an" if kind[:1] in "aeiou" else "a"
             raise SceneError(f"{_join(path, str(key))}: got {_fmt(data[key])}, but "
-                             f"{cls.kind_of(data)} takes no {key}; expected one of "
+                             f"{article} {kind} {cls.NOUN} takes no {key}; expected one of "
                              f"{', '.join(allowed)}")
     kwargs = {}
     for name, f in fields.items():
@@ -185,18 +185,28 @@ def from_mapping(cls, data: Any, path: str = ""):
     return obj
 
 
+def accepted_keys(cls, data) -> tuple | None:
+    """The keys a section whose fields depend on its kind takes, for the mapping ``data``:
+    a class naming its discriminating field ``KEYED_BY`` ("type", "kind", "shape") takes
+    ``COMMON`` (the discriminator's by default) plus ``KEYS[kind]``. None: every field
+    (any other class, or a kind the field's own check refuses first)."""
+    by = getattr(cls, "KEYED_BY", None)
+    if by is None or not isinstance(data.get(by), str) or data[by] not in cls.KEYS:
+        return None
+    return getattr(cls, "COMMON", (by,)) + cls.KEYS[data[by]]
+
+
 def to_mapping(obj):
     """The mapping a scene file would hold for the schema object ``obj`` (lists for
-    tuples): every field, except those a section with ``accepted_keys`` does not take for
-    its type (a step program has no ``value``) and those it derived (``derived_keys``: a
+    tuples): every field, except those a section does not take for its kind
+    (:func:`accepted_keys`) (a step program has no ``value``) and those it derived (``derived_keys``: a
     beam's EI from E and its section), so :func:`from_mapping` of the result
     gives ``obj`` back."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         derived = getattr(obj, "derived_keys", ())
         names = [f.name for f in dataclasses.fields(obj) if f.init and f.name not in derived]
         out = {n: to_mapping(getattr(obj, n)) for n in names}
-        own = getattr(type(obj), "accepted_keys", None)
-        allowed = own(out) if own is not None else None
+        allowed = accepted_keys(type(obj), out)
         return out if allowed is None else {k: v for k, v in out.items() if k in allowed}
     if isinstance(obj, (list, tuple)):
         return [to_mapping(v) for v in obj]

@@ -100,25 +100,13 @@ class Section:
     wall_thickness: Optional[float] = param(None, unit="m", gt=0.0,
                                             doc="tube: wall thickness")
 
+    #: the keys each shape takes (:func:`flexarm_ros.scene.schema.accepted_keys`)
+    KEYED_BY, NOUN = "shape", "section"
     KEYS = {"rectangle": ("width", "thickness", "in_plane"),
             "tube": ("outer_diameter", "wall_thickness"), "circle": ("outer_diameter",)}
 
-    @classmethod
-    def accepted_keys(cls, data):
-        """The keys a section of ``data['shape']`` takes (None: the shape is checked
-        first)."""
-        keys = cls.KEYS.get(data.get("shape")) if isinstance(data.get("shape"), str) else None
-        return None if keys is None else ("shape",) + keys
-
-    @staticmethod
-    def kind_of(data) -> str:
-        return f"a {data['shape']} section"
-
     def validate(self, where):
-        need = {"rectangle": ("width", "thickness"),
-                "tube": ("outer_diameter", "wall_thickness"),
-                "circle": ("outer_diameter",)}[self.shape]
-        for key in need:
+        for key in (k for k in self.KEYS[self.shape] if k != "in_plane"):   # dimensions
             if getattr(self, key) is None:
                 raise SceneError(f"{where}.{key}: missing, expected a value > 0 (m) for a "
                                  f"{self.shape} section")
@@ -503,22 +491,14 @@ class Program:
 
     #: the keys each program type reads (:func:`flexarm_ros.model.programs.eval_torque`,
     #: ``eval_motion``); any other key of a program is refused naming these
+    #: (:func:`flexarm_ros.scene.schema.accepted_keys`)
+    KEYED_BY, NOUN = "type", "program"
     KEYS = {"constant": ("value",), "step": ("offset", "amplitude", "start"),
             "pulse": ("amplitude", "start", "width"),
             "square": ("amplitude", "frequency_hz", "phase_deg", "offset", "start"),
             "piecewise_constant": ("times", "values"), "piecewise_linear": ("times", "values"),
             "spin_up": ("omega", "ramp_time"), "smooth_step": ("amplitude", "start", "ramp_time"),
             "hold": ()}
-
-    @classmethod
-    def accepted_keys(cls, data):
-        """The keys a program of ``data['type']`` takes (None: the type is checked first)."""
-        keys = cls.KEYS.get(data.get("type")) if isinstance(data.get("type"), str) else None
-        return None if keys is None else ("type",) + keys
-
-    @staticmethod
-    def kind_of(data) -> str:
-        return f"a {data['type']} program"
 
     def validate(self, where):
         if self.type in ("piecewise_constant", "piecewise_linear"):
@@ -601,6 +581,8 @@ class Sensor:
 
     #: the keys each sensor kind reads (:mod:`flexarm_ros.model.sensors`): encoder counts
     #: and the tip position take no noise, sensitivity or ADC
+    #: (:func:`flexarm_ros.scene.schema.accepted_keys`)
+    KEYED_BY, NOUN = "kind", "sensor"
     COMMON = ("name", "kind", "rate_hz", "frame_id")
     _ANALOG = ("sensitivity", "noise_std", "seed", "adc_range", "adc_bits")
     KEYS = {"encoder": ("joint", "lines_per_rev", "quadrature", "on_motor_shaft"),
@@ -608,16 +590,6 @@ class Sensor:
             "strain": ("link", "position") + _ANALOG,
             "potentiometer": ("joint",) + _ANALOG,
             "tip_position": ()}
-
-    @classmethod
-    def accepted_keys(cls, data):
-        """The keys a sensor of ``data['kind']`` takes (None: the kind is checked first)."""
-        keys = cls.KEYS.get(data.get("kind")) if isinstance(data.get("kind"), str) else None
-        return None if keys is None else cls.COMMON + keys
-
-    @staticmethod
-    def kind_of(data) -> str:
-        return f"{'an' if data['kind'][0] in 'aeiou' else 'a'} {data['kind']} sensor"
 
     def validate(self, where):
         check_name(f"{where}.name", self.name)

@@ -78,8 +78,9 @@ sensors:                           # what the bench measures (topics in the ROS 
 {encoders}  - {{name: acc_tip, kind: accelerometer, link: link{n}, body: tip, rate_hz: 2000.0,
      sensitivity: 0.00051, noise_std: 2.0e-4, seed: 1}}   # V per m/s² (5 mV/g), V rms
 duration: 3.0                      # s
-# no fidelity section: the model and step are chosen for the default tip tolerance
-# (flexarm explain says which); add one to fix them (docs/ladder.md)
+# no fidelity section: the default model (cubic, RK4 at its automatic step); flexarm
+# explain says how far it is from the exact rod, --rung auto --tolerance M chooses the
+# model for an error bound, a fidelity section fixes one (docs/ladder.md)
 """
 
 _ENCODER = """\

@@ -232,8 +232,8 @@ def step_for_tolerance(chain, x0, t_end: float, tol: float, output_dt: float,
 def _pilot_work(chain, t_end, h1) -> float:
     """Predicted integration time (s) of the three pilots over ``t_end`` at h1, h1/2 and
     h1/4 (autofidelity.COST_US per step)."""
-    from flexarm_ros.model.autofidelity import step_cost_us
-    return 7 * t_end / h1 * step_cost_us(chain) * 1e-6
+    from flexarm_ros.model.linear_response import rk4_work_s
+    return 7 * rk4_work_s(chain, t_end, h1)
 
 
 def _above_stable(chain, x0, window, tol, output_dt, max_ratio, limit, h_top, h_want,

@@ -217,12 +217,8 @@ def forecast_s(scene, T: float, closed_loop: bool = False):
     """(seconds, step_s, terms) forecast for the first pair of :data:`REFERENCES` over
     ``T`` s: each rod's RK4 steps at its automatic step (the stability limit of its
     linearization at the start, :func:`flexarm_ros.model.explicit.stability`) times the
-    predicted cost per step (:func:`flexarm_ros.model.linear_response.step_cost_us`); the
+    predicted cost per step (:func:`flexarm_ros.model.linear_response.rk4_work_s`); the
     reference rod's step is returned."""
-    from flexarm_ros.model.chain import Chain
-    from flexarm_ros.model.explicit import stability
-    from flexarm_ros.model.linear_response import step_cost_us
-    from flexarm_ros.model.statics import initial_state
     return _pairs_forecast(scene, T, REFERENCES[0], closed_loop, want_step=True)
 
 
@@ -230,7 +226,7 @@ def _pairs_forecast(scene, T, pair, closed_loop, want_step=False):
     """:func:`forecast_s` of the rods of ``pair``."""
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.explicit import stability
-    from flexarm_ros.model.linear_response import step_cost_us
+    from flexarm_ros.model.linear_response import rk4_work_s
     from flexarm_ros.model.statics import initial_state
     total, step = 0.0, math.inf
     for terms in pair:
@@ -240,7 +236,7 @@ def _pairs_forecast(scene, T, pair, closed_loop, want_step=False):
         h = min(h, chain.fidelity.output_dt)
         if terms == pair[0]:
             step = h
-        total += T / h * step_cost_us(chain) * 1e-6
+        total += rk4_work_s(chain, T, h)
     return (total, step, pair[0]) if want_step else total
 
 

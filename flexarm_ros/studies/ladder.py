@@ -248,17 +248,29 @@ def _warm_up(scene):
             pass
 
 
+def _rk4_step(sc, chain, s: dict, reference: bool = False):
+    """(h, f1, limited): the RK4 step of row ``s`` (its dt, else the automatic step) and,
+    for the ``reference``, the chain's first frequency (None otherwise) and whether the
+    bound ω₁·h ≤ REFERENCE_PHASE_STEP shortened the automatic step."""
+    h = s.get("dt") or choose_step(chain, initial_x(chain), "rk4", 0.0,
+                                   sc.fidelity.output_dt)
+    f1 = first_frequency(chain) if reference else None
+    limited = bool(not s.get("dt") and f1 and 2 * math.pi * f1 * h > REFERENCE_PHASE_STEP)
+    if limited:
+        h = REFERENCE_PHASE_STEP / (2 * math.pi * f1)
+    return h, f1, limited
+
+
 def _reference_run(scene, ref: dict, T: float):
     """Run the reference (errors propagate: without it there is no study)."""
     sc = _apply(scene, ref)
     chain = Chain(sc)
-    f1 = first_frequency(chain)
-    if ref["integrator"] == "rk4" and not ref.get("dt") and f1:
-        x0 = initial_x(chain)
-        h = choose_step(chain, x0, "rk4", 0.0, sc.fidelity.output_dt)
-        if 2 * math.pi * f1 * h > REFERENCE_PHASE_STEP:
-            sc = sc.with_fidelity(dt=REFERENCE_PHASE_STEP / (2 * math.pi * f1))
-            chain = Chain(sc)
+    if ref["integrator"] != "rk4":
+        return run_scene(sc, T, chain=chain), first_frequency(chain)
+    h, f1, limited = _rk4_step(sc, chain, ref, reference=True)
+    if limited:
+        sc = sc.with_fidelity(dt=h)
+        chain = Chain(sc)
     return run_scene(sc, T, chain=chain), f1
 
 
@@ -350,21 +362,16 @@ def input_start(scene) -> float:
 def forecast_rate(scene, s: dict, reference: bool = False):
     """Forecast wall seconds per simulated second of row ``s`` (RK4 rows: its steps per
     second at its step — the automatic one, or the reference's phase-limited one — times
-    the predicted cost per step, :func:`~flexarm_ros.model.linear_response.step_cost_us`),
+    the predicted cost per step, :func:`~flexarm_ros.model.linear_response.rk4_work_s`),
     and the step; (None, None) for the other integrators (timed by a pilot run)."""
-    from flexarm_ros.model.linear_response import step_cost_us
+    from flexarm_ros.model.linear_response import rk4_work_s
     if s.get("integrator", "rk4") != "rk4":
         return None, None
     try:
         sc = _apply(scene, s)
         chain = Chain(sc)
-        h = s.get("dt") or choose_step(chain, initial_x(chain), "rk4", 0.0,
-                                       sc.fidelity.output_dt)
-        if reference:
-            f1 = first_frequency(chain)
-            if f1:
-                h = min(h, REFERENCE_PHASE_STEP / (2 * math.pi * f1))
-        return step_cost_us(chain) * 1e-6 / h, h
+        h = _rk4_step(sc, chain, s, reference)[0]
+        return rk4_work_s(chain, 1.0, h), h
     except ROW_ERRORS:
         return 0.0, None              # the row fails at once when it runs
 
@@ -410,15 +417,15 @@ def _choose_duration(scene, ladder, ref, quick, budget_s, progress, duration=Non
     if ref_rate * T + fixed > budget_s:
         from flexarm_ros.errors import InputError
         from flexarm_ros.sim.truth import why_slow
+        why = why_slow(scene)
         raise InputError(
             f"--budget: got {budget_s:g} s, expected at least the reference's forecast: "
             f"{_label(ref)} needs about {ref_rate * T + fixed:.3g} s for the shortest "
             f"window that sees the input act ({T:.3g} s at its RK4 step {ref_h:.3g} s"
-            f"{why_slow(scene)}); give --budget {math.ceil(1.5 * (ref_rate * T + fixed))}"
+            f"{why}); give --budget {math.ceil(1.5 * (ref_rate * T + fixed))}"
             + (f" or a --duration below {T:.3g} s" if duration is None else
                " or a shorter --duration")
-            + (", or damp the beams by viscous_per_length instead" if why_slow(scene)
-               else ""))
+            + (", or damp the beams by viscous_per_length instead" if why else ""))
     skipped = {}
     while total(T, keep) > budget_s and keep:
         worst = max(keep, key=lambda k: rates[k])

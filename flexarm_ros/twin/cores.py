@@ -486,7 +486,7 @@ class ControllerCore:
         self.shaper = ctl.shaper if self.mode == "position" else None
         self.q_start, self.q_goal = q0, self.q_cmd.copy()
         if self.shaper is not None:
-            self.q_cmd = self.q_start + self.shaper.share(0.0) * (self.q_goal - self.q_start)
+            self.q_cmd = self._shaped(0.0)
         self.task = None
         if self.mode == "sanding":
             sd = ctl.sanding
@@ -515,6 +515,10 @@ class ControllerCore:
         return build.joint_state(t_ns, [f"{lk.name}_joint" for lk in self.scene.links],
                                  self.q_cmd, np.zeros(self.n), self.torque_demand)
 
+    def _shaped(self, t: float) -> np.ndarray:
+        """The shaped target at ``t``: q₀ + S(t)·(q* − q₀) (control.shaper)."""
+        return self.q_start + self.shaper.share(t) * (self.q_goal - self.q_start)
+
     def _ik(self, target, q_guess):
         res = self.arm.inverse(target, q_guess)
         if not res.success:
@@ -536,6 +540,6 @@ class ControllerCore:
                                                   normal_force)
             self.q_cmd = self._ik(target, self.q_cmd)
         elif self.shaper is not None:
-            self.q_cmd = self.q_start + self.shaper.share(t) * (self.q_goal - self.q_start)
+            self.q_cmd = self._shaped(t)
         self.torque_demand = self.pd.torque(q, qd, self.q_cmd)
         return self.pd.motor.voltage(self.torque_demand, qd)

@@ -2,8 +2,9 @@
 figures of docs/control_design.md come from here).
 
 For each arm — seed 000's two_link_position and examples/three_link_position.yaml — the
-joint PD alone and with each input shaper that ``flexarm design`` writes (zv, zvd, ei on
-every mode that carries the outer tip's deflection), each design kept at the nominal
+joint PD alone, with each input shaper that ``flexarm design`` writes (zv, zvd, ei on
+every mode that carries the outer tip's deflection) and the LQG of ``flexarm design --lqg``
+in place of the PD (default weights, and a 1 V voltage scale), each design kept at the nominal
 model and run on the nominal rig and on rigs whose beams are 30 % stiffer and 20 % softer
 (EI, or E for a beam given by its datasheet, scaled with ``--set``):
 
@@ -12,7 +13,8 @@ model and run on the nominal rig and on rigs whose beams are 30 % stiffer and 20
                   window for every design, PD included
 ``settle_s``      the time from which, for good, the outer tip deflection stays within
                   1 mm and every joint within 2 % of its move
-``move_s``        the shaper's last impulse (0 for PD): what the shaping adds to the move
+``move_s``        the shaper's last impulse (0 for PD and LQG): what the shaping adds to the
+                  move
 ``peak_V``        the largest motor voltage
 
     python bench/bench_vibration.py                  # ~1 min
@@ -28,6 +30,9 @@ import numpy as np
 
 ARMS = ("two_link_position", "examples/three_link_position.yaml")
 DESIGNS = ("pd", "zv", "zvd", "ei")
+#: the LQG designs compared: flexarm design --lqg with its default weights (the voltage
+#: weight bounded by the PD's first command) and with a voltage scale of 1 V
+LQGS = {"lqg": None, "lqg 1V": {"voltage": 1.0}}
 RIGS = {"nominal": 1.0, "stiffer 30 %": 1.3, "softer 20 %": 0.8}
 WINDOW_S = 2.0
 AFTER_S = 0.5
@@ -70,6 +75,8 @@ def measure(arm: str) -> list[dict]:
     scenes = {"pd": base}
     for kind in DESIGNS[1:]:              # what flexarm design --shaper KIND writes
         scenes[kind] = design(base, shaper=kind)
+    for kind, weights in LQGS.items():   # what flexarm design --lqg [--weights] writes
+        scenes[kind] = design(base, lqg=True, weights=weights)
     moves = {k: (s.control.shaper.times[-1] if s.control.shaper else 0.0)
              for k, s in scenes.items()}
     start = max(moves.values()) + AFTER_S
@@ -97,11 +104,11 @@ def main(argv=None):
         sub = [r for r in rows if r["arm"] == arm]
         w = sub[0]["window_s"]
         print(f"\n{arm} (window {w[0]:.3g}-{w[1]:.3g} s)")
-        print(f"{'rig':14s} {'design':6s} {'residual m':>11s} {'/PD':>6s} {'settle s':>9s} "
+        print(f"{'rig':14s} {'design':7s} {'residual m':>11s} {'/PD':>6s} {'settle s':>9s} "
               f"{'move s':>7s} {'peak V':>7s}")
         for r in sub:
             pd = next(x for x in sub if x["rig"] == r["rig"] and x["design"] == "pd")
-            print(f"{r['rig']:14s} {r['design']:6s} {r['residual_m']:11.3g} "
+            print(f"{r['rig']:14s} {r['design']:7s} {r['residual_m']:11.3g} "
                   f"{r['residual_m'] / pd['residual_m']:6.3f} {r['settle_s']:9.3g} "
                   f"{r['move_s']:7.3g} {r['peak_V']:7.3g}")
 

@@ -9,6 +9,7 @@ so that a script runs exactly what the CLI runs.
                                              is installed, else the arrays
     fx.modes(scene, joints=None)             ``flexarm modes``
     fx.design(scene, shaper="zvd")           ``flexarm design --shaper``: the shaped scene
+    fx.design(scene, lqg=True)               ``flexarm design --lqg``: the LQG scene
     fx.read_bag(path)                        a twin bag, decoded
 
 Bad input raises :class:`flexarm_ros.errors.InputError` (a ``SceneError`` for a scene)
@@ -168,19 +169,30 @@ def modes(scene, joints: str | None = None) -> dict:
             "shapes": np.asarray(m.shapes), "coordinates": list(m.coordinates)}
 
 
-def design(scene, shaper: str = "zvd", modes: int | None = None):
-    """``flexarm design --shaper``: the scene with the position loop's input shaper (its
-    ``control.shaper`` records the design)."""
+def design(scene, shaper: str | None = "zvd", modes: int | None = None, lqg: bool = False,
+           weights=None):
+    """``flexarm design --shaper`` (default zvd) or, with ``lqg=True``, ``flexarm design
+    --lqg [--weights]`` (``weights``: a mapping or the option's text): the scene with the
+    position loop's input shaper or LQG (its ``control.shaper`` / ``control.lqg`` records
+    the design)."""
     import dataclasses
     from flexarm_ros.control.design import require_position, shaper_record
+    from flexarm_ros.control.lqg import lqg_for_core
     from flexarm_ros.scene.schema import from_mapping
-    from flexarm_ros.scene.sections import Shaper
+    from flexarm_ros.scene.sections import Lqg, Shaper
     from flexarm_ros.twin.cores import ControllerCore
     from flexarm_ros.version import __version__
     sc = _scene(scene)
     require_position(sc)
     ctl = ControllerCore(sc)
-    record, _ = shaper_record(sc, shaper, ctl.q_goal, ctl.q_start, modes, __version__)
+    if lqg:
+        record, _ = lqg_for_core(sc, ctl, weights, __version__)
+        section = from_mapping(Lqg, record, "control.lqg")
+        return dataclasses.replace(sc, control=dataclasses.replace(sc.control, lqg=section))
+    if weights is not None:
+        raise InputError("weights: got weights for a shaper, expected them with lqg=True")
+    record, _ = shaper_record(sc, shaper or "zvd", ctl.q_goal, ctl.q_start, modes,
+                              __version__)
     sh = from_mapping(Shaper, record, "control.shaper")
     return dataclasses.replace(sc, control=dataclasses.replace(sc.control, shaper=sh))
 

@@ -53,13 +53,12 @@ def require_position(scene):
     return ctl
 
 
-def _feedback(scene, q_goal):
-    """(F, G, ss): the plant of ``scene`` linearized at rest at the joint angles
-    ``q_goal`` (voltages in) and the twin's PD law on it, u = −F x + G δq* (module doc)."""
+def plant_at(scene, q_goal):
+    """(chain, ss): the plant of ``scene`` linearized at rest at the joint angles
+    ``q_goal`` (voltages in, no controller, no input programs)."""
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.model.statespace import linearize
     from flexarm_ros.scene.keys import set_keys
-    ctl = require_position(scene)
     at = {f"links[{k}].joint.initial_angle": float(q) for k, q in enumerate(q_goal)}
     at.update({f"links[{k}].joint.initial_rate": 0.0 for k in range(len(q_goal))})
     for k, lk in enumerate(scene.links):
@@ -67,7 +66,14 @@ def _feedback(scene, q_goal):
             at[f"links[{k}].joint.initial_angle_deg"] = None
     pose = set_keys(dataclasses.replace(scene, control=None, inputs=()), at)
     chain = Chain(pose)
-    ss = linearize(chain)
+    return chain, linearize(chain)
+
+
+def _feedback(scene, q_goal):
+    """(F, G, ss): the plant of ``scene`` linearized at rest at the joint angles
+    ``q_goal`` (voltages in) and the twin's PD law on it, u = −F x + G δq* (module doc)."""
+    ctl = require_position(scene)
+    chain, ss = plant_at(scene, q_goal)
     nf = len(chain.free)
     free = list(chain.free)
     F = np.zeros((len(ss.inputs), ss.A.shape[0]))

@@ -790,6 +790,59 @@ class Shaper:
 
 
 @dataclass(frozen=True, kw_only=True)
+class LqgWeights:
+    """Bryson's-rule scales of an LQG design: the largest acceptable joint-angle error,
+    tip deflection, joint rate and voltage (Q = 1/scale² on each, R = 1/voltage²)."""
+    angle: float = param(unit="rad", gt=0.0, doc="joint angle error scale")
+    deflection: float = param(unit="m", gt=0.0, doc="hub-frame tip deflection scale")
+    rate: float = param(unit="rad/s", gt=0.0, doc="joint rate scale")
+    voltage: float = param(unit="V", gt=0.0, doc="motor voltage scale")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Lqg:
+    """LQG position control (``flexarm design --lqg``, :mod:`flexarm_ros.control.lqg`):
+    the regulator u = clip(−K x̂, ±V) on the current Kalman estimate x̂ of the arm's state
+    (deviations from the target pose at rest), predicted by x̂⁻ = A x̂ + B u and corrected
+    by the encoder angles y, x̂ = x̂⁻ + M (y − y* − C x̂⁻), every control period. The
+    matrices are the controller's: the design writes them with what it used."""
+    design: str = param("", doc="what the design used (plant, pose, weights, version)")
+    weights: Optional[LqgWeights] = param(None, doc="the Bryson weights of the design")
+    states: tuple[str, ...] = param((), doc="names of the model's states (x)")
+    A: tuple[tuple[float, ...], ...] = param(doc="A_d, the sampled plant (n×n)")
+    B: tuple[tuple[float, ...], ...] = param(unit="1/V", doc="B_d (n×joints), volts in")
+    C: tuple[tuple[float, ...], ...] = param(doc="the measured encoder angles (joints×n)")
+    K: tuple[tuple[float, ...], ...] = param(unit="V", doc="regulator gain (joints×n)")
+    M: tuple[tuple[float, ...], ...] = param(doc="current-estimator gain (n×joints)")
+    x_start: tuple[float, ...] = param(doc="the estimate at the start (n)")
+    y_goal: tuple[float, ...] = param(unit="rad", doc="the encoder angles at the target")
+
+    def validate(self, where):
+        n = len(self.A)
+        m = len(self.y_goal)
+        shapes = {"A": (n, n), "B": (n, m), "C": (m, n), "K": (m, n), "M": (n, m)}
+        if n == 0 or m == 0:
+            raise SceneError(f"{where}.A: got {n} states and {m} joints, expected both > 0")
+        for key, (r, c) in shapes.items():
+            mat = getattr(self, key)
+            if len(mat) != r or any(len(row) != c for row in mat):
+                got = f"{len(mat)}×{len(mat[0]) if mat else 0}"
+                raise SceneError(f"{where}.{key}: got a {got} matrix, expected {r}×{c} "
+                                 f"({n} states, {m} joints)")
+        if len(self.x_start) != n:
+            raise SceneError(f"{where}.x_start: got {len(self.x_start)} values, expected "
+                             f"{n} (one per state)")
+        if self.states and len(self.states) != n:
+            raise SceneError(f"{where}.states: got {len(self.states)} names, expected {n}")
+        import numpy as np
+        A, B, K = np.array(self.A), np.array(self.B), np.array(self.K)
+        rho = float(np.max(np.abs(np.linalg.eigvals(A - B @ K))))
+        if not rho < 1.0:
+            raise SceneError(f"{where}.K: got a regulator with |z| = {rho:.6g}, expected "
+                             f"a stable loop (every pole of A − B K inside the unit circle)")
+
+
+@dataclass(frozen=True, kw_only=True)
 class Control:
     """What the controller node runs (seed 000 Sec. 5.4). open_loop: the scene's input
     programs as commands; position: joint PD (Eq. 5.16) with voltages from the static motor
@@ -809,6 +862,8 @@ class Control:
     sanding: Optional[Sanding] = param(None, doc="sanding mode parameters")
     shaper: Optional[Shaper] = param(None, doc="position mode: an input shaper on the "
                                                "target step (flexarm design --shaper)")
+    lqg: Optional[Lqg] = param(None, doc="position mode: LQG on the encoder angles in "
+                                         "place of the joint PD (flexarm design --lqg)")
     watchdog_s: float = param(0.05, unit="s", gt=0.0,
                               doc="motor driver: commands older than this → 0 V / closed "
                                   "valve")
@@ -1003,6 +1058,15 @@ class Scene:
             raise SceneError(f"control.shaper: got a shaper with control.mode "
                              f"{ctl.mode!r}, expected mode 'position' (it shapes the target "
                              f"step)")
+        if ctl.lqg is not None:
+            if ctl.mode != "position" or ctl.shaper is not None:
+                raise SceneError(f"control.lqg: got an LQG with control.mode {ctl.mode!r}"
+                                 f"{' and a shaper' if ctl.shaper is not None else ''}, "
+                                 f"expected mode 'position' without a shaper (it replaces "
+                                 f"the joint PD's move)")
+            if len(ctl.lqg.y_goal) != nj:
+                raise SceneError(f"control.lqg.y_goal: got {len(ctl.lqg.y_goal)} joints, "
+                                 f"expected {nj} (one per joint)")
         if ctl.mode == "sanding" and ctl.sanding is None:
             raise SceneError("control.sanding: missing, expected the sanding parameters "
                              "for mode 'sanding'")

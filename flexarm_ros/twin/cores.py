@@ -487,6 +487,16 @@ class ControllerCore:
         self.q_start, self.q_goal = q0, self.q_cmd.copy()
         if self.shaper is not None:
             self.q_cmd = self._shaped(0.0)
+        # LQG in place of the PD: a Kalman estimate from the encoder angles (control.lqg)
+        self.lqg = None
+        if self.mode == "position" and ctl.lqg is not None:
+            from flexarm_ros.control.lqg import LqgLaw
+            if not np.allclose(ctl.lqg.y_goal, self.q_goal, rtol=0.0, atol=1e-9):
+                raise SceneError(f"control.lqg.y_goal: got {list(ctl.lqg.y_goal)} rad, "
+                                 f"expected the target's joint angles "
+                                 f"{self.q_goal.tolist()} (the pose it was designed at; "
+                                 f"flexarm design --lqg again for a new target)")
+            self.lqg = LqgLaw(ctl.lqg, self.limit)
         self.task = None
         if self.mode == "sanding":
             sd = ctl.sanding
@@ -541,5 +551,9 @@ class ControllerCore:
             self.q_cmd = self._ik(target, self.q_cmd)
         elif self.shaper is not None:
             self.q_cmd = self._shaped(t)
+        if self.lqg is not None:            # the torque the LQG's voltage asks for
+            volts = self.lqg.update(q)
+            self.torque_demand = self.pd.motor.torque(volts, qd)
+            return volts
         self.torque_demand = self.pd.torque(q, qd, self.q_cmd)
         return self.pd.motor.voltage(self.torque_demand, qd)

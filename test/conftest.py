@@ -28,6 +28,7 @@ import shutil
 import subprocess
 import tempfile
 
+import numpy as np
 import pytest
 
 from flexarm_ros.nodes import environment
@@ -208,3 +209,37 @@ def pytest_runtest_makereport(item, call):
             f"{item.nodeid} opened {_Seen.ros} ROS context(s) and started "
             f"{_Seen.processes} process(es) (its shared fixtures included): mark it "
             + " and ".join(f"@pytest.mark.{m}" for m in missing) + " (test/conftest.py)")
+
+
+def _ros_against_batch(scene_path, bag_path, duration: float, namespace: str):
+    """(messages recorded, largest |q_ros − q_batch| rad over every joint and tick, the
+    largest joint travel in the run rad) of a lockstep ``flexarm run`` of ``scene_path``
+    recorded to ``bag_path``."""
+    from flexarm_ros.bag.reader import read_bag
+    from flexarm_ros.run import run
+    from flexarm_ros.scene import load_scene
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.batch import run_scene
+    run(str(scene_path), duration, "lockstep", record=bag_path, namespace=namespace,
+        progress=False)
+    msgs = read_bag(bag_path)[f"{namespace}/{T.GT_JOINT_STATES}"]
+    scene = load_scene(scene_path)
+    res = run_scene(scene, duration)
+    ns = np.round(np.asarray(res.columns["t"]) * 1e9).astype(np.int64)
+    idx = np.searchsorted(ns, np.array([ts for ts, _ in msgs], dtype=np.int64))
+    gap = travel = 0.0
+    for j, lk in enumerate(scene.links):
+        q = np.array([m.position[j] for _, m in msgs])
+        gap = max(gap, float(np.max(np.abs(np.asarray(res.columns[f"{lk.name}_joint"])[idx]
+                                           - q))))
+        travel = max(travel, float(np.ptp(q)))
+    return len(msgs), gap, travel
+
+
+@pytest.fixture
+def ros_against_batch():
+    """A lockstep ROS run of a scene beside its batch run ("one system"):
+    ``ros_against_batch(scene_path, bag_path, duration, namespace)`` → (messages recorded,
+    largest |q_ros − q_batch| rad over every joint and tick of ground_truth/joint_states,
+    the largest joint travel rad)."""
+    return _ros_against_batch

@@ -238,25 +238,9 @@ def test_an_lqg_is_designed_and_run_on_a_generated_arm(tmp_path, seed):
 @pytest.mark.heavy
 @pytest.mark.ros
 @pytest.mark.subprocess
-def test_the_ros_lockstep_run_of_an_lqg_scene_equals_simulate(tmp_path):
+def test_the_ros_lockstep_run_of_an_lqg_scene_equals_simulate(tmp_path, ros_against_batch):
     """A real lockstep ROS run of the LQG scene (the controller node runs the estimator
     and the regulator on the joint_states it receives): its ground_truth/joint_states
     equal the batch run's joints at every tick to 1e-9 rad."""
-    from flexarm_ros.bag.reader import read_bag
-    from flexarm_ros.run import run
-    from flexarm_ros.twin import topics as T
-    scene_path = _designed(tmp_path)
-    path = tmp_path / "lqg.mcap"
-    run(str(scene_path), 0.6, "lockstep", record=path, namespace="/lq", progress=False)
-    msgs = read_bag(path)[f"/lq/{T.GT_JOINT_STATES}"]
-    t = np.array([ts for ts, _ in msgs]) * 1e-9
-    res = run_scene(load_scene(scene_path), 0.6)
-    ns = np.round(np.asarray(res.columns["t"]) * 1e9).astype(np.int64)
-    idx = np.searchsorted(ns, np.round(t * 1e9).astype(np.int64))
-    assert len(msgs) >= 590
-    moved = 0.0
-    for j, name in enumerate(("link1_joint", "link2_joint")):
-        q = np.array([m.position[j] for _, m in msgs])
-        moved = max(moved, float(np.ptp(q)))
-        assert np.max(np.abs(np.asarray(res.columns[name])[idx] - q)) <= 1e-9
-    assert moved > 1e-4
+    n, gap, travel = ros_against_batch(_designed(tmp_path), tmp_path / "lqg.mcap", 0.6, "/lq")
+    assert n >= 590 and gap <= 1e-9 and travel > 1e-4

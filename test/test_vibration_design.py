@@ -278,24 +278,11 @@ def test_an_unstable_loop_is_refused_before_a_design():
 @pytest.mark.heavy
 @pytest.mark.ros
 @pytest.mark.subprocess
-def test_the_ros_lockstep_run_of_a_shaped_scene_equals_simulate(tmp_path):
+def test_the_ros_lockstep_run_of_a_shaped_scene_equals_simulate(tmp_path, ros_against_batch):
     """A real lockstep ROS run of the ZVD scene past its second impulse (0.46 s): its
     ground_truth/joint_states equal the batch run's joints at every tick to 1e-9 rad."""
-    from flexarm_ros.bag.reader import read_bag
-    from flexarm_ros.run import run
-    from flexarm_ros.twin import topics as T
-    scene_path = _designed(tmp_path)
-    path = tmp_path / "shaped.mcap"
-    run(str(scene_path), 0.6, "lockstep", record=path, namespace="/sh", progress=False)
-    msgs = read_bag(path)[f"/sh/{T.GT_JOINT_STATES}"]
-    t = np.array([ts for ts, _ in msgs]) * 1e-9
-    res = run_scene(load_scene(scene_path), 0.6)
-    ns = np.round(np.asarray(res.columns["t"]) * 1e9).astype(np.int64)
-    idx = np.searchsorted(ns, np.round(t * 1e9).astype(np.int64))
-    assert len(msgs) >= 590
-    for j, name in enumerate(("link1_joint", "link2_joint")):
-        q = np.array([m.position[j] for _, m in msgs])
-        assert np.max(np.abs(np.asarray(res.columns[name])[idx] - q)) <= 1e-9
+    n, gap, _ = ros_against_batch(_designed(tmp_path), tmp_path / "shaped.mcap", 0.6, "/sh")
+    assert n >= 590 and gap <= 1e-9
 
 
 def test_linearize_closed_loop_exports_the_designs_loop(tmp_path, capsys):

@@ -7,7 +7,12 @@ one per joint state it answers, and with position or sanding control
 ``controller/joint_targets`` after each command (for the log: the targets it tracks). The control law comes from the scene's ``control:``
 section (open_loop programs, position PD with inverse kinematics, sanding).
 
-Its inputs are taken from the ``simulator`` only (a second publisher of any of them is
+With position control it also follows ``controller/joint_trajectory``
+(trajectory_msgs/JointTrajectory, joint_trajectory_controller's convention; from any node):
+validated on entry (:meth:`ControllerCore.accept_trajectory`), a rejected one is logged
+and counted and changes nothing; header.stamp zero starts it at the latest state's time.
+
+Its state inputs are taken from the ``simulator`` only (a second publisher of any of them is
 refused, counted and logged: :mod:`flexarm_ros.nodes._wire`).
 
 Time: the state's stamp (simulation time) is the controller's time; no timer, no clock.
@@ -64,6 +69,11 @@ class ControllerNode(Node):
                                  lambda m, info, topic=topic: self._on(topic, m, info),
                                  plain=True)
             self.sources[topic] = Source(self, sub.topic_name, T.SOURCE[topic])
+        self.t_now = 0.0                        # the latest state's scene time
+        self.trajectories = 0
+        if self.core.mode == "position" and _has_trajectory_msgs():
+            C.subscription(self, T.INPUT_TYPES[T.JOINT_TRAJECTORY], T.JOINT_TRAJECTORY,
+                           self._on_trajectory)
         self.published = {T.COMMANDS: 0}
         if self.pub_targets is not None:
             self.published[T.JOINT_TARGETS] = 0
@@ -87,6 +97,27 @@ class ControllerNode(Node):
             self.latest[topic] = m
         self._drain()
 
+    def _on_trajectory(self, m, *_):
+        """A trajectory: the reference from its start, or rejected with the reason."""
+        try:
+            st = m.header.stamp
+            start = self.sim_time(C.stamp_ns(st)) if (st.sec or st.nanosec) else None
+            times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                     for p in m.points]
+            why = self.core.accept_trajectory(
+                self.t_now, start, list(m.joint_names), times,
+                [list(p.positions) for p in m.points], [list(p.velocities) for p in m.points])
+        except Exception as exc:  # noqa: BLE001 — no message may stop the controller
+            why = f"unreadable ({type(exc).__name__}: {exc})"
+        if why is not None:
+            self.rejections.invalid(T.JOINT_TRAJECTORY, "a trajectory of",
+                                    [len(m.points), "points"], why,
+                                    "the scene's joints, finite targets at increasing times")
+            return
+        self.trajectories += 1
+        self.get_logger().info(f"{T.JOINT_TRAJECTORY}: following a trajectory of "
+                               f"{len(m.points)} points to {self.core.q_goal.tolist()} rad")
+
     def _drain(self):
         if not self._started:
             if not self.ready():
@@ -103,8 +134,8 @@ class ControllerNode(Node):
             t_ns = C.stamp_ns(js.header.stamp)
             if self.n_end is not None and C.tick_of(self.scene, t_ns) >= self.n_end:
                 continue
-            cmd = self.core.update(self.sim_time(t_ns), self.period, list(js.position),
-                                   contact, fn)
+            self.t_now = self.sim_time(t_ns)
+            cmd = self.core.update(self.t_now, self.period, list(js.position), contact, fn)
             self.pub.publish(self._cdr.float64_multiarray(cmd, ("joint",)))
             self.published[T.COMMANDS] += 1
             if self.pub_targets is not None:
@@ -114,7 +145,17 @@ class ControllerNode(Node):
     def finish(self, executor=None):
         """The final log line: commands published, inputs refused."""
         self.get_logger().info(f"{self.published[T.COMMANDS]} commands published; "
+                               f"{self.trajectories} trajectories followed; "
                                f"{self.rejections.summary()}")
+
+
+def _has_trajectory_msgs() -> bool:
+    """trajectory_msgs imports (the [ros] extra installs it; a ROS distribution has it)."""
+    try:
+        import trajectory_msgs.msg  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def main(args=None):

@@ -393,8 +393,16 @@ class Joint:
                                               "none: 1000 N·m (the stated default). A joint "
                                               "with a drive takes its limit from the drive "
                                               "(flexarm explain prints every limit)")
+    position_limits: Optional[tuple[float, float]] = param(
+        None, unit="rad", doc="lowest and highest joint angle a target may ask for: the "
+                              "position controller refuses targets, moves and trajectories "
+                              "beyond them (none: no limit)")
 
     def validate(self, where):
+        if self.position_limits is not None and not (
+                self.position_limits[0] < self.position_limits[1]):
+            raise SceneError(f"{where}.position_limits: got {list(self.position_limits)}, "
+                             f"expected [lowest, highest] with lowest < highest (rad)")
         if self.flexibility is not None and self.backlash is not None:
             raise SceneError(f"{where}.backlash: got both flexibility and backlash, expected "
                              f"one (backlash carries its own mesh stiffness)")
@@ -790,6 +798,18 @@ class Shaper:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Move:
+    """One point of a move program (``control.moves``): the joint targets to reach at
+    ``time`` s after the start (joint_trajectory_controller's ``time_from_start``),
+    optionally the joint rates there (then the path between points is cubic, else
+    linear; :mod:`flexarm_ros.control.trajectory`)."""
+    time: float = param(unit="s", gt=0.0, doc="time from the start of the run")
+    joint_target: tuple[float, ...] = param(unit="rad", doc="joint angles, one per joint")
+    joint_rate: tuple[float, ...] = param((), unit="rad/s",
+                                          doc="joint rates there (all points or none)")
+
+
+@dataclass(frozen=True, kw_only=True)
 class LqgWeights:
     """Bryson's-rule scales of an LQG design: the largest acceptable joint-angle error,
     tip deflection, joint rate and voltage (Q = 1/scale² on each, R = 1/voltage²)."""
@@ -864,6 +884,9 @@ class Control:
                                                "target step (flexarm design --shaper)")
     lqg: Optional[Lqg] = param(None, doc="position mode: LQG on the encoder angles in "
                                          "place of the joint PD (flexarm design --lqg)")
+    moves: tuple[Move, ...] = param((), doc="position mode: a move program, the joint "
+                                            "targets and the times to reach them, in place "
+                                            "of tip_target / joint_target")
     watchdog_s: float = param(0.05, unit="s", gt=0.0,
                               doc="motor driver: commands older than this → 0 V / closed "
                                   "valve")
@@ -1051,9 +1074,38 @@ class Scene:
                                  f"per joint)")
         if ctl.mode in ("position", "sanding") and not (ctl.kp and ctl.kd):
             raise SceneError(f"control.kp: missing, expected PD gains for mode {ctl.mode!r}")
-        if ctl.mode == "position" and (ctl.tip_target is None) == (not ctl.joint_target):
+        if ctl.mode == "position" and (
+                (ctl.tip_target is not None) + bool(ctl.joint_target) + bool(ctl.moves)) != 1:
             raise SceneError("control.tip_target: expected exactly one of tip_target / "
-                             "joint_target for mode 'position'")
+                             "joint_target / moves for mode 'position'")
+        if ctl.moves:
+            from flexarm_ros.scene.trajectory_points import check_points
+            if ctl.mode != "position" or ctl.lqg is not None:
+                raise SceneError(f"control.moves: got a move program with control.mode "
+                                 f"{ctl.mode!r}{' and an LQG' if ctl.lqg else ''}, expected "
+                                 f"mode 'position' with the joint PD (the LQG regulates to "
+                                 f"the one target it was designed at)")
+            names = [lk.name for lk in self.links]
+            rates = [m.joint_rate for m in ctl.moves]
+            try:
+                check_points(names, names, [m.time for m in ctl.moves],
+                             [m.joint_target for m in ctl.moves],
+                             rates if any(rates) else None,
+                             [lk.joint.position_limits for lk in self.links])
+            except ValueError as exc:
+                text = (str(exc).replace("points[", "control.moves[")
+                        .replace(".positions", ".joint_target")
+                        .replace(".velocities", ".joint_rate")
+                        .replace("points.", "control.moves.")
+                        .replace("time_from_start", "control.moves.time"))
+                raise SceneError(text) from None
+        if ctl.joint_target:
+            for k, (q, lk) in enumerate(zip(ctl.joint_target, self.links)):
+                lim = lk.joint.position_limits
+                if lim is not None and not lim[0] <= q <= lim[1]:
+                    raise SceneError(f"control.joint_target[{k}]: got {q:g} rad, expected "
+                                     f"within links[{k}].joint.position_limits "
+                                     f"[{lim[0]:g}, {lim[1]:g}] rad")
         if ctl.shaper is not None and ctl.mode != "position":
             raise SceneError(f"control.shaper: got a shaper with control.mode "
                              f"{ctl.mode!r}, expected mode 'position' (it shapes the target "

@@ -39,6 +39,8 @@ def eligible(sim, ctl) -> str | None:
         return f"control.mode {ctl.mode!r} (its task runs in Python)"
     if getattr(ctl, "shaper", None) is not None:
         return "a shaped target (its staircase runs on the cores)"
+    if getattr(ctl, "reference", None) is not None:
+        return "a move program (its reference runs on the cores)"
     if getattr(ctl, "lqg", None) is not None:
         return "an LQG controller (its estimator runs on the cores)"
     if ctl.status != "ok":

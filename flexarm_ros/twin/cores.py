@@ -21,6 +21,7 @@ from flexarm_ros.bag import messages as msg
 from flexarm_ros.control.joint_pd import EncoderVelocity, JointPD, MotorVoltageMap
 from flexarm_ros.control.kinematics import PlanarTwoLink
 from flexarm_ros.control.sanding import SandingTask
+from flexarm_ros.control.trajectory import Reference, Trajectory
 from flexarm_ros.model import drives
 from flexarm_ros.model.chain import Chain
 from flexarm_ros.model.limits import joint_limits
@@ -484,8 +485,23 @@ class ControllerCore:
             self.q_cmd = self._ik(ctl.tip_target, q0)
         # a shaped target step: q_cmd(t) = q0 + S(t)·(q* − q0) (control.shaper)
         self.shaper = ctl.shaper if self.mode == "position" else None
+        self.qd_cmd = np.zeros(self.n)
+        # a move program, or trajectories arriving on the wire: the reference r(t),
+        # shaped by the shaper (flexarm_ros.control.trajectory)
+        self.reference = None
+        self.position_limits = [lk.joint.position_limits for lk in scene.links]
+        if ctl.moves:
+            rates = [m.joint_rate for m in ctl.moves]
+            self.reference = Reference(q0, self.shaper)
+            self.reference.add(Trajectory(0.0, q0, np.zeros(self.n),
+                                          [m.time for m in ctl.moves],
+                                          [m.joint_target for m in ctl.moves],
+                                          rates if any(rates) else None))
+            self.q_cmd = np.array(ctl.moves[-1].joint_target, float)
         self.q_start, self.q_goal = q0, self.q_cmd.copy()
-        if self.shaper is not None:
+        if self.reference is not None:
+            self.q_cmd, self.qd_cmd = self.reference.at(0.0)
+        elif self.shaper is not None:
             self.q_cmd = self._shaped(0.0)
         # LQG in place of the PD: a Kalman estimate from the encoder angles (control.lqg)
         self.lqg = None
@@ -521,9 +537,10 @@ class ControllerCore:
 
     def targets(self, t_ns: int, build=msg):
         """``controller/joint_targets``: the commanded joint angles (rad), the commanded
-        rate (0) and the PD torque demanded at the last update (N·m, Eq. 5.16)."""
+        rates (rad/s; 0 but along a move program or trajectory) and the torque demanded
+        at the last update (N·m, Eq. 5.16)."""
         return build.joint_state(t_ns, [f"{lk.name}_joint" for lk in self.scene.links],
-                                 self.q_cmd, np.zeros(self.n), self.torque_demand)
+                                 self.q_cmd, self.qd_cmd, self.torque_demand)
 
     def _shaped(self, t: float) -> np.ndarray:
         """The shaped target at ``t``: q₀ + S(t)·(q* − q₀) (control.shaper)."""
@@ -549,11 +566,41 @@ class ControllerCore:
             target, self.phase = self.task.update(t, dt, self.arm.forward(q), in_contact,
                                                   normal_force)
             self.q_cmd = self._ik(target, self.q_cmd)
+        elif self.reference is not None:
+            self.q_cmd, self.qd_cmd = self.reference.at(t)
         elif self.shaper is not None:
             self.q_cmd = self._shaped(t)
         if self.lqg is not None:            # the torque the LQG's voltage asks for
             volts = self.lqg.update(q)
             self.torque_demand = self.pd.motor.torque(volts, qd)
             return volts
-        self.torque_demand = self.pd.torque(q, qd, self.q_cmd)
+        self.torque_demand = self.pd.torque(q, qd, self.q_cmd, self.qd_cmd)
         return self.pd.motor.voltage(self.torque_demand, qd)
+
+    def accept_trajectory(self, t_now: float, start_s: float | None, names, times,
+                          positions, velocities=None) -> str | None:
+        """A trajectory from the wire (``controller/joint_trajectory``), to start at
+        ``start_s`` (scene time, s; None or not after ``t_now``: at once, from the
+        reference now): None when it replaces the reference, else the reason it was
+        rejected — nothing changes then."""
+        if self.mode != "position":
+            return f"control.mode is {self.mode!r}, expected 'position' to follow a trajectory"
+        if self.lqg is not None:
+            return "the LQG regulates to the target it was designed at"
+        from flexarm_ros.scene.trajectory_points import check_points
+        try:
+            _, P, V = check_points([f"{lk.name}_joint" for lk in self.scene.links], names,
+                                   times, positions, velocities, self.position_limits)
+        except ValueError as exc:
+            return str(exc)
+        t0 = t_now if start_s is None or start_s <= t_now else float(start_s)
+        if self.reference is None:
+            self.reference = Reference(self.q_start, self.shaper)
+            if self.shaper is not None or np.any(self.q_goal != self.q_start):
+                # the step it followed so far, as a trajectory from t = 0
+                self.reference.add(Trajectory(0.0, self.q_start, np.zeros(self.n),
+                                              [1e-9], [self.q_goal], None))
+        q0, qd0 = self.reference.raw(t0)
+        self.reference.add(Trajectory(t0, q0, qd0, np.asarray(times, float), P, V))
+        self.q_goal = P[-1].copy()
+        return None

@@ -17,7 +17,7 @@ against the twin unchanged). Standard message types only.
 | ``ground_truth/coordinates`` | sensor_msgs/JointState | sim → analysis, views | every generalized coordinate of the model by name (``Chain.names``: joint/motor angles, beam coordinates ``<link>_w1``, …; SI) and its rate, effort = the input torque acting on it (N·m, 0 where none acts) — with the scene embedded in the bag, enough to redraw the deformed arm (``Chain.centerlines``) |
 | ``arm_markers`` | visualization_msgs/MarkerArray | sim → RViz2, Foxglove, log | the deformed arm for a viewer, frame ``world``, stamped with the simulation time, at ``marker_rate_hz`` (default 30 Hz; 0: none): ``links`` LINE_STRIP per link centerline (``Chain.centerlines``), ``hubs`` SPHERE per hub, ``wall`` LINE_LIST, ``tool`` SPHERE, ``contact_force`` ARROW from the tool while in contact (DELETE otherwise); stable namespaces and ids |
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
-| ``controller/joint_targets`` | sensor_msgs/JointState | ctrl → log | position and sanding control: the commanded joint angles ``<link>_joint`` (rad), the commanded rate (0 rad/s) and the PD torque demanded (N·m, Eq. 5.16), one per command (none in open loop) |
+| ``controller/joint_targets`` | sensor_msgs/JointState | ctrl → log | position and sanding control: the commanded joint angles ``<link>_joint`` (rad), the commanded rates (rad/s; 0 for a step target) and the PD torque demanded (N·m, Eq. 5.16), one per command (none in open loop) |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
 | ``diagnostics/rejected`` | std_msgs/String | recorder → bag only | one JSON object per message a node refused or rejected (``topic``, ``reason``, ``publisher``, ``data`` as text); written into the bag by the recorder, never published |
@@ -47,6 +47,10 @@ EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
 JOINT_TARGETS = "controller/joint_targets"
 REJECTED = "diagnostics/rejected"
+#: the controller's trajectory input (joint_trajectory_controller's message): a user's
+#: node publishes it; the twin does not record it (the targets it produces are
+#: controller/joint_targets)
+JOINT_TRAJECTORY = "controller/joint_trajectory"
 
 #: Sensor batch topic -> the scene sensor kind whose channels it carries (scene order).
 BATCH_KINDS = {ACCEL_BATCH: "accelerometer", STRAIN_BATCH: "strain",
@@ -81,6 +85,9 @@ TYPES = {
     MOTOR_STATES: "sensor_msgs/msg/JointState",
     JOINT_TARGETS: "sensor_msgs/msg/JointState",
 }
+
+#: Inputs from a user's node, not published by the twin: topic -> type.
+INPUT_TYPES = {JOINT_TRAJECTORY: "trajectory_msgs/msg/JointTrajectory"}
 
 #: Topic -> the twin's node that publishes it (the "from" column above).
 SOURCE = {topic: "simulator" for topic in TYPES}

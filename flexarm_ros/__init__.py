@@ -12,7 +12,7 @@ from flexarm_ros.version import __version__  # noqa: F401  (the package's versio
 
 #: the Python API (:mod:`flexarm_ros.api`), imported on first use so that ``import
 #: flexarm_ros`` stays as light as the commands need it
-_API = ("load_scene", "simulate", "linearize", "modes", "design", "read_bag", "Result",
+_API = ("load_scene", "simulate", "linearize", "modes", "design", "estimate", "read_bag", "Result",
         "InputError", "SceneError")
 
 

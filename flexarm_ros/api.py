@@ -10,6 +10,7 @@ so that a script runs exactly what the CLI runs.
     fx.modes(scene, joints=None)             ``flexarm modes``
     fx.design(scene, shaper="zvd")           ``flexarm design --shaper``: the shaped scene
     fx.design(scene, lqg=True)               ``flexarm design --lqg``: the LQG scene
+    fx.estimate("run.mcap")                  ``flexarm estimate``: bending from a bag
     fx.read_bag(path)                        a twin bag, decoded
 
 Bad input raises :class:`flexarm_ros.errors.InputError` (a ``SceneError`` for a scene)
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["load_scene", "simulate", "linearize", "modes", "design", "read_bag",
+__all__ = ["load_scene", "simulate", "linearize", "modes", "design", "estimate", "read_bag",
            "Result", "InputError", "SceneError"]
 
 from flexarm_ros.errors import InputError, SceneError  # noqa: E402  (re-exported)
@@ -195,6 +196,15 @@ def design(scene, shaper: str | None = "zvd", modes: int | None = None, lqg: boo
                               __version__)
     sh = from_mapping(Shaper, record, "control.shaper")
     return dataclasses.replace(sc, control=dataclasses.replace(sc.control, shaper=sh))
+
+
+def estimate(bag, scene=None, sensors: str = "all", process_noise: float | None = None):
+    """``flexarm estimate``: the tip deflections and position of the arm in ``bag``
+    estimated from its encoders (and accelerometers, ``sensors="all"``) with ``scene``
+    (default: the one it recorded). A :class:`flexarm_ros.estimation.from_bag.Estimate`:
+    ``.columns`` (the CSV's), ``.score`` (against the bag's ground truth, or None)."""
+    from flexarm_ros.estimation.from_bag import estimate_bag
+    return estimate_bag(bag, None if scene is None else _scene(scene), sensors, process_noise)
 
 
 def read_bag(path):

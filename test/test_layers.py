@@ -33,7 +33,7 @@ ALLOWED = {
 #: every layer, lowest first: a layer imports only layers before it (``""`` is the
 #: package's own ``__init__``, the version)
 ORDER = ("version", "errors", "", "testing", "child_process", "scene", "io", "model", "sim", "control",
-         "bag", "twin", "analysis", "viz", "ensemble", "studies", "calibration", "nodes",
+         "bag", "twin", "analysis", "estimation", "viz", "ensemble", "studies", "calibration", "nodes",
          "replay", "run", "commands", "api", "cli")
 
 #: (importing module, imported module, name): imports of a ``_private`` name allowed, each

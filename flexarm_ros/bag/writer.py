@@ -79,7 +79,7 @@ import yaml
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import LIBRARY_IDENTIFIER as _MCAP_LIBRARY
 
-from flexarm_ros import __version__
+from flexarm_ros.version import __version__
 import flexarm_ros.bag.msgdefs as msgdefs
 from flexarm_ros.bag.mcap_file import McapFile
 

@@ -1,0 +1,184 @@
+"""The estimate of a twin bag's arm from its bench topics (``flexarm estimate BAG``):
+``encoders/counts`` and ``accelerometers/batch`` as the bench measured them, the commands
+on ``motor_driver/commands`` as the controller sent them, through
+:class:`flexarm_ros.estimation.kalman.ModelFilter`; and, where the bag has
+``ground_truth/*``, the estimate scored against it (a truth the filter never reads).
+
+Columns (one row per encoder tick): ``t [s]``, ``<link>_tip_deflection [m]`` (each link's
+hub-frame transverse tip deflection of the estimated coordinates), ``tip_x [m]``,
+``tip_y [m]`` (the estimated coordinates through the model's kinematics), ``nis [1]``
+(the tick's normalized innovation squared per scalar measurement), ``event``
+(``departure`` while the window's mean ν is above the χ² threshold).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flexarm_ros.errors import InputError
+from flexarm_ros.estimation.kalman import WINDOW_TICKS, Measurement, ModelFilter
+
+
+def UNITS(column: str) -> str | None:
+    """The unit of an estimate column (None: no unit)."""
+    if column == "t":
+        return "s"
+    if column.endswith("_tip_deflection") or column in ("tip_x", "tip_y"):
+        return "m"
+    return "1" if column == "nis" else None
+
+
+@dataclass
+class Estimate:
+    """What :func:`estimate_bag` found: the columns of the module doc, the score against
+    the bag's ground truth (None without one), notes on the bag's topics, and the
+    filter's CPU per encoder tick (µs)."""
+    columns: dict
+    score: dict | None
+    notes: list = field(default_factory=list)
+    cpu_per_tick_us: float = 0.0
+
+
+def _events(bag, scene, ns):
+    """Measurements and commands in time order: [(t_ns, order, kind, payload)]."""
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.recording import sensor_batches, twin_messages
+    out = []
+    enc = sorted((s for s in scene.sensors if s.kind == "encoder"), key=lambda s: s.joint)
+    names = tuple(s.name for s in enc)
+    counts = twin_messages(bag, T.ENCODER_COUNTS, ns)
+    if not counts or not names:
+        raise InputError(f"{bag.path}: no {T.resolve(ns, T.ENCODER_COUNTS)} messages or no "
+                         f"encoder in the scene, expected the bench's encoder counts (the "
+                         f"estimate is corrected by them at every tick)")
+    for t, m in counts:
+        v = np.asarray(m.data, float)
+        if v.size != len(names):
+            raise InputError(f"{bag.path}: {T.ENCODER_COUNTS} at {t} ns carries {v.size} "
+                             f"counts, expected {len(names)} (the scene's encoders)")
+        out.append((int(t), 2, "encoder", Measurement(int(t), "encoder", names, v)))
+    for t, m in twin_messages(bag, T.COMMANDS, ns):
+        out.append((int(t), 0, "command", np.asarray(m.data, float)))
+    acc = sensor_batches(bag, T.ACCEL_BATCH, scene, ns)
+    notes = []
+    if acc is not None and acc.sensors:
+        anames = tuple(acc.names)
+        for t, row in zip(acc.t_ns, acc.values):
+            out.append((int(t), 1, "accelerometer",
+                        Measurement(int(t), "accelerometer", anames, row)))
+        notes += acc.notes
+    out.sort(key=lambda e: (e[0], e[1]))
+    return out, names, notes
+
+
+def estimate_bag(path, scene=None, sensors: str = "all", process_share=None,
+                 progress=None) -> Estimate:
+    """The estimate of the bag at ``path`` with ``scene`` (default: the scene it recorded)
+    and the measurements ``sensors`` ("all" or "encoders")."""
+    from flexarm_ros.bag.reader import read_bag
+    from flexarm_ros.twin.recording import embedded_scene, namespace
+    if sensors not in ("all", "encoders"):
+        raise InputError(f"--sensors: got {sensors!r}, expected all or encoders")
+    bag = read_bag(path)
+    rig = embedded_scene(bag)
+    scene = scene or rig
+    if scene is None:
+        raise InputError(f"--scene: got none for {path}, which embeds no scene; expected "
+                         f"the scene to estimate with")
+    ns = namespace(bag)
+    events, enc_names, notes = _events(bag, scene, ns)
+    kw = {} if process_share is None else {"process_share": process_share}
+    with_acc = sensors == "all" and any(e[2] == "accelerometer" for e in events)
+    f = ModelFilter(scene, disturbance=with_acc, **kw)
+    links = [lk.name for lk in scene.links]
+    t_out, defl, tip, nis, ev = [], [], [], [], []
+    acc_nis, acc_dof, window = 0.0, 0, []
+    thr = None
+    cpu0 = time.process_time()
+    ticks = 0
+    for k, (t, _, kind, payload) in enumerate(events):
+        if kind == "command":
+            f.predict_to(t)
+            f.command(payload)
+            continue
+        if kind == "accelerometer" and sensors == "encoders":
+            continue
+        f.predict_to(t)
+        v, dof = f.update(payload)
+        acc_nis, acc_dof = acc_nis + v, acc_dof + dof
+        if kind != "encoder":
+            continue
+        ticks += 1
+        q = f.full_q()
+        t_out.append(t * 1e-9)
+        defl.append(f.chain.tip_deflections(q))
+        tip.append(f.chain.tip_position(q))
+        per = acc_nis / max(acc_dof, 1)
+        nis.append(per)
+        if thr is None:
+            thr = f.departure_threshold(acc_dof)
+        window.append(per)
+        if len(window) > WINDOW_TICKS:
+            window.pop(0)
+        ev.append("departure" if len(window) == WINDOW_TICKS and np.mean(window) > thr
+                  else "")
+        acc_nis, acc_dof = 0.0, 0
+        if progress is not None and ticks % 500 == 0:
+            progress(k / len(events))
+    cpu = (time.process_time() - cpu0) / max(ticks, 1) * 1e6
+    defl, tip = np.array(defl), np.array(tip)
+    cols = {"t": np.array(t_out)}
+    for j, name in enumerate(links):
+        cols[f"{name}_tip_deflection"] = defl[:, j]
+    cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
+    cols["nis"] = np.array(nis)
+    cols["event"] = ev
+    score = _score(bag, rig or scene, ns, cols, links)
+    return Estimate(cols, score, notes, cpu)
+
+
+def _score(bag, rig, ns, cols, links):
+    """RMSE and largest error per link as fractions of the true peak deflection, and of the
+    tip position in m, against ``ground_truth/coordinates`` and ``ground_truth/tip`` at the
+    estimate's ticks; None without them."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.recording import twin_messages
+    coords = twin_messages(bag, T.GT_COORDINATES, ns)
+    tips = twin_messages(bag, T.GT_TIP, ns)
+    if not coords or not tips:
+        return None
+    chain = Chain(rig)
+    t_ns = np.round(cols["t"] * 1e9).astype(np.int64)
+    by_t = {int(t): m for t, m in coords}
+    tip_t = {int(t): m for t, m in tips}
+    rows = [(k, by_t[int(t)], tip_t[int(t)]) for k, t in enumerate(t_ns)
+            if int(t) in by_t and int(t) in tip_t]
+    if not rows:
+        return None
+    idx = [k for k, _, _ in rows]
+    true_d = []
+    for _, m, _ in rows:
+        order = {n: i for i, n in enumerate(m.name)}
+        q = np.array([m.position[order[n]] for n in chain.names])
+        true_d.append(chain.tip_deflections(q))
+    true_d = np.array(true_d)
+    true_tip = np.array([[p.point.x, p.point.y] for _, _, p in rows])
+    out = {"ticks": len(rows), "links": {}}
+    for j, name in enumerate(links):
+        est = np.asarray(cols[f"{name}_tip_deflection"])[idx]
+        err = est - true_d[:, j]
+        peak = float(np.max(np.abs(true_d[:, j])))
+        out["links"][name] = {
+            "peak_m": peak, "rmse_m": float(np.sqrt(np.mean(err ** 2))),
+            "max_error_m": float(np.max(np.abs(err))),
+            "rmse_of_peak": float(np.sqrt(np.mean(err ** 2)) / peak) if peak > 0 else None,
+            "max_error_of_peak": float(np.max(np.abs(err)) / peak) if peak > 0 else None}
+    e = np.hypot(np.asarray(cols["tip_x"])[idx] - true_tip[:, 0],
+                 np.asarray(cols["tip_y"])[idx] - true_tip[:, 1])
+    out["tip_rmse_m"] = float(np.sqrt(np.mean(e ** 2)))
+    out["tip_max_error_m"] = float(np.max(e))
+    return out

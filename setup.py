@@ -1,7 +1,7 @@
 """ament_python package flexarm_ros (also a plain pip package: `pip install -e .[dev]`).
 
 Executables: pip puts ``flexarm`` and ``flexarm-simulator``, ``flexarm-motor-driver``,
-``flexarm-controller``, ``flexarm-recorder`` on PATH. colcon / ament (which run
+``flexarm-controller``, ``flexarm-recorder``, ``flexarm-estimator`` on PATH. colcon / ament (which run
 ``setup.py install`` or ``setup.py develop``; setup.cfg sends their scripts to
 ``lib/flexarm_ros``) also install the nodes under their plain names, what ``ros2 run
 flexarm_ros simulator`` executes; a pip wheel never does, since ``simulator`` or
@@ -15,7 +15,7 @@ from setuptools import find_packages, setup
 
 package_name = "flexarm_ros"
 
-NODES = ("simulator", "motor_driver", "controller", "recorder")
+NODES = ("simulator", "motor_driver", "controller", "recorder", "estimator")
 # setup.py run directly by colcon/ament (pip builds wheels: bdist_wheel, editable_wheel)
 ROS_INSTALL = bool({"install", "develop"} & set(sys.argv[1:]))
 scripts = ["flexarm = flexarm_ros.cli:main"]

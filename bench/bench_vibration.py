@@ -16,6 +16,7 @@ model and run on the nominal rig and on rigs whose beams are 30 % stiffer and 20
 ``move_s``        the shaper's last impulse (0 for PD and LQG): what the shaping adds to the
                   move
 ``peak_V``        the largest motor voltage
+``ctl_us``        the controller core's CPU per 1 kHz tick (3000 ticks, process time)
 
     python bench/bench_vibration.py                  # ~1 min
     python bench/bench_vibration.py --json
@@ -67,6 +68,18 @@ def _metrics(res, scene, window):
             "peak_V": float(max(volts))}
 
 
+def _controller_us(scene, ticks: int = 3000) -> float:
+    """CPU per update of the scene's controller core, µs."""
+    import time
+    from flexarm_ros.twin.cores import ControllerCore
+    ctl = ControllerCore(scene)
+    q = np.array(ctl.q_start)
+    t0 = time.process_time()
+    for k in range(ticks):
+        ctl.update(k * 1e-3, 1e-3, q)
+    return (time.process_time() - t0) / ticks * 1e6
+
+
 def measure(arm: str) -> list[dict]:
     from flexarm_ros.api import design
     from flexarm_ros.scene import load_scene
@@ -82,13 +95,14 @@ def measure(arm: str) -> list[dict]:
     start = max(moves.values()) + AFTER_S
     window = (start, start + WINDOW_S)
     T = max(base.duration, window[1])
+    cpu = {kind: _controller_us(sc) for kind, sc in scenes.items()}
     rows = []
     for rig, factor in RIGS.items():
         for kind, sc in scenes.items():
             res = run_scene(_rig(sc, factor), T)
             m = _metrics(res, sc, window)
             rows.append({"arm": base.name, "rig": rig, "design": kind, "move_s": moves[kind],
-                         "window_s": list(window), **m})
+                         "window_s": list(window), "ctl_us": cpu[kind], **m})
     return rows
 
 
@@ -105,12 +119,12 @@ def main(argv=None):
         w = sub[0]["window_s"]
         print(f"\n{arm} (window {w[0]:.3g}-{w[1]:.3g} s)")
         print(f"{'rig':14s} {'design':7s} {'residual m':>11s} {'/PD':>6s} {'settle s':>9s} "
-              f"{'move s':>7s} {'peak V':>7s}")
+              f"{'move s':>7s} {'peak V':>7s} {'ctl us':>7s}")
         for r in sub:
             pd = next(x for x in sub if x["rig"] == r["rig"] and x["design"] == "pd")
             print(f"{r['rig']:14s} {r['design']:7s} {r['residual_m']:11.3g} "
                   f"{r['residual_m'] / pd['residual_m']:6.3f} {r['settle_s']:9.3g} "
-                  f"{r['move_s']:7.3g} {r['peak_V']:7.3g}")
+                  f"{r['move_s']:7.3g} {r['peak_V']:7.3g} {r['ctl_us']:7.3g}")
 
 
 if __name__ == "__main__":

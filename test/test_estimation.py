@@ -91,3 +91,71 @@ def test_estimate_refusals_are_one_line_exit_2(tmp_path, monkeypatch, capsys, ar
     rc = main(["estimate", *argv])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and says in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.ros
+@pytest.mark.subprocess
+def test_settled_gains_are_the_time_varying_filters(case1_bag, monkeypatch):
+    """Encoders alone: the filter that reuses its gains once P has settled gives the
+    estimate of the filter that propagates P at every measurement, to round-off."""
+    from flexarm_ros.estimation import kalman
+    from flexarm_ros.estimation.from_bag import estimate_bag
+    fast = estimate_bag(case1_bag, sensors="encoders")
+    monkeypatch.setattr(kalman, "SETTLED", -1.0)           # never settles
+    full = estimate_bag(case1_bag, sensors="encoders")
+    for k in ("link1_tip_deflection", "link2_tip_deflection", "tip_x"):
+        assert np.allclose(fast.columns[k], full.columns[k], rtol=0, atol=1e-9), k
+
+
+@pytest.mark.ros
+@pytest.mark.subprocess
+def test_the_estimator_node_beside_a_lockstep_run_is_the_bag_estimate(tmp_path):
+    """The estimator node started beside a lockstep twin of two_link_case1 (0.6 s) reads
+    only the bench topics; from the first tick it received, its published tip deflections
+    are those of the same filter fed the run's bag from that tick, to 1e-12 m."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64MultiArray
+    from flexarm_ros.bag.reader import read_bag
+    from flexarm_ros.estimation.from_bag import Follower, _events
+    from flexarm_ros.nodes.common import QOS
+    from flexarm_ros.nodes.estimator import EstimatorNode
+    from flexarm_ros.run import InProcessGraph
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.recording import embedded_scene
+    path = tmp_path / "live.mcap"
+    g = InProcessGraph(namespace="/es", scene="two_link_case1", mode="lockstep",
+                       duration=0.6, record=path)
+    got = []
+    try:
+        est = EstimatorNode(context=g.context, namespace="/es", parameter_overrides=[
+            Parameter("scene", value="two_link_case1"), Parameter("mode", value="lockstep"),
+            Parameter("duration", value=0.6)])
+        g.executor.add_node(est)
+        g.nodes["estimator"] = est
+        user = Node("listener", namespace="/es", context=g.context)
+        g.executor.add_node(user)
+        g.nodes["listener"] = user
+        user.create_subscription(Float64MultiArray, T.EST_DEFLECTIONS,
+                                 lambda m: got.append(list(m.data)), QOS)
+        sim = g["simulator"]
+        assert g.spin_until(lambda: sim.finished, 300)
+        sim.halt()
+        assert g.spin_until(g.recorded_all, 60)
+        assert g.spin_until(lambda: len(got) >= est.ticks_published, 30)
+    finally:
+        g.close()
+    assert est.ticks_published >= 500
+    bag = read_bag(path)
+    scene = embedded_scene(bag)
+    events, _, _ = _events(bag, scene, "/es")
+    start = est.first_ns                  # the node's first tick
+    fol = Follower(scene)
+    rows = []
+    for t, _, kind, payload in events:
+        if t >= start:
+            r = fol.feed(t, kind, payload)
+            if r is not None:
+                rows.append(fol.filter.chain.tip_deflections(r[1]))
+    assert len(got) == est.ticks_published and len(rows) >= len(got)
+    assert np.allclose(np.array(got), np.array(rows[:len(got)]), rtol=0, atol=1e-12)

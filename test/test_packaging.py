@@ -10,9 +10,9 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-NODES = ("simulator", "motor_driver", "controller", "recorder")
+NODES = ("simulator", "motor_driver", "controller", "recorder", "estimator")
 PIP_SCRIPTS = {"flexarm", "flexarm-simulator", "flexarm-motor-driver", "flexarm-controller",
-               "flexarm-recorder"}
+               "flexarm-recorder", "flexarm-estimator"}
 
 
 def _copy_tree(dest):

@@ -35,7 +35,7 @@ def UNITS(column: str) -> str | None:
 class Estimate:
     """What :func:`estimate_bag` found: the columns of the module doc, the score against
     the bag's ground truth (None without one), notes on the bag's topics, and the
-    filter's CPU per encoder tick (µs)."""
+    filter's CPU per encoder tick (µs: its updates, not the kinematics of the outputs)."""
     columns: dict
     score: dict | None
     notes: list = field(default_factory=list)
@@ -74,6 +74,60 @@ def _events(bag, scene, ns):
     return out, names, notes
 
 
+class Follower:
+    """The filter fed one event at a time, in time order — (t_ns, order, kind, payload)
+    with kind "command" (order 0, the command from t on), "accelerometer" (1) or
+    "encoder" (2, a :class:`~flexarm_ros.estimation.kalman.Measurement`) — as the bag
+    estimate and the live ``estimator`` node both feed it. :meth:`feed` returns the row
+    of an encoder tick: (t s, the estimated full coordinates, ν per dof, event)."""
+
+    def __init__(self, scene, sensors: str = "all", process_share=None, accelerometers=True):
+        if sensors not in ("all", "encoders"):
+            raise InputError(f"--sensors: got {sensors!r}, expected all or encoders")
+        kw = {} if process_share is None else {"process_share": process_share}
+        self.use_acc = sensors == "all" and accelerometers and any(
+            s.kind == "accelerometer" for s in scene.sensors)
+        self.filter = ModelFilter(scene, disturbance=self.use_acc, **kw)
+        self.nis, self.dof, self.window, self.threshold = 0.0, 0, [], None
+        self.cpu_s, self.ticks = 0.0, 0
+
+    def feed(self, t, kind, payload):
+        c0 = time.process_time()
+        try:
+            return self._feed(t, kind, payload)
+        finally:
+            self.cpu_s += time.process_time() - c0
+
+    def _feed(self, t, kind, payload):
+        f = self.filter
+        if kind == "command":
+            f.predict_to(t)
+            f.command(payload)
+            return None
+        if kind == "accelerometer" and not self.use_acc:
+            return None
+        f.predict_to(t)
+        v, dof = f.update(payload)
+        self.nis, self.dof = self.nis + v, self.dof + dof
+        if kind != "encoder":
+            return None
+        self.ticks += 1
+        per = self.nis / max(self.dof, 1)
+        if self.threshold is None:
+            self.threshold = f.departure_threshold(self.dof)
+        self.window.append(per)
+        if len(self.window) > WINDOW_TICKS:
+            self.window.pop(0)
+        event = ("departure" if len(self.window) == WINDOW_TICKS
+                 and np.mean(self.window) > self.threshold else "")
+        self.nis, self.dof = 0.0, 0
+        return t * 1e-9, f.full_q(), per, event
+
+    @property
+    def cpu_per_tick_us(self) -> float:
+        return self.cpu_s / max(self.ticks, 1) * 1e6
+
+
 def estimate_bag(path, scene=None, sensors: str = "all", process_share=None,
                  progress=None) -> Estimate:
     """The estimate of the bag at ``path`` with ``scene`` (default: the scene it recorded)
@@ -89,55 +143,33 @@ def estimate_bag(path, scene=None, sensors: str = "all", process_share=None,
         raise InputError(f"--scene: got none for {path}, which embeds no scene; expected "
                          f"the scene to estimate with")
     ns = namespace(bag)
-    events, enc_names, notes = _events(bag, scene, ns)
-    kw = {} if process_share is None else {"process_share": process_share}
-    with_acc = sensors == "all" and any(e[2] == "accelerometer" for e in events)
-    f = ModelFilter(scene, disturbance=with_acc, **kw)
-    links = [lk.name for lk in scene.links]
-    t_out, defl, tip, nis, ev = [], [], [], [], []
-    acc_nis, acc_dof, window = 0.0, 0, []
-    thr = None
-    cpu0 = time.process_time()
-    ticks = 0
+    events, _, notes = _events(bag, scene, ns)
+    fol = Follower(scene, sensors, process_share,
+                   accelerometers=any(e[2] == "accelerometer" for e in events))
+    rows = []
     for k, (t, _, kind, payload) in enumerate(events):
-        if kind == "command":
-            f.predict_to(t)
-            f.command(payload)
-            continue
-        if kind == "accelerometer" and sensors == "encoders":
-            continue
-        f.predict_to(t)
-        v, dof = f.update(payload)
-        acc_nis, acc_dof = acc_nis + v, acc_dof + dof
-        if kind != "encoder":
-            continue
-        ticks += 1
-        q = f.full_q()
-        t_out.append(t * 1e-9)
-        defl.append(f.chain.tip_deflections(q))
-        tip.append(f.chain.tip_position(q))
-        per = acc_nis / max(acc_dof, 1)
-        nis.append(per)
-        if thr is None:
-            thr = f.departure_threshold(acc_dof)
-        window.append(per)
-        if len(window) > WINDOW_TICKS:
-            window.pop(0)
-        ev.append("departure" if len(window) == WINDOW_TICKS and np.mean(window) > thr
-                  else "")
-        acc_nis, acc_dof = 0.0, 0
-        if progress is not None and ticks % 500 == 0:
-            progress(k / len(events))
-    cpu = (time.process_time() - cpu0) / max(ticks, 1) * 1e6
-    defl, tip = np.array(defl), np.array(tip)
-    cols = {"t": np.array(t_out)}
+        row = fol.feed(t, kind, payload)
+        if row is not None:
+            rows.append(row)
+            if progress is not None and len(rows) % 500 == 0:
+                progress(k / len(events))
+    cols = output_columns(fol.filter.chain, [lk.name for lk in scene.links], rows)
+    score = _score(bag, rig or scene, ns, cols, [lk.name for lk in scene.links])
+    return Estimate(cols, score, notes, fol.cpu_per_tick_us)
+
+
+def output_columns(chain, links, rows) -> dict:
+    """The columns of the module doc from the Follower's rows."""
+    qs = [r[1] for r in rows]
+    defl = np.array([chain.tip_deflections(q) for q in qs]).reshape(len(qs), len(links))
+    tip = np.array([chain.tip_position(q) for q in qs]).reshape(len(qs), 2)
+    cols = {"t": np.array([r[0] for r in rows])}
     for j, name in enumerate(links):
         cols[f"{name}_tip_deflection"] = defl[:, j]
     cols["tip_x"], cols["tip_y"] = tip[:, 0], tip[:, 1]
-    cols["nis"] = np.array(nis)
-    cols["event"] = ev
-    score = _score(bag, rig or scene, ns, cols, links)
-    return Estimate(cols, score, notes, cpu)
+    cols["nis"] = np.array([r[2] for r in rows])
+    cols["event"] = [r[3] for r in rows]
+    return cols
 
 
 def _score(bag, rig, ns, cols, links):

@@ -12,6 +12,10 @@ node (executable)  subscribes                   publishes
 ``motor_driver``   motor_driver/commands,       effort_controller/commands,
                    ground_truth/joint_states    motor_driver/motor_states
 ``recorder``       all of the above             (an MCAP file)
+``estimator``      joint_states,                estimator/joint_states, estimator/tip,
+                   accelerometers/batch,        estimator/tip_deflections, estimator/nis,
+                   motor_driver/commands        estimator/events (not part of a
+                                                ``flexarm run`` graph: start it beside one)
 =================  ===========================  ==========================================
 
 Topic names are relative to the node namespace (``flexarm run`` uses ``/flexarm``),

@@ -86,6 +86,19 @@ TYPES = {
     JOINT_TARGETS: "sensor_msgs/msg/JointState",
 }
 
+#: What the estimator node publishes (not recorded by the twin's recorder; a bag of a
+#: run with it records them with ``ros2 bag`` or a recorder of one's own): topic -> type.
+EST_JOINT_STATES = "estimator/joint_states"
+EST_TIP = "estimator/tip"
+EST_DEFLECTIONS = "estimator/tip_deflections"
+EST_NIS = "estimator/nis"
+EST_EVENTS = "estimator/events"
+ESTIMATOR_TYPES = {EST_JOINT_STATES: "sensor_msgs/msg/JointState",
+                   EST_TIP: "geometry_msgs/msg/PointStamped",
+                   EST_DEFLECTIONS: "std_msgs/msg/Float64MultiArray",
+                   EST_NIS: "std_msgs/msg/Float64MultiArray",
+                   EST_EVENTS: "std_msgs/msg/String"}
+
 #: Inputs from a user's node, not published by the twin: topic -> type.
 INPUT_TYPES = {JOINT_TRAJECTORY: "trajectory_msgs/msg/JointTrajectory"}
 

@@ -159,3 +159,16 @@ def test_the_estimator_node_beside_a_lockstep_run_is_the_bag_estimate(tmp_path):
                 rows.append(fol.filter.chain.tip_deflections(r[1]))
     assert len(got) == est.ticks_published and len(rows) >= len(got)
     assert np.allclose(np.array(got), np.array(rows[:len(got)]), rtol=0, atol=1e-12)
+
+
+def test_a_bag_through_the_wall_strike_says_where_the_estimate_leaves_its_ground():
+    """The shipped golden bag (two_link_case1, 2.5 s, the strike at 2.1 s): the estimate
+    runs, and a note names the first contact, after which the filter (no contact in its
+    model) is off by far more than before it."""
+    from pathlib import Path
+    from flexarm_ros.estimation.from_bag import estimate_bag
+    bag = Path(__file__).resolve().parents[1] / "bags" / "golden_case1.mcap"
+    est = estimate_bag(bag)
+    note = [n for n in est.notes if "touches the wall from 2.099 s" in n]
+    assert note and "does not model contact" in note[0]
+    assert est.score["links"]["link2"]["max_error_of_peak"] > 1.0

@@ -155,6 +155,13 @@ def estimate_bag(path, scene=None, sensors: str = "all", process_share=None,
                 progress(k / len(events))
     cols = output_columns(fol.filter.chain, [lk.name for lk in scene.links], rows)
     score = _score(bag, rig or scene, ns, cols, [lk.name for lk in scene.links])
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.recording import twin_messages
+    touch = [t for t, m in twin_messages(bag, T.TOOL_CONTACT, ns) if bool(m.data)]
+    if touch:
+        notes.append(f"the tool touches the wall from {touch[0] * 1e-9:.4g} s: the filter "
+                     f"does not model contact, and its estimate from there on is outside "
+                     f"what it was measured on (docs/estimation.md)")
     return Estimate(cols, score, notes, fol.cpu_per_tick_us)
 
 

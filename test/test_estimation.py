@@ -148,7 +148,7 @@ def test_the_estimator_node_beside_a_lockstep_run_is_the_bag_estimate(tmp_path):
     assert est.ticks_published >= 500
     bag = read_bag(path)
     scene = embedded_scene(bag)
-    events, _, _ = _events(bag, scene, "/es")
+    events, _ = _events(bag, scene, "/es")
     start = est.first_ns                  # the node's first tick
     fol = Follower(scene)
     rows = []
@@ -172,3 +172,10 @@ def test_a_bag_through_the_wall_strike_says_where_the_estimate_leaves_its_ground
     note = [n for n in est.notes if "touches the wall from 2.099 s" in n]
     assert note and "does not model contact" in note[0]
     assert est.score["links"]["link2"]["max_error_of_peak"] > 1.0
+
+
+def test_a_measurement_set_the_filter_does_not_read_is_refused_before_the_bag_is_read():
+    import flexarm_ros as fx
+    from flexarm_ros.errors import InputError
+    with pytest.raises(InputError, match="--sensors: got 'strain', expected all or encoders"):
+        fx.estimate("no-such.mcap", sensors="strain")

@@ -45,13 +45,13 @@ import math
 
 import numpy as np
 
-from flexarm_ros.errors import InputError, SceneError
+from flexarm_ros.errors import InputError
 
 #: the encoder-less joint's angle noise in the estimator's design, rad (the model's angle
 #: is exact there; a floor keeps the Riccati equation well posed)
 ANGLE_NOISE_FLOOR = 1e-6
 #: process noise standard deviation of each state per period, as a fraction of its scale
-#: (the angle scale θ for coordinates, θ/T_s·1e-2 … for rates: see :func:`_process_noise`)
+#: (the angle weight θ for the coordinates, the rate weight ω for the rates)
 PROCESS_NOISE = 1e-3
 #: the weights a design takes (``--weights key=value,...``), with their units
 WEIGHT_KEYS = {"angle": "rad", "deflection": "m", "rate": "rad/s", "voltage": "V"}
@@ -103,16 +103,6 @@ def parse_weights(text: str | None) -> dict:
     return out
 
 
-def _zoh(A, B, Ts):
-    """(A_d, B_d): the exact zero-order-hold sampling (module doc)."""
-    from scipy.linalg import expm
-    n, m = B.shape
-    E = np.zeros((n + m, n + m))
-    E[:n, :n], E[:n, n:] = A, B
-    Phi = expm(E * Ts)
-    return Phi[:n, :n], Phi[:n, n:]
-
-
 def _measured(scene, chain):
     """(state indices of the encoder coordinates, their noise std, rad): per joint, the
     coordinate the controller reads (an encoder's own, else the link-side joint angle)."""
@@ -154,6 +144,7 @@ def design_lqg(scene, q_goal, q_start, weights: dict | None = None,
     regulator's when ``voltage`` is not given."""
     import control
     from flexarm_ros.control.design import plant_at, require_position
+    from flexarm_ros.model.statespace import zoh
     require_position(scene)
     if any(abs(g) > 0.0 for g in scene.gravity):
         raise InputError(f"gravity: got {list(scene.gravity)} m/s², expected [0, 0] for an "
@@ -169,7 +160,7 @@ def design_lqg(scene, q_goal, q_start, weights: dict | None = None,
         raise InputError(f"links: an LQG design needs a drive on every joint, got {m} "
                          f"inputs for {len(scene.links)} joints")
     idx, noise = _measured(scene, chain)
-    Ad, Bd = _zoh(ss.A, ss.B, Ts)
+    Ad, Bd = zoh(ss.A, ss.B, Ts)
     C = np.zeros((len(idx), n))
     C[np.arange(len(idx)), idx] = 1.0
     Crate = np.zeros_like(C)

@@ -71,7 +71,13 @@ def _events(bag, scene, ns):
                         Measurement(int(t), "accelerometer", anames, row)))
         notes += acc.notes
     out.sort(key=lambda e: (e[0], e[1]))
-    return out, names, notes
+    return out, notes
+
+
+def check_sensors(sensors: str) -> None:
+    """InputError unless ``sensors`` is a measurement set the filter reads."""
+    if sensors not in ("all", "encoders"):
+        raise InputError(f"--sensors: got {sensors!r}, expected all or encoders")
 
 
 class Follower:
@@ -82,8 +88,7 @@ class Follower:
     of an encoder tick: (t s, the estimated full coordinates, ν per dof, event)."""
 
     def __init__(self, scene, sensors: str = "all", process_share=None, accelerometers=True):
-        if sensors not in ("all", "encoders"):
-            raise InputError(f"--sensors: got {sensors!r}, expected all or encoders")
+        check_sensors(sensors)
         kw = {} if process_share is None else {"process_share": process_share}
         self.use_acc = sensors == "all" and accelerometers and any(
             s.kind == "accelerometer" for s in scene.sensors)
@@ -134,8 +139,7 @@ def estimate_bag(path, scene=None, sensors: str = "all", process_share=None,
     and the measurements ``sensors`` ("all" or "encoders")."""
     from flexarm_ros.bag.reader import read_bag
     from flexarm_ros.twin.recording import embedded_scene, namespace
-    if sensors not in ("all", "encoders"):
-        raise InputError(f"--sensors: got {sensors!r}, expected all or encoders")
+    check_sensors(sensors)                  # before the bag is read
     bag = read_bag(path)
     rig = embedded_scene(bag)
     scene = scene or rig
@@ -143,7 +147,7 @@ def estimate_bag(path, scene=None, sensors: str = "all", process_share=None,
         raise InputError(f"--scene: got none for {path}, which embeds no scene; expected "
                          f"the scene to estimate with")
     ns = namespace(bag)
-    events, _, notes = _events(bag, scene, ns)
+    events, notes = _events(bag, scene, ns)
     fol = Follower(scene, sensors, process_share,
                    accelerometers=any(e[2] == "accelerometer" for e in events))
     rows = []

@@ -125,6 +125,7 @@ class ModelFilter:
         self.u = np.zeros(ss.B.shape[1])
         self.t_ns = None
         self.frozen, self.gains, self._dts, self._prev, self._p_tick = False, {}, [], None, None
+        self._models: dict = {}
 
     def _accel_jacobian(self, name) -> np.ndarray:
         """e·J of the accelerometer ``name`` at the operating point, free coordinates: what a
@@ -145,12 +146,10 @@ class ModelFilter:
         got = self._disc.get(dt_ns)
         if got is None:
             from scipy.linalg import expm
-            n, m = self.N, self.B.shape[1]
+            from flexarm_ros.model.statespace import zoh
+            n = self.N
             d = dt_ns * 1e-9
-            E = np.zeros((n + m, n + m))
-            E[:n, :n], E[:n, n:] = self.A, self.B
-            F = expm(E * d)
-            Phi, Gam = F[:n, :n], F[:n, n:]
+            Phi, Gam = zoh(self.A, self.B, d)
             V = np.zeros((2 * n, 2 * n))
             V[:n, :n], V[:n, n:], V[n:, n:] = -self.A, self.W, self.A.T
             G = expm(V * d)
@@ -181,24 +180,30 @@ class ModelFilter:
         self.t_ns = t_ns
 
     def _rows(self, m: Measurement):
-        H = np.array([self.H[nm] for nm in m.names])
-        Dz = np.array([self.ss.D[self.rows[nm]] for nm in m.names])
-        if m.kind == "encoder":
-            z = np.asarray(m.values, float) + 0.5
-            R = np.full(len(z), 1.0 / 12.0)
-        else:
-            z, R = [], []
-            for nm, v in zip(m.names, m.values):
-                sp = self.specs[nm]
-                s = sp.sensitivity or 1.0
-                var = sp.noise_std ** 2
-                if sp.adc_range is not None and sp.adc_bits is not None:
-                    lsb = (sp.adc_range[1] - sp.adc_range[0]) / (2 ** sp.adc_bits - 1)
-                    var += lsb ** 2 / 12.0
-                z.append(v / s)
-                R.append(max(var / s ** 2, ACCEL_NOISE_FLOOR ** 2))
-            z, R = np.array(z), np.array(R)
-        return H, Dz, z, np.diag(R)
+        """(H, D_z, z, R) of ``m``: the rows, noise and instrument scaling of its sensors
+        (module doc) are the same for every measurement of those sensors, kept per set."""
+        model = self._models.get(m.names)
+        if model is None:
+            H = np.array([self.H[nm] for nm in m.names])
+            Dz = np.array([self.ss.D[self.rows[nm]] for nm in m.names])
+            if m.kind == "encoder":
+                scale, offset = np.ones(len(m.names)), 0.5
+                R = np.full(len(m.names), 1.0 / 12.0)
+            else:
+                scale, offset, R = [], 0.0, []
+                for nm in m.names:
+                    sp = self.specs[nm]
+                    s = sp.sensitivity or 1.0
+                    var = sp.noise_std ** 2
+                    if sp.adc_range is not None and sp.adc_bits is not None:
+                        lsb = (sp.adc_range[1] - sp.adc_range[0]) / (2 ** sp.adc_bits - 1)
+                        var += lsb ** 2 / 12.0
+                    scale.append(s)
+                    R.append(max(var / s ** 2, ACCEL_NOISE_FLOOR ** 2))
+                scale, R = np.array(scale), np.array(R)
+            model = self._models[m.names] = (H, Dz, scale, offset, np.diag(R))
+        H, Dz, scale, offset, R = model
+        return H, Dz, np.asarray(m.values, float) / scale + offset, R
 
     def update(self, m: Measurement) -> tuple[float, int]:
         """Correct with ``m`` (after :meth:`predict_to` its time): (NIS, its dof).

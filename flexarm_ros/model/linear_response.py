@@ -165,19 +165,15 @@ class LinearResponse:
     def exact(self, grid, bps=()) -> np.ndarray:
         """Tip deviation (len(grid), 2) with the inputs held at their value in the middle
         of each interval (exact for piecewise-constant programs jumping on the grid)."""
-        from scipy.linalg import expm
+        from flexarm_ros.model.statespace import zoh
         d = np.diff(grid)
         U = self.inputs(grid[:-1] + 0.5 * d, bps)
         keys = np.round(d, 15)
         maps, G = {}, np.empty((len(d), self.ns))
         for key in np.unique(keys):
-            E = np.zeros((self.ns + self.m, self.ns + self.m))
-            E[:self.ns, :self.ns] = self.A * key
-            E[:self.ns, self.ns:] = self.B * key
-            E = expm(E)
-            maps[key] = E[:self.ns, :self.ns]
+            maps[key], gamma = zoh(self.A, self.B, key)
             sel = keys == key
-            G[sel] = U[sel] @ E[:self.ns, self.ns:].T
+            G[sel] = U[sel] @ gamma.T
         return self.tip(recur(maps, keys, G, self.ns))
 
     def rk4(self, h, grid, bps) -> np.ndarray:

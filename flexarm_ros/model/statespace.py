@@ -59,6 +59,18 @@ class StateSpace:
                 "output_units": self.output_units}
 
 
+def zoh(A, B, dt: float):
+    """(Φ, Γ): ẋ = A x + B u sampled exactly with u held over ``dt`` s — Φ = e^{A dt},
+    Γ = ∫₀^dt e^{A s} ds B, the blocks of one matrix exponential of [[A, B], [0, 0]]·dt."""
+    from scipy.linalg import expm
+    n, m = B.shape
+    E = np.zeros((n + m, n + m))
+    E[:n, :n] = A * dt
+    E[:n, n:] = B * dt
+    F = expm(E)
+    return F[:n, :n], F[:n, n:]
+
+
 #: unit of an actuator input, by its kind
 INPUT_UNITS = {"torque": "N·m", "voltage": "V", "current": "A"}
 #: unit of a sensor output, by its kind (encoders as continuous counts)

@@ -23,8 +23,13 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-import flexarm_ros.nodes.common as C
+import flexarm_ros.nodes.common as C            # first: it loads rclpy's message support
 from flexarm_ros.twin import topics as T
+from flexarm_ros.twin.recording import expand_batch
+from builtin_interfaces.msg import Time  # noqa: E402,I100
+from geometry_msgs.msg import PointStamped  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 
 
 class EstimatorNode(Node):
@@ -70,7 +75,6 @@ class EstimatorNode(Node):
     def _on_batch(self, m, *_):
         if not self.pending or self.pending[2] is not None or not self.acc_names:
             return
-        from flexarm_ros.twin.recording import expand_batch
         t_ns, rows = expand_batch(m, self.pending[0], self.acc_rate, len(self.acc_names))
         self.pending[2] = [self.M(int(t), "accelerometer", self.acc_names, r)
                            for t, r in zip(t_ns, rows)]
@@ -102,10 +106,6 @@ class EstimatorNode(Node):
             self._publish(t, row, (time.process_time() - c0) * 1e6)
 
     def _publish(self, t_ns, row, cpu_us):
-        from builtin_interfaces.msg import Time
-        from geometry_msgs.msg import PointStamped
-        from sensor_msgs.msg import JointState
-        from std_msgs.msg import Float64MultiArray, String
         _, q, nis, event = row
         ch = self.fol.filter.chain
         stamp = Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)

@@ -1091,21 +1091,22 @@ class Scene:
                 check_points(names, names, [m.time for m in ctl.moves],
                              [m.joint_target for m in ctl.moves],
                              rates if any(rates) else None,
-                             [lk.joint.position_limits for lk in self.links])
+                             [lk.joint.position_limits for lk in self.links],
+                             fields={"points": "control.moves", "positions": "joint_target",
+                                     "velocities": "joint_rate",
+                                     "time_from_start": "control.moves.time"})
             except ValueError as exc:
-                text = (str(exc).replace("points[", "control.moves[")
-                        .replace(".positions", ".joint_target")
-                        .replace(".velocities", ".joint_rate")
-                        .replace("points.", "control.moves.")
-                        .replace("time_from_start", "control.moves.time"))
-                raise SceneError(text) from None
+                raise SceneError(str(exc)) from None
         if ctl.joint_target:
-            for k, (q, lk) in enumerate(zip(ctl.joint_target, self.links)):
-                lim = lk.joint.position_limits
-                if lim is not None and not lim[0] <= q <= lim[1]:
-                    raise SceneError(f"control.joint_target[{k}]: got {q:g} rad, expected "
-                                     f"within links[{k}].joint.position_limits "
-                                     f"[{lim[0]:g}, {lim[1]:g}] rad")
+            import numpy as np
+            from flexarm_ros.scene.trajectory_points import beyond_limits
+            out = beyond_limits(np.array([ctl.joint_target], float),
+                                [lk.joint.position_limits for lk in self.links])
+            if out is not None:
+                _, k, lo, hi = out
+                raise SceneError(f"control.joint_target[{k}]: got {ctl.joint_target[k]:g} "
+                                 f"rad, expected within links[{k}].joint.position_limits "
+                                 f"[{lo:g}, {hi:g}] rad")
         if ctl.shaper is not None and ctl.mode != "position":
             raise SceneError(f"control.shaper: got a shaper with control.mode "
                              f"{ctl.mode!r}, expected mode 'position' (it shapes the target "

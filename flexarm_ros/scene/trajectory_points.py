@@ -10,12 +10,30 @@ import numpy as np
 
 #: the most points a trajectory may carry (a message or a move program)
 MAX_POINTS = 10_000
+#: the field names the messages use: a JointTrajectory's (a move program passes its own)
+MESSAGE_FIELDS = {"points": "points", "positions": "positions", "velocities": "velocities",
+                  "time_from_start": "time_from_start"}
 
 
-def check_points(expected_names, names, times, positions, velocities, limits):
+def beyond_limits(P, limits):
+    """(point, joint, lo, hi) of the first target of ``P`` (k, n) outside its joint's
+    (lo, hi) in ``limits`` (None: no limit), or None."""
+    for j, lim in enumerate(limits):
+        if lim is None:
+            continue
+        lo, hi = lim
+        bad = np.nonzero((P[:, j] < lo) | (P[:, j] > hi))[0]
+        if len(bad):
+            return int(bad[0]), j, lo, hi
+    return None
+
+
+def check_points(expected_names, names, times, positions, velocities, limits,
+                 fields=MESSAGE_FIELDS):
     """(the permutation into the scene's joint order, positions (k, n), velocities (k, n)
-    or None), or ValueError naming what is wrong. ``limits``: per joint (lo, hi) rad or
-    None."""
+    or None), or ValueError naming what is wrong in the words of ``fields`` (the message's
+    field names by default). ``limits``: per joint (lo, hi) rad or None."""
+    pts, pos, vel = fields["points"], fields["positions"], fields["velocities"]
     expected = list(expected_names)
     names = list(names)
     n = len(expected)
@@ -29,42 +47,38 @@ def check_points(expected_names, names, times, positions, velocities, limits):
     order = [names.index(x) for x in expected]
     k = len(times)
     if k == 0:
-        raise ValueError("points: got none, expected at least one point")
+        raise ValueError(f"{pts}: got none, expected at least one point")
     if k > MAX_POINTS:
-        raise ValueError(f"points: got {k}, expected at most {MAX_POINTS}")
+        raise ValueError(f"{pts}: got {k}, expected at most {MAX_POINTS}")
     t = np.asarray(times, float)
     if not np.all(np.isfinite(t)) or t[0] <= 0.0 or np.any(np.diff(t) <= 0.0):
-        raise ValueError(f"time_from_start: got {t[:6].tolist()}, expected finite times "
+        raise ValueError(f"{fields['time_from_start']}: got {t[:6].tolist()}, expected "
+                         f"finite times "
                          f"> 0 s, strictly increasing")
     P = np.full((k, n), np.nan)
     for i, p in enumerate(positions):
         p = list(p)
         if len(p) != n:
-            raise ValueError(f"points[{i}].positions: got {len(p)} values, expected {n}")
+            raise ValueError(f"{pts}[{i}].{pos}: got {len(p)} values, expected {n}")
         P[i] = np.asarray(p, float)[order]
     if not np.all(np.isfinite(P)):
         i = int(np.nonzero(~np.all(np.isfinite(P), axis=1))[0][0])
-        raise ValueError(f"points[{i}].positions: got a non-finite value, expected finite "
+        raise ValueError(f"{pts}[{i}].{pos}: got a non-finite value, expected finite "
                          f"angles (rad)")
     V = None
     given = [len(list(v)) for v in velocities] if velocities is not None else []
     if any(given):
         if any(g != n for g in given):
             i = next(i for i, g in enumerate(given) if g != n)
-            raise ValueError(f"points[{i}].velocities: got {given[i]} values, expected "
+            raise ValueError(f"{pts}[{i}].{vel}: got {given[i]} values, expected "
                              f"{n} on every point or none")
         V = np.array([np.asarray(list(v), float)[order] for v in velocities])
         if not np.all(np.isfinite(V)):
-            raise ValueError("points.velocities: got a non-finite value, expected finite "
+            raise ValueError(f"{pts}.{vel}: got a non-finite value, expected finite "
                              "rates (rad/s)")
-    for j, lim in enumerate(limits):
-        if lim is None:
-            continue
-        lo, hi = lim
-        bad = np.nonzero((P[:, j] < lo) | (P[:, j] > hi))[0]
-        if len(bad):
-            i = int(bad[0])
-            raise ValueError(f"points[{i}].positions: got {P[i, j]:.6g} rad for "
-                             f"{expected[j]}, expected within its position limits "
-                             f"[{lo:g}, {hi:g}] rad")
+    out = beyond_limits(P, limits)
+    if out is not None:
+        i, j, lo, hi = out
+        raise ValueError(f"{pts}[{i}].{pos}: got {P[i, j]:.6g} rad for {expected[j]}, "
+                         f"expected within its position limits [{lo:g}, {hi:g}] rad")
     return order, P, V

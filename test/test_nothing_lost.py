@@ -151,7 +151,11 @@ def _where_lost(path: Path, summary: dict) -> dict:
 def _child(pid: int, needle: str) -> int | None:
     """The pid of a child of ``pid`` whose command line holds ``needle``."""
     for task in Path(f"/proc/{pid}/task").iterdir():
-        for kid in (task / "children").read_text().split():
+        try:  # a thread may end between the listing and the read
+            kids = (task / "children").read_text().split()
+        except OSError:
+            continue
+        for kid in kids:
             try:
                 cmd = Path(f"/proc/{kid}/cmdline").read_bytes().replace(b"\0", b" ")
             except OSError:

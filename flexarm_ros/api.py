@@ -46,8 +46,22 @@ def load_scene(name_or_path, set: dict | None = None, **fidelity):
 
 
 def _yaml(value) -> str:
+    """``value`` as --set's YAML text; numpy scalars and arrays as the plain numbers and
+    lists they hold (a script's ``q[0] - 0.05`` is a numpy float)."""
     import yaml
-    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("...").strip()
+    return yaml.safe_dump(_plain(value), default_flow_style=True).strip() \
+        .removesuffix("...").strip()
+
+
+def _plain(value):
+    """numpy scalars → Python numbers, arrays and tuples → lists, recursively."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (np.ndarray, tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
 
 
 def _fidelity(kw: dict) -> dict:

@@ -7,10 +7,19 @@ T = −k_d q̇ − k_p (q − q*) on the encoder coordinates (the drive coordina
 where the joint has one), turned into a voltage by the static motor map
 u = R/(η n K_t)·T + K_b n q̇ (seed 000 Eq. 5.17). Linearized about the target pose q* at
 rest (:func:`flexarm_ros.model.statespace.linearize` of the scene with its joints at q*),
-the plant ẋ = A x + B u with the law u = −F x + G k_p δq* gives the closed loop
-A_cl = A − B F, whose eigenvalues λ are the loop's modes: f = |λ|/2π, ζ = −Re λ/|λ|. The
-controller's velocity filter and its sampling are left out (their corner and rate are far
-above the loop's modes; the test identifies the modes from the twin's response).
+the plant ẋ = A x + B u with the law u = −F_p x − F_d v + G δq* and the controller's
+velocity filter on each drive coordinate's rate, v̇ = ω_c (q̇ − v) with ω_c = 2π
+``control.velocity_filter_hz`` (:class:`flexarm_ros.control.joint_pd.EncoderVelocity`,
+whose rate both the PD's damping and the motor map's back-EMF term use), gives the
+closed loop on (x, v)
+
+    A_cl = [[A − B F_p, −B F_d], [ω_c E, −ω_c I]]        (E picks the drive rates),
+
+whose eigenvalues λ are the loop's modes: f = |λ|/2π, ζ = −Re λ/|λ|. Without the filter
+states the lowest mode of two_link_position came out 2.9 % from the pole identified from
+the twin's free decay (its damping 0.478 against 0.503); with them, within 0.3 %
+(test/test_vibration_design.py). The sampling (1 kHz against modes of a few Hz) is left
+out.
 
 A mode *carries deflection in the move* when its share of the step response of the last
 link's tip deflection — the modal residue |c vᵢ|·|wᵢᵀ b| / |λᵢ| for the target step b —
@@ -70,14 +79,17 @@ def plant_at(scene, q_goal):
 
 
 def _feedback(scene, q_goal):
-    """(F, G, ss): the plant of ``scene`` linearized at rest at the joint angles
-    ``q_goal`` (voltages in) and the twin's PD law on it, u = −F x + G δq* (module doc)."""
+    """(F, G, ss, rates): the plant of ``scene`` linearized at rest at the joint angles
+    ``q_goal`` (voltages in) and the twin's PD law on it, u = −F x + G δq* with the rates
+    unfiltered (module doc; :func:`_loop` adds the velocity filter); ``rates``: the state
+    index of each actuated drive coordinate's rate, in the inputs' order."""
     ctl = require_position(scene)
     chain, ss = plant_at(scene, q_goal)
     nf = len(chain.free)
     free = list(chain.free)
     F = np.zeros((len(ss.inputs), ss.A.shape[0]))
     G = np.zeros((len(ss.inputs), len(scene.links)))
+    rates = []
     for j, a in enumerate(chain.actuators):
         d = scene.links[a.link].joint.drive
         if d is None or d.type != "dc_motor" or (d.inductance or 0.0) > 0.0:
@@ -90,16 +102,42 @@ def _feedback(scene, q_goal):
         F[j, i] = gain * ctl.kp[a.link]
         F[j, nf + i] = gain * ctl.kd[a.link] - d.back_emf_constant * d.gear_ratio
         G[j, a.link] = gain * ctl.kp[a.link]
-    return F, G, ss
+        rates.append(nf + i)
+    return F, G, ss, rates
+
+
+def _loop(scene, q_goal):
+    """(A_cl, B_cl, C_cl, D_cl, state names, state units, ss) of the position loop on
+    (x, v): the plant's state x and, where ``control.velocity_filter_hz`` is finite, the
+    filtered drive rates v the PD and the motor map read (module doc)."""
+    F, G, ss, rate_cols = _feedback(scene, q_goal)
+    fc = scene.control.velocity_filter_hz
+    if fc is None or not math.isfinite(fc):
+        return (ss.A - ss.B @ F, ss.B @ G, ss.C - ss.D @ F, ss.D @ G, list(ss.states),
+                list(ss.state_units), ss)
+    n = ss.A.shape[0]
+    m = len(rate_cols)
+    Fp, Fd = F.copy(), F[:, rate_cols]
+    Fp[:, rate_cols] = 0.0
+    E = np.zeros((m, n))
+    E[np.arange(m), rate_cols] = 1.0
+    wc = 2.0 * math.pi * fc
+    A = np.block([[ss.A - ss.B @ Fp, -ss.B @ Fd], [wc * E, -wc * np.eye(m)]])
+    B = np.vstack([ss.B @ G, np.zeros((m, G.shape[1]))])
+    C = np.hstack([ss.C - ss.D @ Fp, -ss.D @ Fd])
+    names = [f"{ss.states[c]}_filtered" for c in rate_cols]
+    units = [ss.state_units[c] for c in rate_cols]
+    return A, B, C, ss.D @ G, list(ss.states) + names, list(ss.state_units) + units, ss
 
 
 def closed_loop(scene, q_goal):
     """(A_cl, B_ref, C_defl, StateSpace) of the position loop of ``scene`` linearized at
-    the joint angles ``q_goal`` (module doc): A_cl = A − B F; B_ref = B G maps a target
-    step δq* to ẋ; C_defl is the last link's tip deflection row."""
-    F, G, ss = _feedback(scene, q_goal)
+    the joint angles ``q_goal`` (module doc): A_cl on (x, v); B_ref maps a target step
+    δq* to the state's rate; C_defl is the last link's tip deflection row; the plant's
+    StateSpace."""
+    A, B, C, _, _, _, ss = _loop(scene, q_goal)
     row = ss.outputs.index(f"{scene.links[-1].name}_tip_deflection")
-    return ss.A - ss.B @ F, ss.B @ G, ss.C[row], ss
+    return A, B, C[row], ss
 
 
 def loop_modes(scene, q_goal, q_start, control_rate_hz: float) -> list[LoopMode]:
@@ -158,13 +196,14 @@ def design_shaper(scene, kind: str, q_goal, q_start, modes: int | None = None):
 
 def closed_loop_statespace(scene, q_goal):
     """The position loop about ``q_goal`` as a StateSpace: inputs the joint targets (rad),
-    the plant's outputs, y = (C − D F) x + D G δq* (:func:`closed_loop`)."""
+    the plant's outputs, states the plant's and the filtered drive rates
+    (:func:`_loop`)."""
     from flexarm_ros.model.statespace import StateSpace
-    F, G, ss = _feedback(scene, q_goal)
+    A, B, C, D, states, units, ss = _loop(scene, q_goal)
     names = [f"{lk.name}_joint_target" for lk in scene.links]
-    return StateSpace(ss.A - ss.B @ F, ss.B @ G, ss.C - ss.D @ F, ss.D @ G, ss.states,
-                      names, ss.outputs, ss.x0, ss.state_units, ["rad"] * len(names),
-                      ss.output_units)
+    x0 = np.concatenate([np.asarray(ss.x0, float), np.zeros(len(states) - len(ss.states))])
+    return StateSpace(A, B, C, D, states, names, ss.outputs, x0, units,
+                      ["rad"] * len(names), ss.output_units)
 
 
 def shaper_record(scene, kind: str, q_goal, q_start, modes: int | None = None,

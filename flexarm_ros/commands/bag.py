@@ -1,5 +1,6 @@
-"""``flexarm bag repair`` and ``flexarm bag export``: the bag tools
-(:mod:`flexarm_ros.bag.repair`, :mod:`flexarm_ros.analysis.export`)."""
+"""``flexarm bag repair``, ``flexarm bag export`` and ``flexarm bag scene``: the bag tools
+(:mod:`flexarm_ros.bag.repair`, :mod:`flexarm_ros.analysis.export`,
+:func:`flexarm_ros.twin.recording.rerun_scene_text`)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ from pathlib import Path
 
 
 def add_parser(sub) -> None:
-    b = sub.add_parser("bag", help="bag tools (repair, export)")
-    bsub = b.add_subparsers(dest="bag_command", required=True, metavar="{repair,export}")
+    b = sub.add_parser("bag", help="bag tools (repair, export, scene)")
+    bsub = b.add_subparsers(dest="bag_command", required=True,
+                            metavar="{repair,export,scene}")
     br = bsub.add_parser("repair", help="rewrite what is readable of a damaged or unfinished "
                                         "MCAP bag (killed recorder, corrupt chunks) into a "
                                         "complete file")
@@ -30,6 +32,13 @@ def add_parser(sub) -> None:
                          "bag's namespace; spaces or commas)")
     be.add_argument("--json", action="store_true", help="print what was written as JSON")
     be.set_defaults(func=export)
+    bs = bsub.add_parser("scene", help="write the scene a twin bag ran, with the live "
+                                       "parameter sets it recorded as control.changes "
+                                       "(flexarm simulate of it reruns the run)")
+    bs.add_argument("bag", type=Path, metavar="BAG.mcap", help="a bag of flexarm run --record")
+    bs.add_argument("--out", type=Path, metavar="SCENE.yaml", required=True,
+                    help="the scene file to write")
+    bs.set_defaults(func=scene)
 
 
 def repair_output(bag, out) -> Path | None:
@@ -70,3 +79,22 @@ def export(args):
     """A twin bag's channels as name [unit] CSV tables; see flexarm_ros.analysis.export."""
     from flexarm_ros.analysis.export import cli
     return cli(args)
+
+
+def scene(args):
+    """The scene a bag ran, with its recorded live parameter changes (control.changes)."""
+    import sys
+    from flexarm_ros.bag.reader import read_bag
+    from flexarm_ros.twin.recording import recorded_changes, rerun_scene_text
+    from flexarm_ros.errors import InputError
+    from flexarm_ros.io.paths import check_output_file
+    if not args.bag.is_file():
+        raise InputError(f"BAG.mcap: got {str(args.bag)!r}, expected an existing bag file")
+    args.out = check_output_file("--out", args.out, (".yaml", ".yml"))
+    bag = read_bag(str(args.bag))
+    text = rerun_scene_text(bag)
+    args.out.write_text(text, encoding="utf-8")
+    print(f"{args.bag}: the scene it ran, {len(recorded_changes(bag))} live parameter "
+          f"changes as control.changes → {args.out}", file=sys.stdout)
+    return 0
+

@@ -12,6 +12,12 @@ With position control it also follows ``controller/joint_trajectory``
 validated on entry (:meth:`ControllerCore.accept_trajectory`), a rejected one is logged
 and counted and changes nothing; header.stamp zero starts it at the latest state's time.
 
+Live tuning: the PD's ``kp`` and ``kd`` (position and sanding) and ``joint_target``
+(position) are parameters a user sets while the twin runs (``ros2 param set``); a set is
+validated by the scene's rules for ``control.changes`` (refused with the reason, nothing
+changes), applied at the next tick and published on ``controller/parameter_changes`` as
+the ``control.changes`` entry that reruns it (:meth:`ControllerCore.retune`).
+
 Its state inputs are taken from the ``simulator`` only (a second publisher of any of them is
 refused, counted and logged: :mod:`flexarm_ros.nodes._wire`).
 
@@ -28,6 +34,8 @@ import sys
 from collections import deque
 
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 
 from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
@@ -56,6 +64,13 @@ class ControllerNode(Node):
         if self.core.has_targets:
             self.pub_targets = C.publisher(self, T.TYPES[T.JOINT_TARGETS], T.JOINT_TARGETS)
             needs.append((self.pub_targets, self.p["recorders"], "the recorder"))
+        self.live, self.pending = _live_parameters(self), {}
+        self.pub_changes = None
+        if self.live:
+            self.pub_changes = C.publisher(self, T.TYPES[T.PARAMETER_CHANGES],
+                                           T.PARAMETER_CHANGES)
+            needs.append((self.pub_changes, self.p["recorders"], "the recorder"))
+            self.add_on_set_parameters_callback(self._on_set)
         self.ready = C.Barrier(self, needs, self.p["recorders"])
         self.queues = {T.JOINT_STATES: deque()}
         if scene.walls:
@@ -135,6 +150,8 @@ class ControllerNode(Node):
             if self.n_end is not None and C.tick_of(self.scene, t_ns) >= self.n_end:
                 continue
             self.t_now = self.sim_time(t_ns)
+            if self.pending:
+                self._apply(self.t_now)
             cmd = self.core.update(self.t_now, self.period, list(js.position), contact, fn)
             self.pub.publish(self._cdr.float64_multiarray(cmd, ("joint",)))
             self.published[T.COMMANDS] += 1
@@ -142,11 +159,70 @@ class ControllerNode(Node):
                 self.pub_targets.publish(self.core.targets(t_ns, self._cdr))
                 self.published[T.JOINT_TARGETS] += 1
 
+    def _on_set(self, params):
+        """A live set of kp / kd / joint_target: checked as a ``control.changes`` entry of
+        the scene (with the sets accepted before it), kept for the next tick."""
+        from flexarm_ros.errors import InputError, SceneError
+        from flexarm_ros.scene.keys import set_keys
+        change = dict(self.pending)
+        for prm in params:
+            if prm.name not in self.live:
+                continue
+            if prm.type_ not in (Parameter.Type.DOUBLE_ARRAY, Parameter.Type.INTEGER_ARRAY):
+                return SetParametersResult(successful=False, reason=(
+                    f"{prm.name}: got {prm.value!r} ({prm.type_.name.lower()}), expected a "
+                    f"list of {len(self.scene.links)} numbers (one per joint)"))
+            change[prm.name] = [float(v) for v in prm.value]
+        if change == self.pending:
+            return SetParametersResult(successful=True)
+        try:
+            set_keys(self.scene, {"control.changes": [{"time": 0.0, **change}]})
+        except (SceneError, InputError, ValueError) as exc:
+            why = " ".join(str(exc).split()).replace("control.changes[0].", "")
+            return SetParametersResult(successful=False, reason=why)
+        self.pending = change
+        return SetParametersResult(successful=True)
+
+    def _apply(self, t: float):
+        """The pending sets, from this tick on, recorded as a ``control.changes`` entry."""
+        import json
+        from std_msgs.msg import String
+        rec = self.core.retune(t, **self.pending)
+        self.pending = {}
+        self.pub_changes.publish(String(data=json.dumps(rec)))
+        self.get_logger().info(f"{T.PARAMETER_CHANGES}: {json.dumps(rec)}")
+
     def finish(self, executor=None):
         """The final log line: commands published, inputs refused."""
         self.get_logger().info(f"{self.published[T.COMMANDS]} commands published; "
                                f"{self.trajectories} trajectories followed; "
                                f"{self.rejections.summary()}")
+
+
+#: what a user tunes live: parameter -> (modes, description)
+LIVE = {"kp": (("position", "sanding"), "PD stiffness per joint, N·m/rad (live: applied at "
+                                        "the next tick)"),
+        "kd": (("position", "sanding"), "PD damping per joint, N·m·s/rad (live: applied at "
+                                        "the next tick)"),
+        "joint_target": (("position",), "the step target, rad per joint (live: a new step "
+                                        "from the current command at the next tick)")}
+
+
+def _live_parameters(node) -> tuple:
+    """Declare the live-tunable parameters the scene's law has (none in open loop or
+    with an LQG), at the values the controller starts with; their names."""
+    core = node.core
+    if core.mode == "open_loop" or core.lqg is not None:
+        return ()
+    values = {"kp": core.pd.kp, "kd": core.pd.kd, "joint_target": core.q_goal}
+    names = []
+    for name, (modes, text) in LIVE.items():
+        if core.mode in modes:
+            node.declare_parameter(name, [float(v) for v in values[name]],
+                                   ParameterDescriptor(description=text,
+                                                       dynamic_typing=True))
+            names.append(name)
+    return tuple(names)
 
 
 def _has_trajectory_msgs() -> bool:

@@ -810,6 +810,25 @@ class Move:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Change:
+    """One change of the position loop while it runs (``control.changes``): from the first
+    control tick at or after ``time`` the joint PD uses these gains and tracks this
+    target (each left empty keeps its value). A parameter set on the controller node
+    (``ros2 param set /flexarm/controller kp "[8.0, 8.0]"``) is applied at the next tick
+    and recorded on ``controller/parameter_changes`` as exactly such an entry, so the
+    scene with the bag's entries reruns the live run."""
+    time: float = param(unit="s", ge=0.0, doc="scene time from which it applies")
+    kp: tuple[float, ...] = param((), unit="N·m/rad", ge=0.0,
+                                  doc="PD stiffness per joint (empty: unchanged)")
+    kd: tuple[float, ...] = param((), unit="N·m·s/rad", ge=0.0,
+                                  doc="PD damping per joint (empty: unchanged)")
+    joint_target: tuple[float, ...] = param((), unit="rad",
+                                            doc="a new step target, one angle per joint "
+                                                "(empty: unchanged); shaped by "
+                                                "control.shaper from the current command")
+
+
+@dataclass(frozen=True, kw_only=True)
 class LqgWeights:
     """Bryson's-rule scales of an LQG design: the largest acceptable joint-angle error,
     tip deflection, joint rate and voltage (Q = 1/scale² on each, R = 1/voltage²)."""
@@ -890,6 +909,10 @@ class Control:
     watchdog_s: float = param(0.05, unit="s", gt=0.0,
                               doc="motor driver: commands older than this → 0 V / closed "
                                   "valve")
+    changes: tuple[Change, ...] = param((), doc="position and sanding modes: gains and "
+                                                "targets changed while the loop runs, in "
+                                                "time order (a live run's "
+                                                "controller/parameter_changes)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -1120,6 +1143,7 @@ class Scene:
             if len(ctl.lqg.y_goal) != nj:
                 raise SceneError(f"control.lqg.y_goal: got {len(ctl.lqg.y_goal)} joints, "
                                  f"expected {nj} (one per joint)")
+        self._check_changes(ctl, nj)
         if ctl.mode == "sanding" and ctl.sanding is None:
             raise SceneError("control.sanding: missing, expected the sanding parameters "
                              "for mode 'sanding'")
@@ -1170,6 +1194,48 @@ class Scene:
             raise SceneError(f"fidelity.output_dt: got {self.fidelity.output_dt} s, expected "
                              f"at most the duration {self.duration} s (the output would hold "
                              f"the start sample only)")
+
+    def _check_changes(self, ctl, nj):
+        """``control.changes``: in time order, one value per joint, PD modes only, a
+        target only for the joint PD in position mode and within the joint limits."""
+        last = -1.0
+        for k, ch in enumerate(ctl.changes):
+            where = f"control.changes[{k}]"
+            if ctl.mode == "open_loop" or ctl.lqg is not None:
+                raise SceneError(f"{where}: got a change with control.mode {ctl.mode!r}"
+                                 f"{' and an LQG' if ctl.lqg else ''}, expected the joint PD "
+                                 f"of mode 'position' or 'sanding' (the LQG's gains are its "
+                                 f"design's: flexarm design --lqg)")
+            if ch.time <= last:
+                raise SceneError(f"{where}.time: got {ch.time:g} s, expected after the "
+                                 f"previous change's {last:g} s")
+            last = ch.time
+            for key in ("kp", "kd", "joint_target"):
+                val = getattr(ch, key)
+                if val and len(val) != nj:
+                    raise SceneError(f"{where}.{key}: got {len(val)} values, expected {nj} "
+                                     f"(one per joint)")
+            if not (ch.kp or ch.kd or ch.joint_target):
+                raise SceneError(f"{where}: got no kp, kd or joint_target, expected at "
+                                 f"least one to change")
+            if ch.joint_target:
+                if ctl.mode != "position":
+                    raise SceneError(f"{where}.joint_target: got a target with control.mode "
+                                     f"{ctl.mode!r}, expected mode 'position' (the sanding "
+                                     f"task sets its own)")
+                import numpy as np
+                from flexarm_ros.scene.trajectory_points import beyond_limits
+                out = beyond_limits(np.array([ch.joint_target], float),
+                                    [lk.joint.position_limits for lk in self.links])
+                if out is not None:
+                    _, j, lo, hi = out
+                    raise SceneError(f"{where}.joint_target[{j}]: got "
+                                     f"{ch.joint_target[j]:g} rad, expected within "
+                                     f"links[{j}].joint.position_limits [{lo:g}, {hi:g}] rad")
+                bad = [v for v in ch.joint_target if not math.isfinite(v)]
+                if bad:
+                    raise SceneError(f"{where}.joint_target: got {bad[0]}, expected finite "
+                                     f"angles (rad)")
 
     def _check_bearings(self, names):
         """Each bearing on an existing link's body with mass (its weight is the normal

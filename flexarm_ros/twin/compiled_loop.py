@@ -43,6 +43,8 @@ def eligible(sim, ctl) -> str | None:
         return "a move program (its reference runs on the cores)"
     if getattr(ctl, "lqg", None) is not None:
         return "an LQG controller (its estimator runs on the cores)"
+    if getattr(ctl, "changes", None):
+        return "gain or target changes (control.changes run on the cores)"
     if ctl.status != "ok":
         return f"the controller's status: {ctl.status}"
     rates = {sm.spec.rate_hz for sm in plant.sensors if sm.spec.kind == "accelerometer"}

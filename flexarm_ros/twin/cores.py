@@ -483,7 +483,9 @@ class ControllerCore:
         self.q_cmd = np.array(ctl.joint_target) if ctl.joint_target else q0.copy()
         if ctl.tip_target is not None and self.mode == "position":
             self.q_cmd = self._ik(ctl.tip_target, q0)
-        # a shaped target step: q_cmd(t) = q0 + S(t)·(q* − q0) (control.shaper)
+        # a shaped target step: q_cmd(t) = q0 + S(t − t0)·(q* − q0) (control.shaper;
+        # t0 = 0, or the time of a target change)
+        self._shape_t0 = 0.0
         self.shaper = ctl.shaper if self.mode == "position" else None
         self.qd_cmd = np.zeros(self.n)
         # a move program, or trajectories arriving on the wire: the reference r(t),
@@ -528,6 +530,7 @@ class ControllerCore:
                                     lift_distance=sd.lift_distance, lift_time=sd.lift_time)
         self.phase = "position"
         self.torque_demand = np.zeros(self.n)
+        self.changes = list(ctl.changes)   # control.changes not yet applied
 
     @property
     def has_targets(self) -> bool:
@@ -543,8 +546,38 @@ class ControllerCore:
                                  self.q_cmd, self.qd_cmd, self.torque_demand)
 
     def _shaped(self, t: float) -> np.ndarray:
-        """The shaped target at ``t``: q₀ + S(t)·(q* − q₀) (control.shaper)."""
-        return self.q_start + self.shaper.share(t) * (self.q_goal - self.q_start)
+        """The shaped target at ``t``: q₀ + S(t − t₀)·(q* − q₀) (control.shaper; t₀ the
+        start of the step: 0, or the time of a target change)."""
+        return self.q_start + self.shaper.share(t - self._shape_t0) * (self.q_goal
+                                                                       - self.q_start)
+
+    def retune(self, t: float, kp=(), kd=(), joint_target=()) -> dict:
+        """Change the joint PD's gains and/or its step target from tick time ``t`` on (a
+        ``control.changes`` entry, or a parameter set on the controller node): the new
+        target is a step from the current command, shaped by the scene's shaper from
+        ``t``, replacing any move program or trajectory. Returns the change as a
+        ``control.changes`` mapping (time and what changed). The caller has validated it
+        (``Scene`` rules: :meth:`Scene._check_changes`)."""
+        if getattr(self, "pd", None) is None or self.lqg is not None:
+            raise SceneError("control.changes: expected the joint PD of mode 'position' or "
+                             "'sanding'")
+        rec = {"time": float(t)}
+        if len(kp) or len(kd):
+            self.pd = JointPD(kp if len(kp) else self.pd.kp, kd if len(kd) else self.pd.kd,
+                              self.pd.motor)
+        if len(kp):
+            rec["kp"] = [float(v) for v in kp]
+        if len(kd):
+            rec["kd"] = [float(v) for v in kd]
+        if len(joint_target):
+            self.q_start = self.q_cmd.copy()
+            self.q_goal = np.array(joint_target, float)
+            self.qd_cmd = np.zeros(self.n)
+            self.reference = None
+            self._shape_t0 = float(t)
+            self.q_cmd = self._shaped(t) if self.shaper is not None else self.q_goal.copy()
+            rec["joint_target"] = self.q_goal.tolist()
+        return rec
 
     def _ik(self, target, q_guess):
         res = self.arm.inverse(target, q_guess)
@@ -560,6 +593,9 @@ class ControllerCore:
         if self.mode == "open_loop":      # an explicit supply_voltage saturates, as in simulate
             return np.clip([eval_torque(p[0], p[1], p[2], p[3], t) if p is not None else 0.0
                             for p in self.programs], -self.limit, self.limit)
+        while self.changes and self.changes[0].time <= t:    # control.changes due now
+            ch = self.changes.pop(0)
+            self.retune(t, ch.kp, ch.kd, ch.joint_target)
         q = np.asarray(joint_angles, float)
         qd = self.velocity.update(t, dt, q)
         if self.task is not None:

@@ -23,9 +23,11 @@ Nothing here imports rclpy or the model; the embedded scene is loaded with
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
+
 import yaml
 
 from flexarm_ros.bag.reader import BagError
@@ -92,6 +94,39 @@ def embedded_scene(bag):
     except (yaml.YAMLError, ValueError, TypeError, KeyError, AttributeError) as err:
         raise BagError(f"{bag.path}: metadata {INFO_METADATA_NAME}.scene_yaml is not a valid "
                        f"scene: {err}") from err
+
+
+def recorded_changes(bag) -> list:
+    """The live parameter sets a twin bag recorded (``controller/parameter_changes``), as
+    the ``control.changes`` entries that rerun them, in time order."""
+    out = []
+    for _, m in twin_messages(bag, T.PARAMETER_CHANGES):
+        try:
+            rec = json.loads(m["data"] if isinstance(m, dict) else m.data)
+        except (ValueError, TypeError, KeyError, AttributeError) as err:
+            raise BagError(f"{bag.path}: {T.PARAMETER_CHANGES}: an entry that is not a JSON "
+                           f"object ({err})") from err
+        out.append(rec)
+    return out
+
+
+def rerun_scene_text(bag) -> str:
+    """The scene a twin bag ran, with the live parameter sets it recorded as its
+    ``control.changes``: YAML text that ``flexarm simulate`` runs to the same ticks
+    (``flexarm bag scene``). BagError when the bag has no embedded scene."""
+    text = scene_yaml(bag)
+    if text is None:
+        raise BagError(f"{bag.path}: no embedded scene (metadata "
+                       f"{INFO_METADATA_NAME}.scene_yaml), expected a bag of flexarm run "
+                       f"--record")
+    data = load_yaml(text, "scene_yaml")
+    changes = recorded_changes(bag)
+    if changes:
+        ctl = data.setdefault("control", {})
+        ctl["changes"] = list(ctl.get("changes") or []) + changes
+    head = (f"# the scene {bag.path} recorded, with its {len(changes)} live parameter "
+            f"changes as control.changes (flexarm bag scene)\n")
+    return head + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
 
 
 def twin_messages(bag, topic: str, ns: str | None = None) -> list:

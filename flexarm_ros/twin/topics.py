@@ -18,6 +18,7 @@ against the twin unchanged). Standard message types only.
 | ``arm_markers`` | visualization_msgs/MarkerArray | sim → RViz2, Foxglove, log | the deformed arm for a viewer, frame ``world``, stamped with the simulation time, at ``marker_rate_hz`` (default 30 Hz; 0: none): ``links`` LINE_STRIP per link centerline (``Chain.centerlines``), ``hubs`` SPHERE per hub, ``wall`` LINE_LIST, ``tool`` SPHERE, ``contact_force`` ARROW from the tool while in contact (DELETE otherwise); stable namespaces and ids |
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
 | ``controller/joint_targets`` | sensor_msgs/JointState | ctrl → log | position and sanding control: the commanded joint angles ``<link>_joint`` (rad), the commanded rates (rad/s; 0 for a step target) and the PD torque demanded (N·m, Eq. 5.16), one per command (none in open loop) |
+| ``controller/parameter_changes`` | std_msgs/String | ctrl → log | one JSON object per accepted live parameter set, applied at the tick it names: ``{"time": s, "kp": [...], "kd": [...], "joint_target": [...]}`` (what changed) — a ``control.changes`` entry of the scene, so the scene with a bag's entries reruns the run |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
 | ``diagnostics/rejected`` | std_msgs/String | recorder → bag only | one JSON object per message a node refused or rejected (``topic``, ``reason``, ``publisher``, ``data`` as text); written into the bag by the recorder, never published |
@@ -46,6 +47,7 @@ COMMANDS = "motor_driver/commands"
 EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
 JOINT_TARGETS = "controller/joint_targets"
+PARAMETER_CHANGES = "controller/parameter_changes"
 REJECTED = "diagnostics/rejected"
 #: the controller's trajectory input (joint_trajectory_controller's message): a user's
 #: node publishes it; the twin does not record it (the targets it produces are
@@ -84,6 +86,7 @@ TYPES = {
     EFFORTS: "std_msgs/msg/Float64MultiArray",
     MOTOR_STATES: "sensor_msgs/msg/JointState",
     JOINT_TARGETS: "sensor_msgs/msg/JointState",
+    PARAMETER_CHANGES: "std_msgs/msg/String",
 }
 
 #: What the estimator node publishes (not recorded by the twin's recorder; a bag of a
@@ -104,7 +107,8 @@ INPUT_TYPES = {JOINT_TRAJECTORY: "trajectory_msgs/msg/JointTrajectory"}
 
 #: Topic -> the twin's node that publishes it (the "from" column above).
 SOURCE = {topic: "simulator" for topic in TYPES}
-SOURCE.update({COMMANDS: "controller", JOINT_TARGETS: "controller", EFFORTS: "motor_driver",
+SOURCE.update({COMMANDS: "controller", JOINT_TARGETS: "controller",
+               PARAMETER_CHANGES: "controller", EFFORTS: "motor_driver",
                MOTOR_STATES: "motor_driver"})
 
 

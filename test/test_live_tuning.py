@@ -1,0 +1,196 @@
+"""Live tuning of the position loop: ``control.changes`` in every batch run, the
+controller node's ``kp`` / ``kd`` / ``joint_target`` parameters set while the twin runs
+(rclpy's own service client, as ``ros2 param set`` sends), each accepted set applied at a
+tick and recorded on ``controller/parameter_changes``, and the bag's scene with those
+entries (``flexarm bag scene``) rerunning the live run."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import flexarm_ros as fx
+from flexarm_ros.cli import main
+from flexarm_ros.errors import SceneError
+
+
+def _run(scene, duration=3.0):
+    return fx.simulate(scene, duration=duration)
+
+
+# ------------------------------------------------------------------ control.changes
+def test_a_gain_change_at_the_start_is_the_scene_with_those_gains():
+    """Independent path: kp, kd changed at t = 0 by control.changes against the same scene
+    with those gains as its own (the same ticks, to round-off)."""
+    new = {"kp": [12.0, 16.0], "kd": [6.0, 9.0]}
+    changed = _run(fx.load_scene("two_link_position",
+                                 set={"control.changes": [{"time": 0.0, **new}]}))
+    own = _run(fx.load_scene("two_link_position",
+                             set={"control.kp": new["kp"], "control.kd": new["kd"]}))
+    for col in ("link1_joint", "link2_joint", "link2_tip_deflection"):
+        assert np.max(np.abs(changed[col] - own[col])) < 1e-12, col
+
+
+def test_a_target_change_at_the_start_is_the_scene_with_that_target():
+    target = [0.3, 1.0]
+    changed = _run(fx.load_scene("two_link_position", set={
+        "control.changes": [{"time": 0.0, "joint_target": target}]}))
+    own = _run(fx.load_scene("two_link_position", set={"control.tip_target": None,
+                                                      "control.joint_target": target}))
+    for col in ("link1_joint", "link2_joint", "link2_tip_deflection", "link1_joint_target"):
+        assert np.max(np.abs(changed[col] - own[col])) < 1e-12, col
+
+
+def test_a_change_leaves_the_run_before_it_alone_and_changes_it_after():
+    base = _run("two_link_position")
+    stiffer = _run(fx.load_scene("two_link_position", set={
+        "control.changes": [{"time": 1.0, "kp": [12.0, 16.0]}]}))
+    t = base.t
+    before, after = t < 1.0, t > 1.2
+    gap = np.abs(stiffer["link1_joint"] - base["link1_joint"])
+    assert np.max(gap[before]) < 1e-12
+    assert np.max(gap[after]) > 1e-3
+    # stiffer PD: the joint closer to its target after the change
+    err = lambda r: np.abs(r["link1_joint"] - r["link1_joint_target"])[after].mean()  # noqa: E731
+    assert err(stiffer) < err(base)
+
+
+def test_a_shaped_scene_shapes_a_target_change_from_the_current_command():
+    """With a shaper the new target is a staircase from the command at the change: the
+    commanded target reaches it only after the shaper's last impulse."""
+    shaped = fx.design("two_link_position", shaper="zv")
+    last = shaped.control.shaper.times[-1]
+    sc = _with_changes(shaped, [{"time": 4.0, "joint_target": [0.3, 1.0]}])
+    r = _run(sc, 4.0 + last + 0.5)
+    t, q = r.t, r["link1_joint_target"]
+    assert abs(q[np.searchsorted(t, 4.0 + 0.5 * last)] - 0.3) > 1e-3   # still on its way
+    assert abs(q[-1] - 0.3) < 1e-12
+
+
+def _with_changes(scene, changes):
+    from flexarm_ros.scene.keys import set_keys
+    return set_keys(scene, {"control.changes": changes})
+
+
+@pytest.mark.parametrize("changes, says", [
+    ([{"time": 1.0, "kp": [1.0]}], "control.changes[0].kp: got 1 values, expected 2"),
+    ([{"time": 1.0, "kp": [-1.0, 2.0]}], "control.changes[0].kp"),
+    ([{"time": 2.0, "kd": [1.0, 1.0]}, {"time": 1.0, "kd": [2.0, 2.0]}],
+     "control.changes[1].time: got 1 s, expected after the previous change's 2 s"),
+    ([{"time": 1.0}], "control.changes[0]: got no kp, kd or joint_target"),
+    ([{"time": 1.0, "joint_target": [0.0, 1.0], "gain": 2}], "gain"),
+])
+def test_a_bad_change_is_refused_in_one_line(changes, says):
+    with pytest.raises(SceneError) as err:
+        fx.load_scene("two_link_position", set={"control.changes": changes})
+    assert says in str(err.value) and "\n" not in str(err.value)
+
+
+def test_changes_in_open_loop_are_refused():
+    with pytest.raises(SceneError, match="control.changes\\[0\\]: got a change with "
+                                         "control.mode 'open_loop'"):
+        fx.load_scene("two_link_case1", set={"control.changes": [{"time": 0.5,
+                                                                  "kp": [1.0, 1.0]}]})
+
+
+# ------------------------------------------------------------------ the live twin
+def _set(node, executor, name, srv, params, timeout=30.0):
+    client = node.create_client(srv, name)
+    try:
+        deadline = time.monotonic() + timeout
+        while not client.wait_for_service(timeout_sec=0.5):
+            assert time.monotonic() < deadline, f"{name}: no service"
+        future = client.call_async(srv.Request(parameters=params))
+        executor.spin_until_future_complete(future, timeout_sec=timeout)
+        assert future.done(), f"{name}: no answer"
+        return future.result().results[0]
+    finally:
+        node.destroy_client(client)
+
+
+@pytest.mark.ros
+@pytest.mark.subprocess
+@pytest.mark.heavy
+@pytest.mark.timeout(300)
+def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path):
+    """A lockstep `flexarm run two_link_position --record` in a child process; this
+    process, a plain rclpy user, sets the controller's kp once the twin passes 0.5 s of
+    scene time (and tries two bad sets, refused with the reason, nothing changing). The
+    bag holds one controller/parameter_changes entry at a tick ≥ 0.5 s; the arm moves
+    differently from an untouched run after it; `flexarm bag scene` of the bag, run by
+    flexarm simulate, equals the live run's ground truth at every tick."""
+    rclpy = pytest.importorskip("rclpy")
+    import flexarm_ros.nodes.common  # noqa: F401  (message support, quietly)
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import JointState
+    from flexarm_ros.bag.reader import read_bag
+    from flexarm_ros.nodes.environment import child_environment
+    from flexarm_ros.twin import topics as T
+    from flexarm_ros.twin.recording import recorded_changes
+
+    ns, bag, duration = "/live_test", tmp_path / "live.mcap", 12.0
+    proc = subprocess.Popen([sys.executable, "-m", "flexarm_ros.cli", "run",
+                             "two_link_position", "--mode", "lockstep", "--duration",
+                             str(duration), "--record", str(bag), "--quiet",
+                             "--namespace", ns], env=child_environment(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    def arr(values):
+        return ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
+                              double_array_value=values)
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("tuner", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stamps = []
+    node.create_subscription(JointState, f"{ns}/joint_states", lambda m: stamps.append(
+        m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec), 10)
+    srv = f"{ns}/controller/set_parameters"
+    try:
+        deadline = time.monotonic() + 120
+        while not stamps or stamps[-1] < 0.5:
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the twin did not reach 0.5 s"
+            executor.spin_once(timeout_sec=0.05)
+        bad = _set(node, executor, srv, SetParameters,
+                   [Parameter(name="kp", value=arr([-1.0, 2.0]))])
+        assert not bad.successful and "kp" in bad.reason and ">= 0" in bad.reason, bad.reason
+        bad = _set(node, executor, srv, SetParameters,
+                   [Parameter(name="joint_target", value=arr([0.1]))])
+        assert not bad.successful and "expected 2" in bad.reason, bad.reason
+        ok = _set(node, executor, srv, SetParameters,
+                  [Parameter(name="kp", value=arr([12.0, 16.0]))])
+        assert ok.successful, ok.reason
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    _, err = proc.communicate(timeout=240)
+    assert proc.returncode == 0, err
+
+    b = read_bag(str(bag))
+    changes = recorded_changes(b)
+    assert len(changes) == 1 and changes[0]["kp"] == [12.0, 16.0], changes
+    assert 0.5 <= changes[0]["time"] < duration
+    assert set(changes[0]) == {"time", "kp"}
+
+    out = tmp_path / "rerun.yaml"
+    assert main(["bag", "scene", str(bag), "--out", str(out)]) == 0
+    rerun = fx.simulate(fx.load_scene(str(out)), duration=duration)
+    untouched = fx.simulate("two_link_position", duration=duration)
+    msgs = b[f"{ns}/{T.GT_JOINT_STATES}"]
+    ns_grid = np.round(rerun.t * 1e9).astype(np.int64)
+    idx = np.searchsorted(ns_grid, np.array([ts for ts, _ in msgs], dtype=np.int64))
+    q_live = np.array([m.position[0] for _, m in msgs])
+    assert np.max(np.abs(rerun["link1_joint"][idx] - q_live)) < 1e-9
+    t_live = rerun.t[idx]
+    late = t_live > changes[0]["time"] + 0.3
+    assert np.max(np.abs(untouched["link1_joint"][idx] - q_live)[late]) > 1e-3

@@ -41,7 +41,7 @@ setup(
                       "threadpoolctl>=3.1"],
     extras_require={
         "ros": ["ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-geometry-msgs",
-                "ros-visualization-msgs", "ros-trajectory-msgs",
+                "ros-visualization-msgs", "ros-trajectory-msgs", "ros-diagnostic-msgs",
                 "ros-rmw-fastrtps-cpp"],
         "fast": ["numba>=0.60"],
         "viz": ["rerun-sdk>=0.20"],

@@ -41,6 +41,7 @@ from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import ControllerCore
 import flexarm_ros.nodes.common as C
+from flexarm_ros.nodes.diagnostics import attach as attach_diagnostics
 from flexarm_ros.nodes._wire import Rejections, Source
 
 
@@ -79,6 +80,7 @@ class ControllerNode(Node):
         self.latest = {T.TOOL_CONTACT: False, T.TOOL_WRENCH: 0.0}
         self.sources = {}
         self.rejections = Rejections(self)
+        attach_diagnostics(self)               # /diagnostics at 1 Hz
         for topic in self.queues:
             sub = C.subscription(self, T.TYPES[topic], topic,
                                  lambda m, info, topic=topic: self._on(topic, m, info),

@@ -24,6 +24,7 @@ import numpy as np
 from rclpy.node import Node
 
 import flexarm_ros.nodes.common as C            # first: it loads rclpy's message support
+from flexarm_ros.nodes.diagnostics import attach as attach_diagnostics
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.recording import expand_batch
 from builtin_interfaces.msg import Time  # noqa: E402,I100
@@ -60,6 +61,8 @@ class EstimatorNode(Node):
         self.in_departure = False
         self.first_ns = None
         self.ticks_published = 0
+        self.nis = float('nan')                   # the latest tick's NIS
+        attach_diagnostics(self)                  # /diagnostics at 1 Hz
         for topic, cb in ((T.JOINT_STATES, self._on_state), (T.ACCEL_BATCH, self._on_batch),
                           (T.COMMANDS, self._on_command)):
             C.subscription(self, T.TYPES[topic], topic, cb, plain=True)
@@ -125,11 +128,17 @@ class EstimatorNode(Node):
         pt.point.x, pt.point.y = float(tip[0]), float(tip[1])
         self.pubs[T.EST_TIP].publish(pt)
         self.pubs[T.EST_NIS].publish(Float64MultiArray(data=[float(nis), float(cpu_us)]))
+        self.nis = float(nis)
         if (event == "departure") != self.in_departure:
             self.in_departure = event == "departure"
             self.pubs[T.EST_EVENTS].publish(String(
                 data=f"{t_ns * 1e-9:.6f} s: departure {'on' if self.in_departure else 'off'}"))
         self.ticks_published += 1
+
+    def diagnostic_values(self) -> dict:
+        """/diagnostics: ticks estimated, the latest NIS, whether a departure is on."""
+        return {"ticks": self.ticks_published, "nis": self.nis,
+                "departure": self.in_departure}
 
     def finish(self, executor=None):
         """The final log line: ticks estimated, CPU per tick."""

@@ -44,6 +44,7 @@ from flexarm_ros.bag.cdr_fixed import CdrBuilder
 from flexarm_ros.twin import topics as T
 from flexarm_ros.twin.cores import DriverCore
 import flexarm_ros.nodes.common as C
+from flexarm_ros.nodes.diagnostics import attach as attach_diagnostics
 from flexarm_ros.nodes._wire import Rejections, Source, reject_undecodable
 
 
@@ -94,6 +95,7 @@ class MotorDriverNode(Node):
         if not (self.lockstep or self.awaits):
             self._subscribe_states()
         self.rejections = Rejections(self)
+        attach_diagnostics(self)               # /diagnostics at 1 Hz
         self.published = {T.EFFORTS: 0, T.MOTOR_STATES: 0}
         self.accepted = {T.COMMANDS: 0}
         self.paired = 0                         # lockstep: states answered with a command

@@ -77,6 +77,7 @@ from flexarm_ros.twin.validation import NON_FINITE, NOT_CDR, Validator
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes._msgconv import msg_class, to_dict
 from flexarm_ros.nodes.parameters import fidelity_overrides
+from flexarm_ros.nodes.diagnostics import attach as attach_diagnostics
 from flexarm_ros.nodes._wire import Rejections, Source, show
 from flexarm_ros.nodes.intraprocess import gid_of
 
@@ -215,6 +216,7 @@ class RecorderNode(Node):
         self.rejections = Rejections(self, period_s=float("inf"))   # the nodes log them
         self.last_clock_ns = None         # the simulator's latest /clock taken
         self.received = {}
+        attach_diagnostics(self)               # /diagnostics at 1 Hz
         self.last_rx = time.monotonic()
         self.sources, self.subs = {}, {}
         gated = bool(self.p["await_command_source"])
@@ -309,6 +311,10 @@ class RecorderNode(Node):
     def _name(self, info) -> str:
         gid = gid_of(info)
         return "the source" if gid is None else gid.hex()
+
+    def diagnostic_values(self) -> dict:
+        """/diagnostics: messages recorded."""
+        return {"recorded": sum(self.received.values())}
 
     def finish(self, executor, quiet=0.3, limit=5.0):
         """Keep reading until nothing arrived for ``quiet`` s (at most ``limit`` s)."""

@@ -88,6 +88,7 @@ from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, che
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes.markers import ArmMarkers
 from flexarm_ros.nodes.intraprocess import bus_of
+from flexarm_ros.nodes.diagnostics import attach as attach_diagnostics
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
 
 
@@ -189,6 +190,7 @@ class SimulatorNode(Node):
         self._effort_sub = sub
         self.source = Source(self, sub.topic_name, self.p["command_source"] or None)
         self.rejections = Rejections(self)
+        attach_diagnostics(self)               # /diagnostics at 1 Hz
         self.diverged: SimulationDiverged | None = None
         self.stalled: str | None = None         # lockstep: why the run ended without effort
         self.conflict: str | None = None        # another twin in this namespace and domain
@@ -657,6 +659,17 @@ class SimulatorNode(Node):
                     json.dump(self.summary(), f)
             except OSError as exc:
                 self.get_logger().error(f"summary_file: cannot write {path!r}: {exc}")
+
+    def diagnostic_values(self) -> dict:
+        """/diagnostics: simulated time, ticks, real-time factor, late ticks (realtime),
+        rejected efforts; an error when the plant diverged or the run stalled."""
+        out = {"mode": self.mode, "sim_time_s": self.core.t, "ticks": self.core.k,
+               "real_time_factor": self.rtf()}
+        if self.mode == "realtime":
+            out["late_ticks"] = self.pacer.stats.late_ticks
+        if self.diverged or self.stalled:
+            out["error"] = f"diverged: {self.diverged}" if self.diverged else "stalled"
+        return out
 
     def rtf(self) -> float:
         if self.t_wall0 is None:

@@ -737,6 +737,17 @@ def compare_files(run_path, reference_path, *, map_path=None, **kw) -> Compariso
     cmap = load_channel_map(map_path) if map_path is not None else None
     run = load_channels(run_path)
     ref = load_channels(reference_path, cmap)
+    window = kw.get("window")
+    if window is not None:
+        spans = [(float(ch.t[0]), float(ch.t[-1])) for ch in ref.channels.values()
+                 if hasattr(ch, "t") and len(ch.t)]
+        if spans:
+            lo, hi = min(a for a, _ in spans), max(b for _, b in spans)
+            if window[0] >= hi or window[1] <= lo:
+                from flexarm_ros.errors import InputError
+                raise InputError(f"--window: got {window[0]:g}:{window[1]:g} s, expected a "
+                                 f"span that overlaps the reference's records "
+                                 f"[{lo:g}, {hi:g}] s")
     return compare(run, ref, **kw)
 
 

@@ -121,7 +121,14 @@ def with_overrides(scene, sets: dict | None, fidelity: dict | None = None):
         head, _, name = key.partition(".")
         if head == "fidelity" and name and "." not in name:
             given.setdefault(name, value)
-    return scene.with_fidelity(**given)
+    out = scene.with_fidelity(**given)
+    refine = (fidelity or {}).get("refine")
+    if refine is not None and refine > 1 and out.fidelity.rung in ("rigid", "cubic"):
+        from flexarm_ros.errors import InputError
+        raise InputError(f"--refine: got {refine} with the {out.fidelity.rung} rung, expected "
+                         f"0 or 1 (it has one shape per beam; the modal, fem, fd and rod "
+                         f"rungs take a refinement)")
+    return out
 
 
 def format_value(value) -> str:

@@ -47,9 +47,16 @@ def choose_step(chain, x0, integrator, dt, output_dt, t0=0.0, contact=None, dens
     frequency, and the step must be stable in every contact mode); the compliant rung's
     stepper shortens its own step near the wall. Trapezoid and lawson4: no stability limit
     (lawson4 steps the linearization exactly); automatic = the output period, a given step
-    shortened to divide it (choose --dt for accuracy).
+    above it refused (InputError: no output lies between), below it shortened to divide
+    it (choose --dt for accuracy).
     """
     if integrator in ("trapezoid", "lawson4"):
+        if dt > output_dt * (1 + 1e-9):
+            from flexarm_ros.errors import InputError
+            raise InputError(f"fidelity.dt: got {dt:g} s with the {integrator} integrator, "
+                             f"expected at most the output period {output_dt:g} s (it "
+                             f"steps on the output grid; --dt 0 steps at the period, or "
+                             f"choose rk4 or rkn4 to step past it)")
         h = min(dt, output_dt) if dt > 0 else output_dt
         return output_dt / np.ceil(output_dt / h - 1e-9)
     if integrator not in ("rk4", "rkn4"):

@@ -116,7 +116,7 @@ MAX_SAMPLES = 10_001
 
 @dataclass
 class ViewOptions:
-    """``shape_rate_hz``: at most this many arm drawings per simulated second (≤ 0: every
+    """``shape_rate_hz``: at most this many arm drawings per simulated second (0: every
     ``ground_truth/coordinates`` message); ``samples``: points per beam centerline;
     ``force_scale``: arrow metres per newton (None: the largest force draws 0.25 of
     the arm's reach)."""
@@ -128,9 +128,9 @@ class ViewOptions:
         if not 2 <= self.samples <= MAX_SAMPLES:
             raise ValueError(f"samples: got {self.samples}, expected 2 to {MAX_SAMPLES} points "
                              f"per beam centerline")
-        if math.isnan(self.shape_rate_hz):
-            raise ValueError(f"shape_rate: got {self.shape_rate_hz}, expected a number of arm "
-                             f"drawings per simulated second (<= 0: every message)")
+        if not self.shape_rate_hz >= 0:
+            raise ValueError(f"shape_rate: got {self.shape_rate_hz}, expected a number >= 0 "
+                             f"of arm drawings per simulated second (0: every message)")
         if self.force_scale is not None and not (self.force_scale > 0
                                                  and math.isfinite(self.force_scale)):
             raise ValueError(f"force_scale: got {self.force_scale}, expected a finite number "

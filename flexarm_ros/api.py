@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["load_scene", "simulate", "linearize", "modes", "design", "estimate", "read_bag",
-           "Result", "InputError", "SceneError"]
+           "urdf", "Result", "InputError", "SceneError"]
 
 from flexarm_ros.errors import InputError, SceneError  # noqa: E402  (re-exported)
 
@@ -219,6 +219,17 @@ def estimate(bag, scene=None, sensors: str = "all", process_noise: float | None 
     ``.columns`` (the CSV's), ``.score`` (against the bag's ground truth, or None)."""
     from flexarm_ros.estimation.from_bag import estimate_bag
     return estimate_bag(bag, None if scene is None else _scene(scene), sensors, process_noise)
+
+
+def urdf(scene, segments: int | None = None) -> str:
+    """``flexarm urdf``: the arm as a URDF text (each beam ``segments`` rigid segments on
+    virtual joints, default the ROS twin's 10; :mod:`flexarm_ros.twin.robot_description`)."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.twin.robot_description import SEGMENTS, Description
+    n = SEGMENTS if segments is None else segments
+    if not (isinstance(n, int) and 2 <= n <= 200):
+        raise InputError(f"segments: got {n!r}, expected 2 to 200 segments per beam")
+    return Description(Chain(_scene(scene)), n).urdf()
 
 
 def read_bag(path):

@@ -38,7 +38,7 @@ import time
 #: imported by :func:`main` inside its Ctrl-C handling (a Ctrl-C while numpy and the
 #: commands load is one line too)
 COMMAND_NAMES = ("new", "simulate", "modes", "linearize", "explain", "design", "study",
-                 "run", "replay", "compare", "estimate", "bag")
+                 "urdf", "run", "replay", "compare", "estimate", "bag")
 #: what a batch process runs with its own collector settings (:func:`_startup_gc`)
 BATCH_COMMAND_NAMES = ("simulate", "modes", "linearize", "explain")
 #: exit status of an interrupted command (128 + SIGINT, as a shell reports it)

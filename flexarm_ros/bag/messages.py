@@ -85,6 +85,20 @@ def joint_state(t_ns: int, names: Sequence[str], position: Any = None, velocity:
     return out
 
 
+def tf_message(t_ns: int, transforms) -> dict[str, Any]:
+    """``tf2_msgs/msg/TFMessage`` of planar transforms ``(parent, child, x, y, yaw)``:
+    translation (x, y, 0) m, rotation yaw rad about z (quaternion (0, 0, sin ½yaw,
+    cos ½yaw)), each stamped ``t_ns``."""
+    out = []
+    for parent, child, x, y, yaw in transforms:
+        out.append({"header": header(t_ns, str(parent)), "child_frame_id": str(child),
+                    "transform": {"translation": {"x": float(x), "y": float(y), "z": 0.0},
+                                  "rotation": {"x": 0.0, "y": 0.0,
+                                               "z": math.sin(0.5 * float(yaw)),
+                                               "w": math.cos(0.5 * float(yaw))}}})
+    return {"transforms": out}
+
+
 def float64_multiarray(data: Any, labels: Sequence[str]) -> dict[str, Any]:
     """``std_msgs/msg/Float64MultiArray`` of a 1-D or 2-D array, row-major.
 

@@ -71,6 +71,13 @@ DEFINITIONS: dict[str, str] = {
     "geometry_msgs/msg/WrenchStamped": "std_msgs/Header header\nWrench wrench\n",
     "geometry_msgs/msg/PointStamped": "std_msgs/Header header\nPoint point\n",
     "geometry_msgs/msg/Pose": "Point position\nQuaternion orientation\n",
+    "geometry_msgs/msg/Transform": "Vector3 translation\nQuaternion rotation\n",
+    "geometry_msgs/msg/TransformStamped": (
+        "std_msgs/Header header\n"
+        "string child_frame_id\n"
+        "Transform transform\n"
+    ),
+    "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms\n",
     "std_msgs/msg/ColorRGBA": "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n",
     "sensor_msgs/msg/CompressedImage": (
         "std_msgs/Header header\n"
@@ -113,6 +120,12 @@ KNOWN_TYPES: tuple[str, ...] = tuple(sorted(DEFINITIONS))
 
 # RIHS01 type-description hashes (identical in Humble's and Jazzy's definitions).
 TYPE_HASHES: dict[str, str] = {
+    "geometry_msgs/msg/Transform":
+        "RIHS01_beb83fbe698636351461f6f35d1abb20010c43d55374d81bd041f1ba2581fddc",
+    "geometry_msgs/msg/TransformStamped":
+        "RIHS01_0a241f87d04668d94099cbb5ba11691d5ad32c2f29682e4eb5653424bd275206",
+    "tf2_msgs/msg/TFMessage":
+        "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
     "builtin_interfaces/msg/Duration":
         "RIHS01_e8d009f659816f758b75334ee1a9ca5b5c0b859843261f14c7f937349599d93b",
     "builtin_interfaces/msg/Time":

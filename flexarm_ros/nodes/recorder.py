@@ -59,12 +59,14 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from rclpy.node import Node
 
 from flexarm_ros import __version__
 from flexarm_ros.bag import BagWriter
+from flexarm_ros.bag import messages as M
 from flexarm_ros.bag.stamping import SimTimeStamper
 from flexarm_ros.bag.writer_process import WriterProcess
 from flexarm_ros.bag.cdr_read import CdrError, decode as decode_values
@@ -201,7 +203,8 @@ class RecorderNode(Node):
                 "namespace": ns, "control_mode": scene.twin_control.mode,
                 "fidelity_overrides": json.dumps(over, sort_keys=True),
                 "set": json.dumps(sets)}
-        self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]}
+        self.abs = {t: T.resolve(ns, t) for t in list(T.TYPES) + [T.REJECTED]
+                    + list(T.BAG_ONLY_TYPES)}
         extra = {"model": {"explain": explain(scene)}}
         if self.p["writer_process"]:
             self.sink = WriterProcess(self.p["output"], info, C.DEPTH, extra, self.abs,
@@ -211,6 +214,7 @@ class RecorderNode(Node):
             for name, data in extra.items():
                 writer.add_metadata(name, data)
             self.sink = SimTimeStamper(writer, self.abs, self.p["flush_period"])
+        self.robot = _robot_description(self, ran)   # the URDF and /tf_static, at t = 0
         self.validators = {T.COMMANDS: Validator(scene, "command"),
                            T.EFFORTS: Validator(scene, "effort")}
         self.rejections = Rejections(self, period_s=float("inf"))   # the nodes log them
@@ -273,7 +277,7 @@ class RecorderNode(Node):
             if topic == T.CLOCK:
                 self._on_clock(ts, raw, _stamp_ns(raw))
             else:
-                self.sink.emit(ts, topic, tp, raw, _header_ns(tp, raw))
+                self._emit(ts, topic, tp, raw)
             return
         v = self.validators.get(topic)
         m = None
@@ -306,7 +310,23 @@ class RecorderNode(Node):
         if topic == T.CLOCK:
             self._on_clock(ts, raw, _stamp_ns(raw))
         else:
-            self.sink.emit(ts, topic, tp, raw, _header_ns(tp, raw))
+            self._emit(ts, topic, tp, raw)
+
+    def _emit(self, ts, topic, tp, raw):
+        """Into the bag at the message's stamp; a robot_state adds its /tf."""
+        hdr = _header_ns(tp, raw)
+        self.sink.emit(ts, topic, tp, raw, hdr)
+        if topic == T.ROBOT_JOINT_STATES and self.robot is not None:
+            try:
+                m = decode_values(tp, raw)
+            except CdrError:
+                return
+            vals = dict(zip(m.name, m.position))
+            d = self.robot
+            moved = [tr for j, tr in zip(d.joints, d.transforms(
+                [vals.get(n, 0.0) for n in d.movable])) if j.movable]
+            t_ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+            self.sink.emit(ts, T.TF, T.BAG_ONLY_TYPES[T.TF], M.tf_message(t_ns, moved), hdr)
 
     def _name(self, info) -> str:
         gid = gid_of(info)
@@ -397,3 +417,23 @@ def main(args=None):
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _robot_description(node, scene):
+    """The arm's :class:`~flexarm_ros.twin.robot_description.Description`, its URDF
+    (``robot_description``) and fixed transforms (``/tf_static``) written at t = 0; None,
+    said once, where the scene's arm cannot be described (the bag is recorded without)."""
+    from flexarm_ros.model.chain import Chain
+    from flexarm_ros.twin.robot_description import Description
+    try:
+        d = Description(Chain(scene))
+    except (ValueError, ArithmeticError) as exc:
+        node.get_logger().warning(f"{T.ROBOT_DESCRIPTION}: not recorded ({exc})")
+        return None
+    node.sink.emit(0, T.ROBOT_DESCRIPTION, T.BAG_ONLY_TYPES[T.ROBOT_DESCRIPTION],
+                   {"data": d.urdf()}, 0)
+    fixed = [tr for j, tr in zip(d.joints, d.transforms(np.zeros(len(d.movable))))
+             if not j.movable]
+    node.sink.emit(0, T.TF_STATIC, T.BAG_ONLY_TYPES[T.TF_STATIC], M.tf_message(0, fixed), 0)
+    return d
+

@@ -87,6 +87,7 @@ from flexarm_ros.twin.pacing import (REALTIME_GT_HZ, THREAD_PRIORITY, Pacer, che
                                      ground_truth_rate, name_thread, realtime_scheduling)
 import flexarm_ros.nodes.common as C
 from flexarm_ros.nodes.markers import ArmMarkers
+from flexarm_ros.nodes.robot_state import RobotState
 from flexarm_ros.nodes.intraprocess import bus_of
 from flexarm_ros.nodes.diagnostics import attach as attach_diagnostics
 from flexarm_ros.nodes._wire import UNKNOWN, Rejections, Source, reject_undecodable
@@ -181,6 +182,9 @@ class SimulatorNode(Node):
             self.markers = ArmMarkers(scene, plant.chain,
                                       force_scale=float(self.p["marker_force_scale"]))
             pubs[T.ARM_MARKERS] = C.publisher(self, T.TYPES[T.ARM_MARKERS], T.ARM_MARKERS)
+            self.robot = RobotState(self, plant.chain)     # robot_description, once
+            pubs[T.ROBOT_JOINT_STATES] = C.publisher(self, T.TYPES[T.ROBOT_JOINT_STATES],
+                                                     T.ROBOT_JOINT_STATES)
         self.pubs = pubs
         self._cdr = CdrBuilder()
         sub = C.subscription(self, T.TYPES[T.EFFORTS], T.EFFORTS, self._on_effort, plain=True,
@@ -316,6 +320,8 @@ class SimulatorNode(Node):
         t_ns, q, contact, fn, ft = state
         self.pubs[T.ARM_MARKERS].publish(self.markers.cdr(t_ns, q, contact, fn, ft))
         self.published[T.ARM_MARKERS] += 1
+        self.pubs[T.ROBOT_JOINT_STATES].publish(self.robot.cdr(t_ns, q))
+        self.published[T.ROBOT_JOINT_STATES] += 1
 
     def _marker_loop(self):
         """Realtime: build and publish the arrays the pacing thread hands over, until the

@@ -19,6 +19,8 @@ against the twin unchanged). Standard message types only.
 | ``motor_driver/commands`` | std_msgs/Float64MultiArray | ctrl → driver | V per joint (A for a valve, N·m for a joint without a drive) |
 | ``controller/joint_targets`` | sensor_msgs/JointState | ctrl → log | position and sanding control: the commanded joint angles ``<link>_joint`` (rad), the commanded rates (rad/s; 0 for a step target) and the PD torque demanded (N·m, Eq. 5.16), one per command (none in open loop) |
 | ``controller/parameter_changes`` | std_msgs/String | ctrl → log | one JSON object per accepted live parameter set, applied at the tick it names: ``{"time": s, "kp": [...], "kd": [...], "joint_target": [...]}`` (what changed) — a ``control.changes`` entry of the scene, so the scene with a bag's entries reruns the run |
+| ``robot_state/joint_states`` | sensor_msgs/JointState | sim → robot_state_publisher, log | at the marker rate: the values of the URDF's joints (``<link>_joint``, the beams' virtual ``<link>_bend<i>`` and ``<link>_tip_slope``; :mod:`flexarm_ros.twin.robot_description`) |
+| ``robot_description`` | std_msgs/String | sim → RViz2, robot_state_publisher | once, transient local | the URDF of the arm; the recorder writes it, ``/tf_static`` and ``/tf`` (tf2_msgs/TFMessage, from robot_state) into the bag |
 | ``effort_controller/commands`` | std_msgs/Float64MultiArray | driver → sim | N·m at the gearbox outputs |
 | ``motor_driver/motor_states`` | sensor_msgs/JointState | driver → log | motor-shaft angle/speed (× gear ratio), effort = armature current (A) or load pressure (Pa) |
 | ``diagnostics/rejected`` | std_msgs/String | recorder → bag only | one JSON object per message a node refused or rejected (``topic``, ``reason``, ``publisher``, ``data`` as text); written into the bag by the recorder, never published |
@@ -48,6 +50,17 @@ EFFORTS = "effort_controller/commands"
 MOTOR_STATES = "motor_driver/motor_states"
 JOINT_TARGETS = "controller/joint_targets"
 PARAMETER_CHANGES = "controller/parameter_changes"
+#: the URDF's joint values (robot_state_publisher's input, remapped): the arm's joints and
+#: the beams' virtual joints (flexarm_ros.twin.robot_description), at the marker rate
+ROBOT_JOINT_STATES = "robot_state/joint_states"
+#: the URDF (std_msgs/String, transient local, as robot_state_publisher publishes it)
+ROBOT_DESCRIPTION = "robot_description"
+TF = "/tf"
+TF_STATIC = "/tf_static"
+#: written into the bag by the recorder from what it has (the scene, robot_state), never
+#: subscribed to: topic -> type
+BAG_ONLY_TYPES = {ROBOT_DESCRIPTION: "std_msgs/msg/String",
+                  TF: "tf2_msgs/msg/TFMessage", TF_STATIC: "tf2_msgs/msg/TFMessage"}
 REJECTED = "diagnostics/rejected"
 #: the controller's trajectory input (joint_trajectory_controller's message): a user's
 #: node publishes it; the twin does not record it (the targets it produces are
@@ -87,6 +100,7 @@ TYPES = {
     MOTOR_STATES: "sensor_msgs/msg/JointState",
     JOINT_TARGETS: "sensor_msgs/msg/JointState",
     PARAMETER_CHANGES: "std_msgs/msg/String",
+    ROBOT_JOINT_STATES: "sensor_msgs/msg/JointState",
 }
 
 #: What the estimator node publishes (not recorded by the twin's recorder; a bag of a

@@ -115,8 +115,9 @@ def _set(node, executor, name, srv, params, timeout=30.0):
 @pytest.mark.ros
 @pytest.mark.subprocess
 @pytest.mark.heavy
-@pytest.mark.timeout(300)
-def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path):
+@pytest.mark.timeout(400)
+@pytest.mark.parametrize("layout", ["one", "split", "processes"])
+def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, layout):
     """A lockstep `flexarm run two_link_position --record` in a child process; this
     process, a plain rclpy user, sets the controller's kp once the twin passes 0.5 s of
     scene time (and tries two bad sets, refused with the reason, nothing changing). The
@@ -134,11 +135,14 @@ def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path):
     from flexarm_ros.twin import topics as T
     from flexarm_ros.twin.recording import recorded_changes
 
-    ns, bag, duration = "/live_test", tmp_path / "live.mcap", 12.0
+    ns, bag, duration = f"/live_{layout}", tmp_path / "live.mcap", 12.0
     proc = subprocess.Popen([sys.executable, "-m", "flexarm_ros.cli", "run",
                              "two_link_position", "--mode", "lockstep", "--duration",
                              str(duration), "--record", str(bag), "--quiet",
-                             "--namespace", ns], env=child_environment(),
+                             "--namespace", ns]
+                            + {"one": [], "split": ["--layout", "split"],
+                               "processes": ["--processes"]}[layout],
+                            env=child_environment(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
     def arr(values):
@@ -173,7 +177,7 @@ def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path):
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)
-    _, err = proc.communicate(timeout=240)
+    _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
 
     b = read_bag(str(bag))

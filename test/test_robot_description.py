@@ -95,8 +95,9 @@ def test_a_generated_arm_is_described_too(seed):
 @pytest.mark.ros
 @pytest.mark.subprocess
 @pytest.mark.heavy
-@pytest.mark.timeout(300)
-def test_the_bags_tf_places_the_arm_and_a_late_viewer_gets_the_description(tmp_path):
+@pytest.mark.timeout(400)
+@pytest.mark.parametrize("layout", ["one", "split", "processes"])
+def test_the_bags_tf_places_the_arm_and_a_late_viewer_gets_the_description(tmp_path, layout):
     rclpy = pytest.importorskip("rclpy")
     import flexarm_ros.nodes.common  # noqa: F401
     from rclpy.executors import SingleThreadedExecutor
@@ -107,10 +108,13 @@ def test_the_bags_tf_places_the_arm_and_a_late_viewer_gets_the_description(tmp_p
     from flexarm_ros.nodes.environment import child_environment
     from flexarm_ros.twin.recording import embedded_scene
 
-    ns, bag = "/urdf_test", tmp_path / "r.mcap"
+    ns, bag = f"/urdf_{layout}", tmp_path / "r.mcap"
     proc = subprocess.Popen([sys.executable, "-m", "flexarm_ros.cli", "run", "two_link_case1",
                              "--mode", "lockstep", "--duration", "8", "--record", str(bag),
-                             "--quiet", "--namespace", ns], env=child_environment(),
+                             "--quiet", "--namespace", ns]
+                            + {"one": [], "split": ["--layout", "split"],
+                               "processes": ["--processes"]}[layout],
+                            env=child_environment(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -137,7 +141,7 @@ def test_the_bags_tf_places_the_arm_and_a_late_viewer_gets_the_description(tmp_p
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)
-    _, err = proc.communicate(timeout=240)
+    _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert urdf[0].startswith("<?xml") and "two_link_case1" in urdf[0]
 

@@ -411,14 +411,6 @@ def ran_scene_yaml(scene, ran, sets: dict, overrides: dict) -> str:
             + yaml.safe_dump(scene_mapping(ran), sort_keys=False, allow_unicode=True))
 
 
-def main(args=None):
-    return C.node_main(RecorderNode, args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 def _robot_description(node, scene):
     """The arm's :class:`~flexarm_ros.twin.robot_description.Description`, its URDF
     (``robot_description``) and fixed transforms (``/tf_static``) written at t = 0; None,
@@ -436,4 +428,12 @@ def _robot_description(node, scene):
              if not j.movable]
     node.sink.emit(0, T.TF_STATIC, T.BAG_ONLY_TYPES[T.TF_STATIC], M.tf_message(0, fixed), 0)
     return d
+
+
+def main(args=None):
+    return C.node_main(RecorderNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
 

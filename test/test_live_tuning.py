@@ -59,6 +59,26 @@ def test_a_change_leaves_the_run_before_it_alone_and_changes_it_after():
     assert err(stiffer) < err(base)
 
 
+def test_a_voltage_limit_change_clips_the_commands_from_its_time_on():
+    base = _run("two_link_position", 2.0)
+    limited = _run(fx.load_scene("two_link_position", set={
+        "control.changes": [{"time": 0.5, "voltage_limit": [1.0, 1.0]}]}), 2.0)
+    t = base.t
+    for col in ("link1_voltage", "link2_voltage"):
+        assert np.max(np.abs(limited[col] - base[col])[t < 0.5]) < 1e-12
+        assert np.max(np.abs(limited[col])[t >= 0.5]) <= 1.0 + 1e-12
+    assert np.max(np.abs(base["link1_voltage"])[t >= 0.5]) > 1.0      # it did clip
+
+
+def test_a_voltage_limit_above_the_drives_is_refused():
+    sc = fx.load_scene("two_link_position", set={
+        "control.changes": [{"time": 0.5, "voltage_limit": [100.0, 1.0]}]})
+    with pytest.raises(SceneError, match=r"control.changes\[0\].voltage_limit: got "
+                                         r"\[100.0, 1.0\] V, expected 0 < V <= 24 V on "
+                                         r"joint 1"):
+        _run(sc, 0.1)
+
+
 def test_a_shaped_scene_shapes_a_target_change_from_the_current_command():
     """With a shaper the new target is a staircase from the command at the change: the
     commanded target reaches it only after the shaper's last impulse."""
@@ -81,7 +101,7 @@ def _with_changes(scene, changes):
     ([{"time": 1.0, "kp": [-1.0, 2.0]}], "control.changes[0].kp"),
     ([{"time": 2.0, "kd": [1.0, 1.0]}, {"time": 1.0, "kd": [2.0, 2.0]}],
      "control.changes[1].time: got 1 s, expected after the previous change's 2 s"),
-    ([{"time": 1.0}], "control.changes[0]: got no kp, kd or joint_target"),
+    ([{"time": 1.0}], "control.changes[0]: got no kp, kd, joint_target or voltage_limit"),
     ([{"time": 1.0, "joint_target": [0.0, 1.0], "gain": 2}], "gain"),
 ])
 def test_a_bad_change_is_refused_in_one_line(changes, says):
@@ -170,6 +190,10 @@ def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, lay
         bad = _set(node, executor, srv, SetParameters,
                    [Parameter(name="joint_target", value=arr([0.1]))])
         assert not bad.successful and "expected 2" in bad.reason, bad.reason
+        bad = _set(node, executor, srv, SetParameters,
+                   [Parameter(name="voltage_limit", value=arr([100.0, 1.0]))])
+        assert not bad.successful and "voltage_limit: got [100.0, 1.0] V" in bad.reason, \
+            bad.reason
         ok = _set(node, executor, srv, SetParameters,
                   [Parameter(name="kp", value=arr([12.0, 16.0]))])
         assert ok.successful, ok.reason

@@ -60,9 +60,11 @@ def test_lockstep_run_records_exactly_the_cosimulation(tmp_path, scene, duration
     ref = cosimulate(load_scene(scene), duration)
     raw = _raw(path)
     topics = {m.topic for m in ref.messages}
-    # and the viewers' arm_markers, which the co-simulation has no use for
-    # (test/test_arm_markers.py)
-    assert {T.resolve(NS, t) for t in topics | {T.ARM_MARKERS}} == set(raw)
+    # and the viewers' topics, which the co-simulation has no use for: arm_markers
+    # (test/test_arm_markers.py), the URDF, its joint values and TF
+    # (test/test_robot_description.py)
+    viewers = {T.ARM_MARKERS, T.ROBOT_JOINT_STATES, T.ROBOT_DESCRIPTION, T.TF, T.TF_STATIC}
+    assert {T.resolve(NS, t) for t in topics | viewers} == set(raw)
     for topic in topics:
         want = [(m.t_ns, encode_cdr(m.msgtype, m.data)) for m in ref.topic(topic)]
         got = raw[T.resolve(NS, topic)]

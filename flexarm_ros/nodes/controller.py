@@ -182,6 +182,9 @@ class ControllerNode(Node):
         except (SceneError, InputError, ValueError) as exc:
             why = " ".join(str(exc).split()).replace("control.changes[0].", "")
             return SetParametersResult(successful=False, reason=why)
+        why = self.core.voltage_limit_error(change.get("voltage_limit", ()))
+        if why:
+            return SetParametersResult(successful=False, reason=f"voltage_limit: {why}")
         self.pending = change
         return SetParametersResult(successful=True)
 
@@ -207,7 +210,9 @@ LIVE = {"kp": (("position", "sanding"), "PD stiffness per joint, N·m/rad (live:
         "kd": (("position", "sanding"), "PD damping per joint, N·m·s/rad (live: applied at "
                                         "the next tick)"),
         "joint_target": (("position",), "the step target, rad per joint (live: a new step "
-                                        "from the current command at the next tick)")}
+                                        "from the current command at the next tick)"),
+        "voltage_limit": (("position", "sanding"), "the output limit, V per joint, at most "
+                                                   "the drive's (live: from the next tick)")}
 
 
 def _live_parameters(node) -> tuple:
@@ -216,7 +221,8 @@ def _live_parameters(node) -> tuple:
     core = node.core
     if core.mode == "open_loop" or core.lqg is not None:
         return ()
-    values = {"kp": core.pd.kp, "kd": core.pd.kd, "joint_target": core.q_goal}
+    values = {"kp": core.pd.kp, "kd": core.pd.kd, "joint_target": core.q_goal,
+              "voltage_limit": core.limit}
     names = []
     for name, (modes, text) in LIVE.items():
         if core.mode in modes:

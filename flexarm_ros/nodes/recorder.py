@@ -214,7 +214,8 @@ class RecorderNode(Node):
             for name, data in extra.items():
                 writer.add_metadata(name, data)
             self.sink = SimTimeStamper(writer, self.abs, self.p["flush_period"])
-        self.robot = _robot_description(self, ran)   # the URDF and /tf_static, at t = 0
+        self.robot = _robot_description(self, ran)   # the URDF, for the bag
+        self._robot_due = self.robot is not None     # written with the run's first message
         self.validators = {T.COMMANDS: Validator(scene, "command"),
                            T.EFFORTS: Validator(scene, "effort")}
         self.rejections = Rejections(self, period_s=float("inf"))   # the nodes log them
@@ -253,7 +254,22 @@ class RecorderNode(Node):
             self._gate.cancel()
             self._subscribe(T.JOINT_STATES)
 
+    def _write_robot_description(self):
+        """The URDF (``robot_description``) and the fixed transforms (``/tf_static``) at
+        t = 0, once the run has started (a run that never starts records nothing but its
+        refusals, and keeps the bag already there)."""
+        self._robot_due = False
+        d = self.robot
+        self.sink.emit(0, T.ROBOT_DESCRIPTION, T.BAG_ONLY_TYPES[T.ROBOT_DESCRIPTION],
+                       {"data": d.urdf()}, 0)
+        fixed = [tr for j, tr in zip(d.joints, d.transforms(np.zeros(len(d.movable))))
+                 if not j.movable]
+        self.sink.emit(0, T.TF_STATIC, T.BAG_ONLY_TYPES[T.TF_STATIC], M.tf_message(0, fixed),
+                       0)
+
     def _on_clock(self, ts, data, t_ns):
+        if self._robot_due:
+            self._write_robot_description()
         if self.last_clock_ns is not None and t_ns < self.last_clock_ns:
             self._reject(T.CLOCK, "time went backwards", str(t_ns), ts, "the source")
             return
@@ -314,6 +330,8 @@ class RecorderNode(Node):
 
     def _emit(self, ts, topic, tp, raw):
         """Into the bag at the message's stamp; a robot_state adds its /tf."""
+        if self._robot_due:
+            self._write_robot_description()
         hdr = _header_ns(tp, raw)
         self.sink.emit(ts, topic, tp, raw, hdr)
         if topic == T.ROBOT_JOINT_STATES and self.robot is not None:
@@ -412,22 +430,15 @@ def ran_scene_yaml(scene, ran, sets: dict, overrides: dict) -> str:
 
 
 def _robot_description(node, scene):
-    """The arm's :class:`~flexarm_ros.twin.robot_description.Description`, its URDF
-    (``robot_description``) and fixed transforms (``/tf_static``) written at t = 0; None,
-    said once, where the scene's arm cannot be described (the bag is recorded without)."""
+    """The arm's :class:`~flexarm_ros.twin.robot_description.Description`, or None, said
+    once, where the scene's arm cannot be described (the bag is recorded without)."""
     from flexarm_ros.model.chain import Chain
     from flexarm_ros.twin.robot_description import Description
     try:
-        d = Description(Chain(scene))
+        return Description(Chain(scene))
     except (ValueError, ArithmeticError) as exc:
         node.get_logger().warning(f"{T.ROBOT_DESCRIPTION}: not recorded ({exc})")
         return None
-    node.sink.emit(0, T.ROBOT_DESCRIPTION, T.BAG_ONLY_TYPES[T.ROBOT_DESCRIPTION],
-                   {"data": d.urdf()}, 0)
-    fixed = [tr for j, tr in zip(d.joints, d.transforms(np.zeros(len(d.movable))))
-             if not j.movable]
-    node.sink.emit(0, T.TF_STATIC, T.BAG_ONLY_TYPES[T.TF_STATIC], M.tf_message(0, fixed), 0)
-    return d
 
 
 def main(args=None):

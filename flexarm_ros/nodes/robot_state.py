@@ -2,7 +2,10 @@
 ``robot_description`` (std_msgs/String, reliable and transient local, as
 robot_state_publisher publishes it, so a viewer started later still gets it) and the
 URDF's joint values as ``robot_state/joint_states`` beside ``arm_markers``
-(:mod:`flexarm_ros.twin.robot_description`)."""
+(:mod:`flexarm_ros.twin.robot_description`). Where the ``tf2_msgs`` Python package
+imports (a ROS installation), also ``/tf_static`` once (transient local) and ``/tf`` with
+each ``robot_state/joint_states``; where it does not (PyPI has no tf2_msgs), one INFO line
+says so and names robot_state_publisher and the bag's /tf."""
 
 from __future__ import annotations
 
@@ -30,6 +33,36 @@ class RobotState:
         self.pub = node.create_publisher(String, T.ROBOT_DESCRIPTION, qos)
         self.pub.publish(String(data=self.urdf))
         self._zeros = np.zeros(len(self.description.movable))
+        self.tf = self.tf_static = None
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            node.get_logger().info(
+                "/tf: not published live (the tf2_msgs Python package does not import); "
+                "robot_state_publisher with robot_state/joint_states gives it, and the "
+                "recorder writes /tf into the bag")
+            return
+        self._tf_type = TFMessage
+        self.tf = node.create_publisher(TFMessage, T.TF, 100)
+        self.tf_static = node.create_publisher(TFMessage, T.TF_STATIC, qos)
+        d = self.description
+        fixed = [tr for j, tr in zip(d.joints, d.transforms(self._zeros)) if not j.movable]
+        self.tf_static.publish(self._message(0, fixed))
+
+    def _message(self, t_ns: int, transforms):
+        """A TFMessage object of (parent, child, x, y, yaw) transforms."""
+        from rclpy.serialization import deserialize_message
+        return deserialize_message(encode_cdr("tf2_msgs/msg/TFMessage",
+                                              M.tf_message(t_ns, transforms)),
+                                   self._tf_type)
+
+    def publish_tf(self, t_ns: int, q) -> None:
+        """Live ``/tf`` of the movable joints at coordinates ``q`` (where tf2_msgs imports)."""
+        if self.tf is None:
+            return
+        d = self.description
+        moved = [tr for j, tr in zip(d.joints, d.transforms(d.positions(q))) if j.movable]
+        self.tf.publish(self._message(t_ns, moved))
 
     def cdr(self, t_ns: int, q) -> bytes:
         """``robot_state/joint_states`` at ``t_ns`` of the model's coordinates ``q``."""

@@ -322,6 +322,7 @@ class SimulatorNode(Node):
         self.published[T.ARM_MARKERS] += 1
         self.pubs[T.ROBOT_JOINT_STATES].publish(self.robot.cdr(t_ns, q))
         self.published[T.ROBOT_JOINT_STATES] += 1
+        self.robot.publish_tf(t_ns, q)
 
     def _marker_loop(self):
         """Realtime: build and publish the arrays the pacing thread hands over, until the

@@ -826,6 +826,9 @@ class Change:
                                             doc="a new step target, one angle per joint "
                                                 "(empty: unchanged); shaped by "
                                                 "control.shaper from the current command")
+    voltage_limit: tuple[float, ...] = param((), unit="V", gt=0.0,
+                                             doc="the controller's output limit per joint, "
+                                                 "at most the drive's (empty: unchanged)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -1210,14 +1213,14 @@ class Scene:
                 raise SceneError(f"{where}.time: got {ch.time:g} s, expected after the "
                                  f"previous change's {last:g} s")
             last = ch.time
-            for key in ("kp", "kd", "joint_target"):
+            for key in ("kp", "kd", "joint_target", "voltage_limit"):
                 val = getattr(ch, key)
                 if val and len(val) != nj:
                     raise SceneError(f"{where}.{key}: got {len(val)} values, expected {nj} "
                                      f"(one per joint)")
-            if not (ch.kp or ch.kd or ch.joint_target):
-                raise SceneError(f"{where}: got no kp, kd or joint_target, expected at "
-                                 f"least one to change")
+            if not (ch.kp or ch.kd or ch.joint_target or ch.voltage_limit):
+                raise SceneError(f"{where}: got no kp, kd, joint_target or voltage_limit, "
+                                 f"expected at least one to change")
             if ch.joint_target:
                 if ctl.mode != "position":
                     raise SceneError(f"{where}.joint_target: got a target with control.mode "

@@ -531,6 +531,10 @@ class ControllerCore:
         self.phase = "position"
         self.torque_demand = np.zeros(self.n)
         self.changes = list(ctl.changes)   # control.changes not yet applied
+        for k, ch in enumerate(self.changes):
+            why = self.voltage_limit_error(ch.voltage_limit)
+            if why:
+                raise SceneError(f"control.changes[{k}].voltage_limit: {why}")
 
     @property
     def has_targets(self) -> bool:
@@ -551,7 +555,19 @@ class ControllerCore:
         return self.q_start + self.shaper.share(t - self._shape_t0) * (self.q_goal
                                                                        - self.q_start)
 
-    def retune(self, t: float, kp=(), kd=(), joint_target=()) -> dict:
+    def voltage_limit_error(self, limit) -> str | None:
+        """Why ``limit`` (V per joint) cannot be the controller's output limit, or None:
+        above a joint's own command limit (the drive's supply)."""
+        if not len(limit):
+            return None
+        top = [lim.command_limit for lim in joint_limits(self.scene)]
+        for j, (v, hi) in enumerate(zip(limit, top)):
+            if not 0.0 < v <= hi * (1 + 1e-12):
+                return (f"got {list(limit)} V, expected 0 < V <= {hi:.6g} V on joint {j + 1} "
+                        f"(the drive's command limit)")
+        return None
+
+    def retune(self, t: float, kp=(), kd=(), joint_target=(), voltage_limit=()) -> dict:
         """Change the joint PD's gains and/or its step target from tick time ``t`` on (a
         ``control.changes`` entry, or a parameter set on the controller node): the new
         target is a step from the current command, shaped by the scene's shaper from
@@ -569,6 +585,10 @@ class ControllerCore:
             rec["kp"] = [float(v) for v in kp]
         if len(kd):
             rec["kd"] = [float(v) for v in kd]
+        if len(voltage_limit):
+            self.limit = np.array(voltage_limit, float)
+            self.pd.motor.supply_voltage = self.limit.copy()
+            rec["voltage_limit"] = self.limit.tolist()
         if len(joint_target):
             self.q_start = self.q_cmd.copy()
             self.q_goal = np.array(joint_target, float)
@@ -595,7 +615,7 @@ class ControllerCore:
                             for p in self.programs], -self.limit, self.limit)
         while self.changes and self.changes[0].time <= t:    # control.changes due now
             ch = self.changes.pop(0)
-            self.retune(t, ch.kp, ch.kd, ch.joint_target)
+            self.retune(t, ch.kp, ch.kd, ch.joint_target, ch.voltage_limit)
         q = np.asarray(joint_angles, float)
         qd = self.velocity.update(t, dt, q)
         if self.task is not None:

@@ -275,10 +275,22 @@ def command(args) -> int:
     out = {"bag": plan.path}
     if args.rerun is not None:
         from flexarm_ros.viz.rerun_view import bag_to_rerun
+        final = Path(args.rerun)
+        part = final.with_name(f".{final.name}.partial.rrd")   # the file is kept till done
         try:
-            summ = bag_to_rerun(plan.bag, args.rerun, options=options)
+            summ = bag_to_rerun(plan.bag, part, options=options)
         except (OSError, BagError) as exc:
+            part.unlink(missing_ok=True)
             return fail(exc)
+        if summ.rows or summ.shape_frames:
+            part.replace(final)
+            summ.rrd = final
+        else:
+            part.unlink(missing_ok=True)
+            topics = ", ".join(sorted(plan.bag.messages)[:5]) or "none"
+            return fail(f"BAG.mcap: got {args.bag} with nothing the rerun view draws (its "
+                        f"topics: {topics}), expected a bag of flexarm run --record or "
+                        f"flexarm simulate --record")
         out["rerun"] = {"file": str(summ.rrd), "bytes": summ.size_bytes,
                         "entities": summ.rows, "shape_frames": summ.shape_frames}
         if not args.json:

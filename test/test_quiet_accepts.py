@@ -44,3 +44,31 @@ def test_a_negative_shape_rate_is_refused(tmp_path, capsys, monkeypatch):
 def test_a_lawson4_step_that_divides_the_output_period_still_runs(tmp_path):
     assert main(["simulate", "link", "--dt", "0.0005", "--duration", "0.05", "--quiet",
                  "--out", str(tmp_path / "x.csv")]) == 0
+
+
+def test_calibrate_refuses_a_billion_starts(capsys, monkeypatch):
+    """It allocated the Sobol sample of 1e9 starts (8 GiB) before saying anything."""
+    monkeypatch.chdir(__import__("pathlib").Path(__file__).resolve().parents[1])
+    assert main(["calibrate", "link", "bags/golden_case1.mcap", "--param",
+                 "links[0].beam.EI=1000:4000", "--starts", "1000000000"]) == 2
+    assert "--starts: got 1000000000, expected an integer from 1 to 10000" in \
+        capsys.readouterr().err
+
+
+def test_a_bag_with_nothing_to_draw_is_refused_and_the_old_recording_kept(tmp_path, capsys):
+    from mcap.writer import Writer
+    bag = tmp_path / "foreign.mcap"
+    with open(bag, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema(name="x", encoding="jsonschema", data=b"{}")
+        cid = w.register_channel(topic="/foo", message_encoding="json", schema_id=sid)
+        w.add_message(channel_id=cid, log_time=1, data=b"{}", publish_time=1)
+        w.finish()
+    rrd = tmp_path / "old.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    assert main(["replay", str(bag), "--rerun", str(rrd)]) == 2
+    err = capsys.readouterr().err
+    assert "with nothing the rerun view draws (its topics: /foo)" in err
+    assert rrd.read_bytes() == b"an earlier recording"
+    assert [p.name for p in tmp_path.iterdir()] and not list(tmp_path.glob(".*partial*"))

@@ -59,6 +59,20 @@ def test_a_change_leaves_the_run_before_it_alone_and_changes_it_after():
     assert err(stiffer) < err(base)
 
 
+def test_a_shaper_change_shapes_the_next_target_step_as_its_closed_form():
+    """A two-impulse shaper set at 1 s, a target step at 3 s: the commanded target is
+    q₀ + ½(q* − q₀) from 3 s to 3.5 s and q* after, where q₀ is the command at 3 s."""
+    sc = fx.load_scene("two_link_position", set={"control.changes": [
+        {"time": 1.0, "shaper": {"times": [0.0, 0.5], "amplitudes": [0.5, 0.5]}},
+        {"time": 3.0, "joint_target": [0.3, 1.0]}]})
+    r = _run(sc, 4.0)
+    t = r.t
+    q0 = r["link1_joint_target"][np.searchsorted(t, 2.99)]
+    mid = (t >= 3.0) & (t < 3.5 - 1e-9)
+    assert np.max(np.abs(r["link1_joint_target"][mid] - (q0 + 0.5 * (0.3 - q0)))) < 1e-12
+    assert np.max(np.abs(r["link1_joint_target"][t >= 3.5] - 0.3)) < 1e-12
+
+
 def test_a_voltage_limit_change_clips_the_commands_from_its_time_on():
     base = _run("two_link_position", 2.0)
     limited = _run(fx.load_scene("two_link_position", set={
@@ -101,7 +115,8 @@ def _with_changes(scene, changes):
     ([{"time": 1.0, "kp": [-1.0, 2.0]}], "control.changes[0].kp"),
     ([{"time": 2.0, "kd": [1.0, 1.0]}, {"time": 1.0, "kd": [2.0, 2.0]}],
      "control.changes[1].time: got 1 s, expected after the previous change's 2 s"),
-    ([{"time": 1.0}], "control.changes[0]: got no kp, kd, joint_target or voltage_limit"),
+    ([{"time": 1.0}], "control.changes[0]: got no kp, kd, joint_target, voltage_limit or "
+                      "shaper"),
     ([{"time": 1.0, "joint_target": [0.0, 1.0], "gain": 2}], "gain"),
 ])
 def test_a_bad_change_is_refused_in_one_line(changes, says):
@@ -194,9 +209,21 @@ def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, lay
                    [Parameter(name="voltage_limit", value=arr([100.0, 1.0]))])
         assert not bad.successful and "voltage_limit: got [100.0, 1.0] V" in bad.reason, \
             bad.reason
+        bad = _set(node, executor, srv, SetParameters,
+                   [Parameter(name="shaper_impulses", value=arr([0.0, 0.5, 0.5, 0.6]))])
+        assert not bad.successful and "shaper.amplitudes: got a sum of 1.1" in bad.reason, \
+            bad.reason
         ok = _set(node, executor, srv, SetParameters,
                   [Parameter(name="kp", value=arr([12.0, 16.0]))])
         assert ok.successful, ok.reason
+        n = len(stamps)
+        while len(stamps) < n + 50:               # the kp change applied, alone
+            executor.spin_once(timeout_sec=0.05)
+        for name, value in (("shaper_impulses", [0.0, 0.5, 0.5, 0.5]),
+                            ("joint_target", [0.3, 1.0])):
+            ok = _set(node, executor, srv, SetParameters,
+                      [Parameter(name=name, value=arr(value))])
+            assert ok.successful, (name, ok.reason)
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -206,9 +233,10 @@ def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, lay
 
     b = read_bag(str(bag))
     changes = recorded_changes(b)
-    assert len(changes) == 1 and changes[0]["kp"] == [12.0, 16.0], changes
+    assert changes[0]["kp"] == [12.0, 16.0] and set(changes[0]) == {"time", "kp"}, changes
     assert 0.5 <= changes[0]["time"] < duration
-    assert set(changes[0]) == {"time", "kp"}
+    later = {k for c in changes[1:] for k in c} - {"time"}
+    assert later == {"shaper", "joint_target"}, changes
 
     out = tmp_path / "rerun.yaml"
     assert main(["bag", "scene", str(bag), "--out", str(out)]) == 0

@@ -12,8 +12,9 @@ With position control it also follows ``controller/joint_trajectory``
 validated on entry (:meth:`ControllerCore.accept_trajectory`), a rejected one is logged
 and counted and changes nothing; header.stamp zero starts it at the latest state's time.
 
-Live tuning: the PD's ``kp`` and ``kd`` (position and sanding) and ``joint_target``
-(position) are parameters a user sets while the twin runs (``ros2 param set``); a set is
+Live tuning: the PD's ``kp``, ``kd`` and ``voltage_limit`` (position and sanding),
+``joint_target`` and the shaper's ``shaper_impulses`` ([t0, A0, t1, A1, …]; position)
+are parameters a user sets while the twin runs (``ros2 param set``); a set is
 validated by the scene's rules for ``control.changes`` (refused with the reason, nothing
 changes), applied at the next tick and published on ``controller/parameter_changes`` as
 the ``control.changes`` entry that reruns it (:meth:`ControllerCore.retune`).
@@ -174,7 +175,15 @@ class ControllerNode(Node):
                 return SetParametersResult(successful=False, reason=(
                     f"{prm.name}: got {prm.value!r} ({prm.type_.name.lower()}), expected a "
                     f"list of {len(self.scene.links)} numbers (one per joint)"))
-            change[prm.name] = [float(v) for v in prm.value]
+            values = [float(v) for v in prm.value]
+            if prm.name == "shaper_impulses":   # [t0, A0, t1, A1, …]: one shaper, one set
+                if not values or len(values) % 2:
+                    return SetParametersResult(successful=False, reason=(
+                        f"shaper_impulses: got {values}, expected pairs of time and "
+                        f"amplitude [t0, A0, t1, A1, ...]"))
+                change["shaper"] = {"times": values[0::2], "amplitudes": values[1::2]}
+                continue
+            change[prm.name] = values
         if change == self.pending:
             return SetParametersResult(successful=True)
         try:
@@ -212,7 +221,11 @@ LIVE = {"kp": (("position", "sanding"), "PD stiffness per joint, N·m/rad (live:
         "joint_target": (("position",), "the step target, rad per joint (live: a new step "
                                         "from the current command at the next tick)"),
         "voltage_limit": (("position", "sanding"), "the output limit, V per joint, at most "
-                                                   "the drive's (live: from the next tick)")}
+                                                   "the drive's (live: from the next tick)"),
+        "shaper_impulses": (("position",), "the shaper as [t0, A0, t1, A1, ...] (s, 1): the "
+                                           "first time 0, the amplitudes summing to 1; "
+                                           "[0.0, 1.0] no shaping (live: for the target "
+                                           "steps set from then on)")}
 
 
 def _live_parameters(node) -> tuple:
@@ -221,8 +234,11 @@ def _live_parameters(node) -> tuple:
     core = node.core
     if core.mode == "open_loop" or core.lqg is not None:
         return ()
+    sh = core.shaper
     values = {"kp": core.pd.kp, "kd": core.pd.kd, "joint_target": core.q_goal,
-              "voltage_limit": core.limit}
+              "voltage_limit": core.limit,
+              "shaper_impulses": ([v for pair in zip(sh.times, sh.amplitudes) for v in pair]
+                                  if sh is not None else [0.0, 1.0])}
     names = []
     for name, (modes, text) in LIVE.items():
         if core.mode in modes:

@@ -829,6 +829,10 @@ class Change:
     voltage_limit: tuple[float, ...] = param((), unit="V", gt=0.0,
                                              doc="the controller's output limit per joint, "
                                                  "at most the drive's (empty: unchanged)")
+    shaper: Optional[Shaper] = param(None, doc="position mode: the shaper of the target "
+                                               "steps from this change on (one impulse "
+                                               "[0] of [1]: none); the step under way "
+                                               "keeps its own")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -1218,9 +1222,13 @@ class Scene:
                 if val and len(val) != nj:
                     raise SceneError(f"{where}.{key}: got {len(val)} values, expected {nj} "
                                      f"(one per joint)")
-            if not (ch.kp or ch.kd or ch.joint_target or ch.voltage_limit):
-                raise SceneError(f"{where}: got no kp, kd, joint_target or voltage_limit, "
-                                 f"expected at least one to change")
+            if not (ch.kp or ch.kd or ch.joint_target or ch.voltage_limit or ch.shaper):
+                raise SceneError(f"{where}: got no kp, kd, joint_target, voltage_limit or "
+                                 f"shaper, expected at least one to change")
+            if ch.shaper is not None and ctl.mode != "position":
+                raise SceneError(f"{where}.shaper: got a shaper with control.mode "
+                                 f"{ctl.mode!r}, expected mode 'position' (it shapes the "
+                                 f"target steps)")
             if ch.joint_target:
                 if ctl.mode != "position":
                     raise SceneError(f"{where}.joint_target: got a target with control.mode "

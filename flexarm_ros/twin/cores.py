@@ -567,7 +567,8 @@ class ControllerCore:
                         f"(the drive's command limit)")
         return None
 
-    def retune(self, t: float, kp=(), kd=(), joint_target=(), voltage_limit=()) -> dict:
+    def retune(self, t: float, kp=(), kd=(), joint_target=(), voltage_limit=(),
+               shaper=None) -> dict:
         """Change the joint PD's gains and/or its step target from tick time ``t`` on (a
         ``control.changes`` entry, or a parameter set on the controller node): the new
         target is a step from the current command, shaped by the scene's shaper from
@@ -585,11 +586,22 @@ class ControllerCore:
             rec["kp"] = [float(v) for v in kp]
         if len(kd):
             rec["kd"] = [float(v) for v in kd]
+        if shaper is not None:         # for the steps from here on (this change's too)
+            from flexarm_ros.scene.sections import Shaper
+            if not isinstance(shaper, Shaper):
+                shaper = Shaper(times=tuple(shaper["times"]),
+                                amplitudes=tuple(shaper["amplitudes"]),
+                                design=shaper.get("design", ""))
+            self._next_shaper = shaper
+            rec["shaper"] = {"times": list(shaper.times),
+                             "amplitudes": list(shaper.amplitudes)}
         if len(voltage_limit):
             self.limit = np.array(voltage_limit, float)
             self.pd.motor.supply_voltage = self.limit.copy()
             rec["voltage_limit"] = self.limit.tolist()
         if len(joint_target):
+            if getattr(self, "_next_shaper", None) is not None:
+                self.shaper, self._next_shaper = self._next_shaper, None
             self.q_start = self.q_cmd.copy()
             self.q_goal = np.array(joint_target, float)
             self.qd_cmd = np.zeros(self.n)
@@ -615,7 +627,7 @@ class ControllerCore:
                             for p in self.programs], -self.limit, self.limit)
         while self.changes and self.changes[0].time <= t:    # control.changes due now
             ch = self.changes.pop(0)
-            self.retune(t, ch.kp, ch.kd, ch.joint_target, ch.voltage_limit)
+            self.retune(t, ch.kp, ch.kd, ch.joint_target, ch.voltage_limit, ch.shaper)
         q = np.asarray(joint_angles, float)
         qd = self.velocity.update(t, dt, q)
         if self.task is not None:

@@ -216,8 +216,9 @@ def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, lay
         ok = _set(node, executor, srv, SetParameters,
                   [Parameter(name="kp", value=arr([12.0, 16.0]))])
         assert ok.successful, ok.reason
-        n = len(stamps)
+        n, deadline = len(stamps), time.monotonic() + 60
         while len(stamps) < n + 50:               # the kp change applied, alone
+            assert proc.poll() is None and time.monotonic() < deadline, "the twin stopped"
             executor.spin_once(timeout_sec=0.05)
         for name, value in (("shaper_impulses", [0.0, 0.5, 0.5, 0.5]),
                             ("joint_target", [0.3, 1.0])):

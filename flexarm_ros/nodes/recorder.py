@@ -59,7 +59,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from rclpy.node import Node
@@ -259,13 +258,10 @@ class RecorderNode(Node):
         t = 0, once the run has started (a run that never starts records nothing but its
         refusals, and keeps the bag already there)."""
         self._robot_due = False
-        d = self.robot
         self.sink.emit(0, T.ROBOT_DESCRIPTION, T.BAG_ONLY_TYPES[T.ROBOT_DESCRIPTION],
-                       {"data": d.urdf()}, 0)
-        fixed = [tr for j, tr in zip(d.joints, d.transforms(np.zeros(len(d.movable))))
-                 if not j.movable]
-        self.sink.emit(0, T.TF_STATIC, T.BAG_ONLY_TYPES[T.TF_STATIC], M.tf_message(0, fixed),
-                       0)
+                       {"data": self.robot.urdf()}, 0)
+        self.sink.emit(0, T.TF_STATIC, T.BAG_ONLY_TYPES[T.TF_STATIC],
+                       M.tf_message(0, self.robot.fixed()), 0)
 
     def _on_clock(self, ts, data, t_ns):
         if self._robot_due:
@@ -340,9 +336,7 @@ class RecorderNode(Node):
             except CdrError:
                 return
             vals = dict(zip(m.name, m.position))
-            d = self.robot
-            moved = [tr for j, tr in zip(d.joints, d.transforms(
-                [vals.get(n, 0.0) for n in d.movable])) if j.movable]
+            moved = self.robot.moving([vals.get(n, 0.0) for n in self.robot.movable])
             t_ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
             self.sink.emit(ts, T.TF, T.BAG_ONLY_TYPES[T.TF], M.tf_message(t_ns, moved), hdr)
 

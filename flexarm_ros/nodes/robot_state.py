@@ -20,8 +20,8 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 
 
 class RobotState:
-    """``robot_description`` of ``chain`` published by ``node`` now; :meth:`cdr` the
-    joint values at coordinates q."""
+    """``robot_description`` of ``chain`` published by ``node`` now; :meth:`values` the
+    joint values at coordinates q, :meth:`cdr` and :meth:`publish_tf` their messages."""
 
     def __init__(self, node, chain):
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -45,9 +45,7 @@ class RobotState:
         self._tf_type = TFMessage
         self.tf = node.create_publisher(TFMessage, T.TF, 100)
         self.tf_static = node.create_publisher(TFMessage, T.TF_STATIC, qos)
-        d = self.description
-        fixed = [tr for j, tr in zip(d.joints, d.transforms(self._zeros)) if not j.movable]
-        self.tf_static.publish(self._message(0, fixed))
+        self.tf_static.publish(self._message(0, self.description.fixed()))
 
     def _message(self, t_ns: int, transforms):
         """A TFMessage object of (parent, child, x, y, yaw) transforms."""
@@ -56,17 +54,19 @@ class RobotState:
                                               M.tf_message(t_ns, transforms)),
                                    self._tf_type)
 
-    def publish_tf(self, t_ns: int, q) -> None:
-        """Live ``/tf`` of the movable joints at coordinates ``q`` (where tf2_msgs imports)."""
+    def publish_tf(self, t_ns: int, values) -> None:
+        """Live ``/tf`` of the movable joints at their ``values`` (:meth:`values`; where
+        tf2_msgs imports)."""
         if self.tf is None:
             return
-        d = self.description
-        moved = [tr for j, tr in zip(d.joints, d.transforms(d.positions(q))) if j.movable]
-        self.tf.publish(self._message(t_ns, moved))
+        self.tf.publish(self._message(t_ns, self.description.moving(values)))
 
-    def cdr(self, t_ns: int, q) -> bytes:
-        """``robot_state/joint_states`` at ``t_ns`` of the model's coordinates ``q``."""
-        d = self.description
-        return encode_cdr(JOINT_STATE, M.joint_state(t_ns, d.movable, d.positions(q),
+    def values(self, q) -> np.ndarray:
+        """The URDF's movable joint values at the model's coordinates ``q``."""
+        return self.description.positions(q)
+
+    def cdr(self, t_ns: int, values) -> bytes:
+        """``robot_state/joint_states`` at ``t_ns`` of the joint ``values``."""
+        return encode_cdr(JOINT_STATE, M.joint_state(t_ns, self.description.movable, values,
                                                      self._zeros, self._zeros),
                           validate=False)

@@ -320,9 +320,10 @@ class SimulatorNode(Node):
         t_ns, q, contact, fn, ft = state
         self.pubs[T.ARM_MARKERS].publish(self.markers.cdr(t_ns, q, contact, fn, ft))
         self.published[T.ARM_MARKERS] += 1
-        self.pubs[T.ROBOT_JOINT_STATES].publish(self.robot.cdr(t_ns, q))
+        values = self.robot.values(q)          # once for robot_state and the live /tf
+        self.pubs[T.ROBOT_JOINT_STATES].publish(self.robot.cdr(t_ns, values))
         self.published[T.ROBOT_JOINT_STATES] += 1
-        self.robot.publish_tf(t_ns, q)
+        self.robot.publish_tf(t_ns, values)
 
     def _marker_loop(self):
         """Realtime: build and publish the arrays the pacing thread hands over, until the

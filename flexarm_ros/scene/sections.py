@@ -1128,15 +1128,7 @@ class Scene:
             except ValueError as exc:
                 raise SceneError(str(exc)) from None
         if ctl.joint_target:
-            import numpy as np
-            from flexarm_ros.scene.trajectory_points import beyond_limits
-            out = beyond_limits(np.array([ctl.joint_target], float),
-                                [lk.joint.position_limits for lk in self.links])
-            if out is not None:
-                _, k, lo, hi = out
-                raise SceneError(f"control.joint_target[{k}]: got {ctl.joint_target[k]:g} "
-                                 f"rad, expected within links[{k}].joint.position_limits "
-                                 f"[{lo:g}, {hi:g}] rad")
+            self._check_target("control.joint_target", ctl.joint_target)
         if ctl.shaper is not None and ctl.mode != "position":
             raise SceneError(f"control.shaper: got a shaper with control.mode "
                              f"{ctl.mode!r}, expected mode 'position' (it shapes the target "
@@ -1202,6 +1194,18 @@ class Scene:
                              f"at most the duration {self.duration} s (the output would hold "
                              f"the start sample only)")
 
+    def _check_target(self, key: str, target) -> None:
+        """A step target (rad per joint) within the joints' ``position_limits``, refused
+        in one line naming ``key`` and the joint otherwise."""
+        import numpy as np
+        from flexarm_ros.scene.trajectory_points import beyond_limits
+        out = beyond_limits(np.array([target], float),
+                            [lk.joint.position_limits for lk in self.links])
+        if out is not None:
+            _, k, lo, hi = out
+            raise SceneError(f"{key}[{k}]: got {target[k]:g} rad, expected within "
+                             f"links[{k}].joint.position_limits [{lo:g}, {hi:g}] rad")
+
     def _check_changes(self, ctl, nj):
         """``control.changes``: in time order, one value per joint, PD modes only, a
         target only for the joint PD in position mode and within the joint limits."""
@@ -1234,15 +1238,7 @@ class Scene:
                     raise SceneError(f"{where}.joint_target: got a target with control.mode "
                                      f"{ctl.mode!r}, expected mode 'position' (the sanding "
                                      f"task sets its own)")
-                import numpy as np
-                from flexarm_ros.scene.trajectory_points import beyond_limits
-                out = beyond_limits(np.array([ch.joint_target], float),
-                                    [lk.joint.position_limits for lk in self.links])
-                if out is not None:
-                    _, j, lo, hi = out
-                    raise SceneError(f"{where}.joint_target[{j}]: got "
-                                     f"{ch.joint_target[j]:g} rad, expected within "
-                                     f"links[{j}].joint.position_limits [{lo:g}, {hi:g}] rad")
+                self._check_target(f"{where}.joint_target", ch.joint_target)
                 bad = [v for v in ch.joint_target if not math.isfinite(v)]
                 if bad:
                     raise SceneError(f"{where}.joint_target: got {bad[0]}, expected finite "

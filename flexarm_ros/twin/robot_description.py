@@ -102,7 +102,7 @@ class Description:
         """The joint offsets are constant in their frames (checked at a bent pose)."""
         ch = self.chain
         bent = np.asarray(q, float) + 0.05 * np.sin(np.arange(len(q)) + 1.0) * \
-            np.array([lm_scale(ch, i) for i in range(len(q))])
+            np.array([_check_scale(ch, i) for i in range(len(q))])
         kin = ch.kinematics(bent, np.zeros(len(bent)), frames_only=True)
         for k in range(1, len(ch.links)):
             j = next(j for j in self.joints if j.name == f"{ch.links[k].name}_joint")
@@ -151,6 +151,15 @@ class Description:
                 (j.parent, j.child, j.x, j.y, j.yaw0 + vals.get(j.name, 0.0))
                 for j in self.joints]
 
+    def moving(self, values) -> list:
+        """The transforms of the movable joints at ``values`` (what /tf carries)."""
+        return [tr for j, tr in zip(self.joints, self.transforms(values)) if j.movable]
+
+    def fixed(self) -> list:
+        """The transforms of the fixed joints, tool and wall (what /tf_static carries)."""
+        return [tr for j, tr in zip(self.joints, self.transforms(np.zeros(len(self.movable))))
+                if not j.movable]
+
     def urdf(self, name: str | None = None) -> str:
         """The URDF text: links with a box per segment and a cylinder per hub (visuals
         for RViz2), continuous joints about z, fixed tool and wall."""
@@ -185,7 +194,7 @@ class Description:
         return "\n".join(lines) + "\n"
 
 
-def lm_scale(chain, i) -> float:
+def _check_scale(chain, i) -> float:
     """A coordinate's scale for the bent check pose: 1 rad for an angle, 1 % of the
     beam for an elastic coordinate (its name has no ``_joint`` / ``_motor``)."""
     name = chain.names[i]
@@ -201,19 +210,3 @@ def _wrap(a: float) -> float:
 def _initial(chain):
     from flexarm_ros.model.statics import initial_state
     return initial_state(chain)[0]
-
-
-def compose(transforms, frame: str) -> tuple:
-    """(x, y, yaw) of ``frame`` in ``world`` from (parent, child, x, y, yaw) transforms:
-    the TF chain composed (a reader's check, independent of :class:`Description`)."""
-    by_child = {c: (p, x, y, a) for p, c, x, y, a in transforms}
-    chain = []
-    while frame != "world":
-        p, x, y, a = by_child[frame]
-        chain.append((x, y, a))
-        frame = p
-    X = Y = A = 0.0
-    for x, y, a in reversed(chain):
-        X, Y = X + math.cos(A) * x - math.sin(A) * y, Y + math.sin(A) * x + math.cos(A) * y
-        A += a
-    return X, Y, A

@@ -243,3 +243,82 @@ def ros_against_batch():
     largest |q_ros − q_batch| rad over every joint and tick of ground_truth/joint_states,
     the largest joint travel rad)."""
     return _ros_against_batch
+
+
+#: the options of ``flexarm run`` that choose each kept layout
+LAYOUT_ARGS = {"one": [], "split": ["--layout", "split"], "processes": ["--processes"]}
+
+
+class RosClient:
+    """A plain rclpy user in the test's process (its own context, one node, one
+    executor): what ``ros2 topic echo`` or ``ros2 param`` would be."""
+
+    def __init__(self, name: str):
+        import rclpy
+        import flexarm_ros.nodes.common  # noqa: F401  (loads message support quietly)
+        from rclpy.executors import SingleThreadedExecutor
+        self.rclpy, self.context = rclpy, rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_once(self, timeout_sec: float = 0.05) -> None:
+        self.executor.spin_once(timeout_sec=timeout_sec)
+
+    def call(self, srv_type, name: str, request, timeout: float = 30.0):
+        """The response of service ``name`` to ``request`` (asserting it answers)."""
+        import time
+        client = self.node.create_client(srv_type, name)
+        try:
+            deadline = time.monotonic() + timeout
+            while not client.wait_for_service(timeout_sec=0.5):
+                assert time.monotonic() < deadline, f"{name}: no service within {timeout} s"
+            future = client.call_async(request)
+            self.executor.spin_until_future_complete(future, timeout_sec=timeout)
+            assert future.done(), f"{name}: no answer within {timeout} s"
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture
+def ros_client():
+    """``ros_client(name)`` → a :class:`RosClient`, shut down after the test."""
+    made = []
+
+    def make(name: str) -> RosClient:
+        made.append(RosClient(name))
+        return made[-1]
+    yield make
+    for client in made:
+        client.close()
+
+
+@pytest.fixture
+def twin_process():
+    """``twin_process(scene, *options, layout="one")`` → the Popen of ``flexarm run scene
+    options`` in a child (stderr piped), stopped after the test if it still runs."""
+    import sys
+    procs = []
+
+    def start(scene: str, *options: str, layout: str = "one"):
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "flexarm_ros.cli", "run", scene, *options,
+             *LAYOUT_ARGS[layout]], env=environment.child_environment(),
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+        return procs[-1]
+    yield start
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate(timeout=10)

@@ -5,8 +5,6 @@ counters set by hand."""
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 import time
 
 import pytest
@@ -59,47 +57,28 @@ def test_the_level_follows_the_periods_rejections_late_ticks_and_errors():
 @pytest.mark.heavy
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("layout", ["one", "split", "processes"])
-def test_every_node_publishes_diagnostics_a_second(tmp_path, layout):
+def test_every_node_publishes_diagnostics_a_second(tmp_path, layout, ros_client, twin_process):
     """A realtime `flexarm run two_link_position --record` in a child process: within
     20 s this process has a status from each of the simulator, controller, motor driver
     and recorder, at about 1 Hz, the simulator's real-time factor positive and not above
     1 (paced), its simulated time advancing."""
-    from flexarm_ros.nodes.environment import child_environment
     ns = f"/diag_{layout}"
-    argv = [sys.executable, "-m", "flexarm_ros.cli", "run", "two_link_position", "--mode",
-            "realtime", "--duration", "60", "--record", str(tmp_path / "d.mcap"), "--quiet",
-            "--namespace", ns]
-    argv += {"one": [], "split": ["--layout", "split"], "processes": ["--processes"]}[layout]
-    proc = subprocess.Popen(argv, env=child_environment(), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("diag_listener", context=context)
-    from rclpy.executors import SingleThreadedExecutor
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    proc = twin_process("two_link_position", "--mode", "realtime", "--duration", "60",
+                        "--record", str(tmp_path / "d.mcap"), "--quiet", "--namespace", ns,
+                        layout=layout)
+    client = ros_client("diag_listener")
     seen: dict = {}
-    node.create_subscription(diagnostic_msgs.DiagnosticArray, "/diagnostics",
-                             lambda m: [seen.setdefault(st.name, []).append(
-                                 (time.monotonic(), {kv.key: kv.value for kv in st.values},
-                                  st.level)) for st in m.status], 10)
+    client.node.create_subscription(
+        diagnostic_msgs.DiagnosticArray, "/diagnostics",
+        lambda m: [seen.setdefault(st.name, []).append(
+            (time.monotonic(), {kv.key: kv.value for kv in st.values}, st.level))
+            for st in m.status], 10)
     want = {f"{ns}/{n}" for n in ("simulator", "controller", "motor_driver", "recorder")}
-    try:
-        deadline = time.monotonic() + 60
-        while not (want <= set(seen) and all(len(seen[n]) >= 3 for n in want)):
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, (layout, sorted(seen))
-            executor.spin_once(timeout_sec=0.1)
-    finally:
-        proc.terminate()
-        try:
-            proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate(timeout=10)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
+    deadline = time.monotonic() + 60
+    while not (want <= set(seen) and all(len(seen[n]) >= 3 for n in want)):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, (layout, sorted(seen))
+        client.spin_once(0.1)
     sim = seen[f"{ns}/simulator"]
     gaps = [b[0] - a[0] for a, b in zip(sim, sim[1:])]
     assert 0.7 < sorted(gaps)[len(gaps) // 2] < 1.5 and max(gaps) < 5.0, gaps   # ~1 Hz

@@ -6,8 +6,6 @@ entries (``flexarm bag scene``) rerunning the live run."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -133,102 +131,72 @@ def test_changes_in_open_loop_are_refused():
 
 
 # ------------------------------------------------------------------ the live twin
-def _set(node, executor, name, srv, params, timeout=30.0):
-    client = node.create_client(srv, name)
-    try:
-        deadline = time.monotonic() + timeout
-        while not client.wait_for_service(timeout_sec=0.5):
-            assert time.monotonic() < deadline, f"{name}: no service"
-        future = client.call_async(srv.Request(parameters=params))
-        executor.spin_until_future_complete(future, timeout_sec=timeout)
-        assert future.done(), f"{name}: no answer"
-        return future.result().results[0]
-    finally:
-        node.destroy_client(client)
-
-
 @pytest.mark.ros
 @pytest.mark.subprocess
 @pytest.mark.heavy
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("layout", ["one", "split", "processes"])
-def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, layout):
+def test_a_gain_set_on_the_live_twin_is_applied_recorded_and_rerun(tmp_path, layout, ros_client,
+                                                                 twin_process):
     """A lockstep `flexarm run two_link_position --record` in a child process; this
     process, a plain rclpy user, sets the controller's kp once the twin passes 0.5 s of
-    scene time (and tries two bad sets, refused with the reason, nothing changing). The
-    bag holds one controller/parameter_changes entry at a tick ≥ 0.5 s; the arm moves
-    differently from an untouched run after it; `flexarm bag scene` of the bag, run by
-    flexarm simulate, equals the live run's ground truth at every tick."""
-    rclpy = pytest.importorskip("rclpy")
-    import flexarm_ros.nodes.common  # noqa: F401  (message support, quietly)
+    scene time (and tries bad sets, refused with the reason, nothing changing), then a
+    shaper and a target. The bag holds the kp entry alone at a tick ≥ 0.5 s and then the
+    shaper's and the target's; the arm moves differently from an untouched run after the
+    kp change; `flexarm bag scene` of the bag, run by flexarm simulate, equals the live
+    run's ground truth at every tick."""
+    pytest.importorskip("rclpy")
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
-    from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
     from flexarm_ros.bag.reader import read_bag
-    from flexarm_ros.nodes.environment import child_environment
     from flexarm_ros.twin import topics as T
     from flexarm_ros.twin.recording import recorded_changes
 
     ns, bag, duration = f"/live_{layout}", tmp_path / "live.mcap", 12.0
-    proc = subprocess.Popen([sys.executable, "-m", "flexarm_ros.cli", "run",
-                             "two_link_position", "--mode", "lockstep", "--duration",
-                             str(duration), "--record", str(bag), "--quiet",
-                             "--namespace", ns]
-                            + {"one": [], "split": ["--layout", "split"],
-                               "processes": ["--processes"]}[layout],
-                            env=child_environment(),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = twin_process("two_link_position", "--mode", "lockstep", "--duration",
+                        str(duration), "--record", str(bag), "--quiet", "--namespace", ns,
+                        layout=layout)
 
     def arr(values):
         return ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
                               double_array_value=values)
 
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("tuner", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    client = ros_client("tuner")
     stamps = []
-    node.create_subscription(JointState, f"{ns}/joint_states", lambda m: stamps.append(
+    client.node.create_subscription(JointState, f"{ns}/joint_states", lambda m: stamps.append(
         m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec), 10)
     srv = f"{ns}/controller/set_parameters"
-    try:
-        deadline = time.monotonic() + 120
-        while not stamps or stamps[-1] < 0.5:
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "the twin did not reach 0.5 s"
-            executor.spin_once(timeout_sec=0.05)
-        bad = _set(node, executor, srv, SetParameters,
-                   [Parameter(name="kp", value=arr([-1.0, 2.0]))])
-        assert not bad.successful and "kp" in bad.reason and ">= 0" in bad.reason, bad.reason
-        bad = _set(node, executor, srv, SetParameters,
-                   [Parameter(name="joint_target", value=arr([0.1]))])
-        assert not bad.successful and "expected 2" in bad.reason, bad.reason
-        bad = _set(node, executor, srv, SetParameters,
-                   [Parameter(name="voltage_limit", value=arr([100.0, 1.0]))])
-        assert not bad.successful and "voltage_limit: got [100.0, 1.0] V" in bad.reason, \
-            bad.reason
-        bad = _set(node, executor, srv, SetParameters,
-                   [Parameter(name="shaper_impulses", value=arr([0.0, 0.5, 0.5, 0.6]))])
-        assert not bad.successful and "shaper.amplitudes: got a sum of 1.1" in bad.reason, \
-            bad.reason
-        ok = _set(node, executor, srv, SetParameters,
-                  [Parameter(name="kp", value=arr([12.0, 16.0]))])
-        assert ok.successful, ok.reason
-        n, deadline = len(stamps), time.monotonic() + 60
-        while len(stamps) < n + 50:               # the kp change applied, alone
-            assert proc.poll() is None and time.monotonic() < deadline, "the twin stopped"
-            executor.spin_once(timeout_sec=0.05)
-        for name, value in (("shaper_impulses", [0.0, 0.5, 0.5, 0.5]),
-                            ("joint_target", [0.3, 1.0])):
-            ok = _set(node, executor, srv, SetParameters,
-                      [Parameter(name=name, value=arr(value))])
-            assert ok.successful, (name, ok.reason)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
+
+    def set_one(name, value):
+        return client.call(SetParameters, srv, SetParameters.Request(
+            parameters=[Parameter(name=name, value=arr(value))])).results[0]
+
+    deadline = time.monotonic() + 120
+    while not stamps or stamps[-1] < 0.5:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the twin did not reach 0.5 s"
+        client.spin_once()
+    bad = set_one("kp", [-1.0, 2.0])
+    assert not bad.successful and "kp" in bad.reason and ">= 0" in bad.reason, bad.reason
+    bad = set_one("joint_target", [0.1])
+    assert not bad.successful and "expected 2" in bad.reason, bad.reason
+    bad = set_one("voltage_limit", [100.0, 1.0])
+    assert not bad.successful and "voltage_limit: got [100.0, 1.0] V" in bad.reason, \
+        bad.reason
+    bad = set_one("shaper_impulses", [0.0, 0.5, 0.5, 0.6])
+    assert not bad.successful and "shaper.amplitudes: got a sum of 1.1" in bad.reason, \
+        bad.reason
+    ok = set_one("kp", [12.0, 16.0])
+    assert ok.successful, ok.reason
+    n, deadline = len(stamps), time.monotonic() + 60
+    while len(stamps) < n + 50:               # the kp change applied, alone
+        assert proc.poll() is None and time.monotonic() < deadline, "the twin stopped"
+        client.spin_once()
+    for name, value in (("shaper_impulses", [0.0, 0.5, 0.5, 0.5]),
+                        ("joint_target", [0.3, 1.0])):
+        ok = set_one(name, value)
+        assert ok.successful, (name, ok.reason)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
 

@@ -8,8 +8,6 @@ transient-local subscriber started after the twin receives ``robot_description``
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 import time
 import xml.etree.ElementTree as ET
 
@@ -97,57 +95,42 @@ def test_a_generated_arm_is_described_too(seed):
 @pytest.mark.heavy
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("layout", ["one", "split", "processes"])
-def test_the_bags_tf_places_the_arm_and_a_late_viewer_gets_the_description(tmp_path, layout):
-    rclpy = pytest.importorskip("rclpy")
-    import flexarm_ros.nodes.common  # noqa: F401
-    from rclpy.executors import SingleThreadedExecutor
+def test_the_bags_tf_places_the_arm_and_a_late_viewer_gets_the_description(tmp_path, layout,
+                                                                          ros_client,
+                                                                          twin_process):
+    pytest.importorskip("rclpy")
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
     from std_msgs.msg import String
     from flexarm_ros.bag.reader import read_bag
-    from flexarm_ros.nodes.environment import child_environment
     from flexarm_ros.twin.recording import embedded_scene
 
     ns, bag = f"/urdf_{layout}", tmp_path / "r.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "flexarm_ros.cli", "run", "two_link_case1",
-                             "--mode", "lockstep", "--duration", "8", "--record", str(bag),
-                             "--quiet", "--namespace", ns]
-                            + {"one": [], "split": ["--layout", "split"],
-                               "processes": ["--processes"]}[layout],
-                            env=child_environment(),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("late_viewer", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    proc = twin_process("two_link_case1", "--mode", "lockstep", "--duration", "8", "--record",
+                        str(bag), "--quiet", "--namespace", ns, layout=layout)
+    client = ros_client("late_viewer")
     states, urdf = [], []
-    node.create_subscription(JointState, f"{ns}/joint_states", lambda m: states.append(1), 10)
-    try:
-        deadline = time.monotonic() + 120
-        while not states:                                  # the twin is running
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline
-            executor.spin_once(timeout_sec=0.05)
-        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(String, f"{ns}/robot_description",
-                                 lambda m: urdf.append(m.data), qos)
-        deadline = time.monotonic() + 30
-        while not urdf:
-            assert time.monotonic() < deadline, "no robot_description for a late subscriber"
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
+    client.node.create_subscription(JointState, f"{ns}/joint_states",
+                                    lambda m: states.append(1), 10)
+    deadline = time.monotonic() + 120
+    while not states:                                  # the twin is running
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        client.spin_once()
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    client.node.create_subscription(String, f"{ns}/robot_description",
+                                    lambda m: urdf.append(m.data), qos)
+    deadline = time.monotonic() + 30
+    while not urdf:
+        assert time.monotonic() < deadline, "no robot_description for a late subscriber"
+        client.spin_once()
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert urdf[0].startswith("<?xml") and "two_link_case1" in urdf[0]
 
     b = read_bag(str(bag))
-    text = b[f"{ns}/robot_description"][0][1]["data"] if isinstance(
-        b[f"{ns}/robot_description"][0][1], dict) else b[f"{ns}/robot_description"][0][1].data
+    text = b[f"{ns}/robot_description"][0][1].data
     assert text == urdf[0]
     joints = _urdf_joints(text)
     tree = {}                                              # child -> (parent, x, y, yaw)
